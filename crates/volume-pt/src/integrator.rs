@@ -1,0 +1,159 @@
+//! The path integrators: `uniform` (phase sampling only) and `nee` (next-event estimation with
+//! multiple importance sampling against phase sampling, power heuristic).
+//!
+//! Path length is the number of real scattering vertices (DESIGN.md): a camera ray that leaves
+//! the volume has length 0; NEE from the n-th vertex, and a phase-sampled ray from it that reaches
+//! an emitter, both make paths of length n. With `max_depth = D`, vertices 1..=D are created and
+//! may connect to emitters; a collision that would create vertex D+1 ends the path. Both
+//! integrators estimate exactly this truncated sum, so they converge to the same image.
+//!
+//! Russian roulette at volume vertices from `rr_start_depth` on: continue with probability
+//! `max(throughput)`, dividing the throughput by it.
+
+use crate::lights::Lights;
+use crate::medium::Medium;
+use crate::phase::Phase;
+use crate::sampling::{SampleStream, power_heuristic};
+use crate::tracking::{free_flight, transmittance};
+use glam::Vec3;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum IntegratorKind {
+    /// Phase-function sampling only: emitters are found by chance.
+    Uniform,
+    /// Light sampling and phase sampling combined by MIS.
+    #[default]
+    Nee,
+}
+
+impl std::str::FromStr for IntegratorKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "uniform" => Ok(IntegratorKind::Uniform),
+            "nee" => Ok(IntegratorKind::Nee),
+            _ => Err(format!(
+                "unknown integrator `{s}`: expected `uniform` or `nee`"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for IntegratorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            IntegratorKind::Uniform => "uniform",
+            IntegratorKind::Nee => "nee",
+        })
+    }
+}
+
+/// Settings of one path: which estimator, how long, when roulette starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathSettings {
+    pub integrator: IntegratorKind,
+    /// Largest number of real scattering vertices; None is unlimited (roulette ends paths).
+    pub max_depth: Option<u32>,
+    /// First vertex at which Russian roulette may end a path.
+    pub rr_start_depth: u32,
+}
+
+impl Default for PathSettings {
+    fn default() -> Self {
+        Self {
+            integrator: IntegratorKind::Nee,
+            max_depth: Some(64),
+            rr_start_depth: 3,
+        }
+    }
+}
+
+/// What light transport sees: medium, phase function and emitters.
+#[derive(Debug, Clone)]
+pub struct SceneMedia {
+    pub medium: Medium,
+    pub phase: Phase,
+    pub lights: Lights,
+}
+
+/// Radiance arriving at `origin` from direction `-dir` (`dir` is the unit direction of the ray
+/// leaving the camera), one path.
+pub fn radiance(
+    scene: &SceneMedia,
+    settings: &PathSettings,
+    origin: Vec3,
+    dir: Vec3,
+    rng: &mut SampleStream,
+) -> Vec3 {
+    let SceneMedia {
+        medium,
+        phase,
+        lights,
+    } = scene;
+    let nee = settings.integrator == IntegratorKind::Nee;
+    let max_depth = settings.max_depth.unwrap_or(u32::MAX);
+    let mut l = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    let mut depth = 0u32;
+    let (mut o, mut d) = (origin, dir);
+    let mut phase_pdf = 0.0f32;
+    loop {
+        let hit = lights.nearest_sphere(o, d, 0.0);
+        let t_end = hit.map_or(f32::INFINITY, |h| h.1);
+        let ray = medium.to_index_ray(o, d);
+        let Some(t) = free_flight(medium, &ray, 0.0, t_end, rng) else {
+            // The ray reached a light sphere or the environment.
+            let em = lights.emission(o, hit.map(|h| h.0));
+            let w = if depth == 0 || !nee {
+                1.0
+            } else {
+                power_heuristic(phase_pdf, em.nee_pdf)
+            };
+            l += beta * em.radiance * w;
+            break;
+        };
+        if depth >= max_depth {
+            break;
+        }
+        let x = o + d * t;
+        beta *= medium.albedo(ray.at(t));
+        depth += 1;
+        if !(beta.max_element() > 0.0) {
+            break;
+        }
+
+        if nee && let Some(ls) = lights.sample(x, rng.next_f32(), rng.next_2d()) {
+            // The sampled emitter must be the first one along the shadow ray.
+            let blocker = lights.nearest_sphere(x, ls.direction, 0.0);
+            let visible = match (ls.sphere, blocker) {
+                (None, None) => true,
+                (Some(i), Some((j, _))) => i == j,
+                _ => false,
+            };
+            if visible && ls.pdf > 0.0 {
+                let f = phase.eval(d, ls.direction);
+                let shadow = medium.to_index_ray(x, ls.direction);
+                let tr = transmittance(medium, &shadow, 0.0, ls.distance, rng);
+                if tr > 0.0 {
+                    let w = power_heuristic(ls.pdf, f);
+                    l += beta * ls.radiance * (f * tr * w / ls.pdf);
+                }
+            }
+        }
+
+        if depth >= settings.rr_start_depth {
+            let survive = beta.max_element().min(1.0);
+            if rng.next_f32() >= survive {
+                break;
+            }
+            beta /= survive;
+        }
+
+        let (d_new, pdf) = phase.sample(d, rng.next_2d());
+        o = x;
+        d = d_new;
+        phase_pdf = pdf;
+    }
+    l
+}

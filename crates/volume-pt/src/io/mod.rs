@@ -1,0 +1,200 @@
+//! Reading volumes: raw, NRRD, VTK (legacy `.vtk` and XML `.vti`) and NIfTI (`.nii`, `.nii.gz`).
+//!
+//! Every reader gives the same thing, a [`LoadedVolume`]: voxels as f32 in x-fastest order, the
+//! spacing the file states (if any) and notes about what was read but not used. Bad input is an
+//! [`Error`](crate::Error) naming the file, the fault and what was expected.
+
+mod nifti_reader;
+mod nrrd;
+mod raw;
+mod vtk;
+
+pub use raw::{RawLayout, parse_raw_file_name};
+
+use crate::error::{Error, Result};
+use crate::grid::ScalarGrid;
+use glam::{UVec3, Vec3};
+use std::path::Path;
+
+/// Element type of voxels on disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DType {
+    #[serde(alias = "uint8", alias = "uchar")]
+    U8,
+    #[serde(alias = "int8")]
+    I8,
+    #[serde(alias = "uint16", alias = "ushort")]
+    U16,
+    #[serde(alias = "int16", alias = "short")]
+    I16,
+    #[serde(alias = "uint32")]
+    U32,
+    #[serde(alias = "int32")]
+    I32,
+    #[serde(alias = "float32", alias = "float")]
+    F32,
+    #[serde(alias = "float64", alias = "double")]
+    F64,
+}
+
+impl DType {
+    pub fn size(self) -> usize {
+        match self {
+            DType::U8 | DType::I8 => 1,
+            DType::U16 | DType::I16 => 2,
+            DType::U32 | DType::I32 | DType::F32 => 4,
+            DType::F64 => 8,
+        }
+    }
+
+    /// Parses the names used by the Open SciVis file-name convention and by scene files.
+    pub fn parse(s: &str) -> Option<Self> {
+        Some(match s.to_ascii_lowercase().as_str() {
+            "u8" | "uint8" | "uchar" => DType::U8,
+            "i8" | "int8" => DType::I8,
+            "u16" | "uint16" | "ushort" => DType::U16,
+            "i16" | "int16" | "short" => DType::I16,
+            "u32" | "uint32" => DType::U32,
+            "i32" | "int32" => DType::I32,
+            "f32" | "float32" | "float" => DType::F32,
+            "f64" | "float64" | "double" => DType::F64,
+            _ => return None,
+        })
+    }
+}
+
+impl std::fmt::Display for DType {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = match self {
+            DType::U8 => "uint8",
+            DType::I8 => "int8",
+            DType::U16 => "uint16",
+            DType::I16 => "int16",
+            DType::U32 => "uint32",
+            DType::I32 => "int32",
+            DType::F32 => "float32",
+            DType::F64 => "float64",
+        };
+        f.write_str(s)
+    }
+}
+
+/// Byte order of multi-byte voxels on disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ByteOrder {
+    #[default]
+    Little,
+    Big,
+}
+
+/// The file formats the readers understand.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    Raw,
+    Nrrd,
+    /// Legacy `.vtk` structured points or XML `.vti` image data.
+    Vtk,
+    Nifti,
+}
+
+impl Format {
+    /// The format a file name implies, if any.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_str()?.to_ascii_lowercase();
+        if name.ends_with(".raw") || name.ends_with(".bin") {
+            Some(Format::Raw)
+        } else if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
+            Some(Format::Nrrd)
+        } else if name.ends_with(".vtk") || name.ends_with(".vti") {
+            Some(Format::Vtk)
+        } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+            Some(Format::Nifti)
+        } else {
+            None
+        }
+    }
+}
+
+/// What a scene may say about a file whose header does not (raw), or to override the guess
+/// from the extension.
+#[derive(Debug, Clone, Default)]
+pub struct ReadHints {
+    pub format: Option<Format>,
+    pub raw: RawLayout,
+}
+
+/// A volume as read from disk.
+#[derive(Debug, Clone)]
+pub struct LoadedVolume {
+    pub grid: ScalarGrid,
+    /// Voxel spacing stated by the file, if it states one.
+    pub spacing: Option<Vec3>,
+    /// Things the file said that the renderer does not use (an origin, a rotation, ...).
+    pub notes: Vec<String>,
+}
+
+/// Reads the volume at `path`, choosing the reader from `hints.format` or the file name.
+pub fn read_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
+    let format = match hints.format.or_else(|| Format::from_path(path)) {
+        Some(f) => f,
+        None => {
+            return Err(Error::format(
+                path,
+                "unknown volume format: expected a .raw, .nrrd, .nhdr, .vtk, .vti, .nii or \
+                 .nii.gz file, or `format = ...` in the scene",
+            ));
+        }
+    };
+    if !path.exists() {
+        return Err(Error::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        ));
+    }
+    match format {
+        Format::Raw => raw::read(path, &hints.raw),
+        Format::Nrrd => nrrd::read(path),
+        Format::Vtk => vtk::read(path),
+        Format::Nifti => nifti_reader::read(path),
+    }
+}
+
+/// Decodes packed voxels of `dtype` in `order` to f32.
+pub(crate) fn decode_samples(bytes: &[u8], dtype: DType, order: ByteOrder) -> Vec<f32> {
+    macro_rules! decode {
+        ($t:ty, $n:expr) => {
+            bytes
+                .chunks_exact($n)
+                .map(|c| {
+                    let a: [u8; $n] = c.try_into().unwrap();
+                    (match order {
+                        ByteOrder::Little => <$t>::from_le_bytes(a),
+                        ByteOrder::Big => <$t>::from_be_bytes(a),
+                    }) as f32
+                })
+                .collect()
+        };
+    }
+    match dtype {
+        DType::U8 => bytes.iter().map(|&b| b as f32).collect(),
+        DType::I8 => bytes.iter().map(|&b| b as i8 as f32).collect(),
+        DType::U16 => decode!(u16, 2),
+        DType::I16 => decode!(i16, 2),
+        DType::U32 => decode!(u32, 4),
+        DType::I32 => decode!(i32, 4),
+        DType::F32 => decode!(f32, 4),
+        DType::F64 => decode!(f64, 8),
+    }
+}
+
+/// Builds the grid, turning a grid error into one that names the file.
+pub(crate) fn grid_for(path: &Path, dims: UVec3, values: Vec<f32>) -> Result<ScalarGrid> {
+    ScalarGrid::new(dims, values).map_err(|e| Error::format(path, e.to_string()))
+}
+
+pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}

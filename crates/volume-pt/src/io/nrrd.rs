@@ -1,0 +1,282 @@
+//! NRRD (`.nrrd` with attached data, `.nhdr` with a detached data file), raw, gzip and ASCII
+//! encodings. No NRRD crate exists; the header is plain text (teem's NRRD0001-5 formats).
+//!
+//! Used fields: `type`, `dimension`, `sizes`, `endian`, `encoding`, `data file`, `byte skip`,
+//! `line skip`, `spacings` and `space directions` (their lengths give the spacing). An origin or
+//! a rotation in `space origin` / `space directions` is reported as a note, not applied: the
+//! scene places the volume.
+
+use super::{ByteOrder, DType, LoadedVolume, decode_samples, grid_for, read_file};
+use crate::error::{Error, Result};
+use flate2::read::GzDecoder;
+use glam::{UVec3, Vec3};
+use std::collections::HashMap;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+fn nrrd_type(s: &str) -> Option<DType> {
+    Some(match s {
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => DType::U8,
+        "signed char" | "int8" | "int8_t" => DType::I8,
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
+            DType::I16
+        }
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => DType::U16,
+        "int" | "signed int" | "int32" | "int32_t" => DType::I32,
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => DType::U32,
+        "float" => DType::F32,
+        "double" => DType::F64,
+        _ => return None,
+    })
+}
+
+/// Splits the header from attached data: the header ends at the first empty line.
+fn split_header(bytes: &[u8]) -> (&[u8], Option<&[u8]>) {
+    let mut start = 0;
+    while start < bytes.len() {
+        let end = bytes[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map(|p| start + p)
+            .unwrap_or(bytes.len());
+        let line = &bytes[start..end];
+        let line = line.strip_suffix(b"\r").unwrap_or(line);
+        if line.is_empty() {
+            return (&bytes[..start], Some(&bytes[(end + 1).min(bytes.len())..]));
+        }
+        start = end + 1;
+    }
+    (bytes, None)
+}
+
+fn parse_vector(s: &str) -> Option<Vec3> {
+    let inner = s.trim().strip_prefix('(')?.strip_suffix(')')?;
+    let v: Vec<f32> = inner
+        .split(',')
+        .map(|t| t.trim().parse().ok())
+        .collect::<Option<_>>()?;
+    match v[..] {
+        [x, y, z] => Some(Vec3::new(x, y, z)),
+        _ => None,
+    }
+}
+
+pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
+    let bytes = read_file(path)?;
+    let bad = |m: String| Error::format(path, m);
+    if !bytes.starts_with(b"NRRD000") {
+        return Err(bad(
+            "not an NRRD file: expected the magic line `NRRD0001`..`NRRD0005`".into(),
+        ));
+    }
+    let (header, attached) = split_header(&bytes);
+    let header = std::str::from_utf8(header).map_err(|_| bad("NRRD header is not text".into()))?;
+    let mut fields: HashMap<String, String> = HashMap::new();
+    for line in header.lines().skip(1) {
+        let line = line.trim_end_matches('\r');
+        if line.starts_with('#') || line.contains(":=") {
+            continue;
+        }
+        if let Some((k, v)) = line.split_once(": ") {
+            fields.insert(k.trim().to_ascii_lowercase(), v.trim().to_string());
+        } else if !line.trim().is_empty() {
+            return Err(bad(format!(
+                "NRRD header line `{line}` is not `field: value`"
+            )));
+        }
+    }
+    let field = |k: &str| fields.get(k).map(String::as_str);
+    let need = |k: &str| field(k).ok_or_else(|| bad(format!("NRRD header has no `{k}:` field")));
+
+    let dtype = nrrd_type(need("type")?).ok_or_else(|| {
+        bad(format!(
+            "NRRD type `{}` is not supported: expected an integer of 8, 16 or 32 bits, float or double",
+            field("type").unwrap_or_default()
+        ))
+    })?;
+    let dimension: usize = need("dimension")?
+        .parse()
+        .map_err(|_| bad("NRRD `dimension` is not an integer".into()))?;
+    let sizes: Vec<u32> = need("sizes")?
+        .split_whitespace()
+        .map(|s| s.parse().ok())
+        .collect::<Option<_>>()
+        .ok_or_else(|| bad("NRRD `sizes` are not integers".into()))?;
+    if sizes.len() != dimension {
+        return Err(bad(format!(
+            "NRRD `sizes` lists {} axes but `dimension` is {dimension}",
+            sizes.len()
+        )));
+    }
+    // A leading axis of size 1 (a scalar "component" axis) is accepted.
+    let spatial: Vec<u32> = match sizes[..] {
+        [x, y, z] => vec![x, y, z],
+        [1, x, y, z] => vec![x, y, z],
+        _ => {
+            return Err(bad(format!(
+                "NRRD volume has sizes {sizes:?}: expected a 3D scalar volume (3 axes)"
+            )));
+        }
+    };
+    let dims = UVec3::new(spatial[0], spatial[1], spatial[2]);
+    let order = match field("endian") {
+        Some("little") => ByteOrder::Little,
+        Some("big") => ByteOrder::Big,
+        None if dtype.size() == 1 => ByteOrder::Little,
+        None => {
+            return Err(bad(
+                "NRRD header has no `endian:` field, needed for multi-byte voxels".into(),
+            ));
+        }
+        Some(other) => {
+            return Err(bad(format!(
+                "NRRD endian `{other}` is not `little` or `big`"
+            )));
+        }
+    };
+    let encoding = need("encoding")?.to_ascii_lowercase();
+
+    let mut notes = Vec::new();
+    let mut spacing = None;
+    if let Some(s) = field("spacings") {
+        let v: Vec<f32> = s
+            .split_whitespace()
+            .filter_map(|t| t.parse().ok())
+            .collect();
+        if v.len() >= 3 {
+            let v = &v[v.len() - 3..];
+            spacing = Some(Vec3::new(v[0], v[1], v[2]));
+        }
+    }
+    if let Some(s) = field("space directions") {
+        let dirs: Vec<Vec3> = s.split_whitespace().filter_map(parse_vector).collect();
+        if dirs.len() == 3 {
+            spacing = Some(Vec3::new(
+                dirs[0].length(),
+                dirs[1].length(),
+                dirs[2].length(),
+            ));
+            let off_axis = dirs.iter().enumerate().any(|(i, d)| {
+                let l = d.length();
+                (0..3).any(|j| j != i && d[j].abs() > 1e-6 * l)
+            });
+            if off_axis {
+                notes.push(format!(
+                    "space directions {s} are not axis-aligned: only their lengths are used"
+                ));
+            }
+        }
+    }
+    if let Some(o) = field("space origin") {
+        notes.push(format!(
+            "space origin {o} is not applied: the scene places the volume"
+        ));
+    }
+
+    // Locate the payload.
+    let payload: Vec<u8> = match field("data file").or(field("datafile")) {
+        Some(name) => {
+            if name.starts_with("LIST") || name.contains('%') {
+                return Err(bad(format!(
+                    "NRRD `data file: {name}` lists several files: expected one data file"
+                )));
+            }
+            let data_path: PathBuf = path.parent().unwrap_or(Path::new(".")).join(name);
+            read_file(&data_path)?
+        }
+        None => attached
+            .ok_or_else(|| {
+                bad(
+                    "NRRD header has no `data file:` and no data after the header's blank line"
+                        .into(),
+                )
+            })?
+            .to_vec(),
+    };
+    let line_skip: usize = field("line skip")
+        .or(field("lineskip"))
+        .map(|s| s.parse().unwrap_or(0))
+        .unwrap_or(0);
+    let mut payload = &payload[..];
+    for _ in 0..line_skip {
+        let p = payload.iter().position(|&b| b == b'\n').map(|p| p + 1);
+        payload = &payload[p.unwrap_or(payload.len())..];
+    }
+    let byte_skip: i64 = field("byte skip")
+        .or(field("byteskip"))
+        .map(|s| s.parse().unwrap_or(0))
+        .unwrap_or(0);
+
+    let n = dims.x as usize * dims.y as usize * dims.z as usize;
+    let want = n * dtype.size();
+    let decoded: Vec<u8>;
+    let data: &[u8] = match encoding.as_str() {
+        "raw" => payload,
+        "gzip" | "gz" => {
+            let mut out = Vec::with_capacity(want);
+            GzDecoder::new(payload)
+                .read_to_end(&mut out)
+                .map_err(|e| bad(format!("NRRD gzip data cannot be decompressed: {e}")))?;
+            decoded = out;
+            &decoded
+        }
+        "ascii" | "text" | "txt" => {
+            let values: Vec<f32> = std::str::from_utf8(payload)
+                .map_err(|_| bad("NRRD ascii data is not text".into()))?
+                .split(|c: char| c.is_whitespace() || c == ',')
+                .filter(|t| !t.is_empty())
+                .map(|t| t.parse::<f64>().map(|v| v as f32))
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|e| bad(format!("NRRD ascii data holds a non-number: {e}")))?;
+            if values.len() != n {
+                return Err(bad(format!(
+                    "NRRD ascii data has {} values, expected {n} ({}x{}x{})",
+                    values.len(),
+                    dims.x,
+                    dims.y,
+                    dims.z
+                )));
+            }
+            return Ok(LoadedVolume {
+                grid: grid_for(path, dims, values)?,
+                spacing,
+                notes,
+            });
+        }
+        other => {
+            return Err(bad(format!(
+                "NRRD encoding `{other}` is not supported: expected raw, gzip or ascii"
+            )));
+        }
+    };
+    // byte skip -1: the data are the last bytes of the (decoded) payload.
+    let data = if byte_skip < 0 {
+        if data.len() < want {
+            &data[..0]
+        } else {
+            &data[data.len() - want..]
+        }
+    } else {
+        &data[(byte_skip as usize).min(data.len())..]
+    };
+    if data.len() != want {
+        let what = if data.len() < want {
+            "truncated"
+        } else {
+            "oversized"
+        };
+        return Err(bad(format!(
+            "NRRD data is {what}: {} bytes, expected {want} ({}x{}x{} voxels of {dtype})",
+            data.len(),
+            dims.x,
+            dims.y,
+            dims.z
+        )));
+    }
+    let values = decode_samples(data, dtype, order);
+    Ok(LoadedVolume {
+        grid: grid_for(path, dims, values)?,
+        spacing,
+        notes,
+    })
+}

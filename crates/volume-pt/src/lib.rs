@@ -1,0 +1,41 @@
+//! volume-pt: a delta-tracking volume path tracer with next-event estimation, for scalar
+//! volumes (CT, MRI, simulation grids) seen through a transfer function.
+//!
+//! Read it in this order:
+//! - [`io`]: reading raw, NRRD, VTK and NIfTI volumes into a [`grid::ScalarGrid`].
+//! - [`transfer`]: window, colour, opacity and density scale: scalar to medium.
+//! - [`medium`] and [`majorant`]: the placed, classified volume and its macrocell majorants.
+//! - [`tracking`]: delta tracking (free flights) and ratio tracking (transmittance).
+//! - [`phase`], [`lights`]: phase functions; sphere lights and a constant environment.
+//! - [`integrator`]: the `uniform` and `nee` path estimators.
+//! - [`render`], [`film`]: tiles, passes, threads; accumulation.
+//! - [`output`]: EXR and PNG.
+//! - [`scene`]: the TOML scene file.
+//! - [`sampling`]: counter-based random numbers and warps.
+
+pub mod error;
+pub mod film;
+pub mod grid;
+pub mod integrator;
+pub mod io;
+pub mod lights;
+pub mod majorant;
+pub mod medium;
+pub mod output;
+pub mod phase;
+pub mod render;
+pub mod sampling;
+pub mod scene;
+pub mod tracking;
+pub mod transfer;
+
+pub use error::{Error, Result};
+pub use film::Film;
+pub use grid::{Filter, ScalarGrid};
+pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance};
+pub use lights::{Lights, SphereLight};
+pub use medium::Medium;
+pub use phase::Phase;
+pub use render::{RenderSettings, RenderStats, render};
+pub use scene::{Scene, load_scene};
+pub use transfer::TransferFunction;

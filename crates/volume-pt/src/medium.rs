@@ -1,0 +1,165 @@
+//! The heterogeneous medium: a scalar grid placed in the world and classified by a transfer
+//! function, with its majorant grid.
+//!
+//! Placement: the grid's box spans `origin .. origin + dims * spacing` in world units; voxel
+//! `(i, j, k)` sits at `origin + (i + 0.5, j + 0.5, k + 0.5) * spacing`. Outside the box there is
+//! no medium. Rays are tracked in index space (`u = (x - origin) / spacing`) with the world
+//! distance `t` as parameter, so anisotropic spacing costs nothing in the inner loop.
+
+use crate::grid::{Filter, ScalarGrid};
+use crate::majorant::{MajorantGrid, Segments, ValueRanges};
+use crate::transfer::TransferFunction;
+use glam::Vec3;
+
+/// Default macrocell size in voxels.
+pub const DEFAULT_MACROCELL: u32 = 8;
+
+/// A ray in the index space of the grid, parameterised by world distance.
+#[derive(Debug, Clone, Copy)]
+pub struct IndexRay {
+    pub o: Vec3,
+    pub d: Vec3,
+}
+
+impl IndexRay {
+    #[inline]
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.o + self.d * t
+    }
+}
+
+/// Grid, placement, classification and majorants.
+#[derive(Debug, Clone)]
+pub struct Medium {
+    grid: ScalarGrid,
+    filter: Filter,
+    origin: Vec3,
+    spacing: Vec3,
+    inv_spacing: Vec3,
+    dims: Vec3,
+    tf: TransferFunction,
+    ranges: ValueRanges,
+    majorants: MajorantGrid,
+}
+
+impl Medium {
+    /// A medium from a grid placed with its box's minimum corner at `origin`.
+    pub fn new(
+        grid: ScalarGrid,
+        filter: Filter,
+        origin: Vec3,
+        spacing: Vec3,
+        tf: TransferFunction,
+        macrocell: u32,
+    ) -> crate::Result<Self> {
+        if !(spacing.min_element() > 0.0 && spacing.is_finite() && origin.is_finite()) {
+            return Err(crate::Error::Invalid(format!(
+                "volume spacing {spacing} / origin {origin} is invalid: expected finite values and \
+                 spacing > 0"
+            )));
+        }
+        let ranges = ValueRanges::build(&grid, macrocell);
+        let majorants = MajorantGrid::build(&ranges, &tf);
+        Ok(Self {
+            dims: grid.dims().as_vec3(),
+            grid,
+            filter,
+            origin,
+            spacing,
+            inv_spacing: 1.0 / spacing,
+            tf,
+            ranges,
+            majorants,
+        })
+    }
+
+    /// Changes the transfer function; the majorants are rebuilt from the stored value ranges.
+    pub fn set_transfer_function(&mut self, tf: TransferFunction) {
+        self.majorants = MajorantGrid::build(&self.ranges, &tf);
+        self.tf = tf;
+    }
+
+    /// Rebuilds the majorants over macrocells of `cell_size` voxels (reads the voxels).
+    pub fn set_macrocell_size(&mut self, cell_size: u32) {
+        self.ranges = ValueRanges::build(&self.grid, cell_size);
+        self.majorants = MajorantGrid::build(&self.ranges, &self.tf);
+    }
+
+    pub fn grid(&self) -> &ScalarGrid {
+        &self.grid
+    }
+    pub fn transfer_function(&self) -> &TransferFunction {
+        &self.tf
+    }
+    pub fn majorants(&self) -> &MajorantGrid {
+        &self.majorants
+    }
+    pub fn filter(&self) -> Filter {
+        self.filter
+    }
+
+    /// World-space bounds of the volume's box.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        (self.origin, self.origin + self.dims * self.spacing)
+    }
+
+    #[inline]
+    pub fn to_index_ray(&self, o: Vec3, d: Vec3) -> IndexRay {
+        IndexRay {
+            o: (o - self.origin) * self.inv_spacing,
+            d: d * self.inv_spacing,
+        }
+    }
+
+    /// The parameter interval where the ray is inside the box, clipped to `[t_min, t_max]`.
+    /// Robust to direction components that are zero (rays parallel to, or grazing, a face).
+    #[inline]
+    pub fn clip(&self, r: &IndexRay, t_min: f32, t_max: f32) -> Option<(f32, f32)> {
+        let mut t0 = t_min;
+        let mut t1 = t_max;
+        for a in 0..3 {
+            if r.d[a] == 0.0 {
+                if !(r.o[a] >= 0.0 && r.o[a] <= self.dims[a]) {
+                    return None;
+                }
+            } else {
+                let inv = 1.0 / r.d[a];
+                let ta = (0.0 - r.o[a]) * inv;
+                let tb = (self.dims[a] - r.o[a]) * inv;
+                t0 = t0.max(ta.min(tb));
+                t1 = t1.min(ta.max(tb));
+            }
+        }
+        // Written so that NaN bounds mean no overlap.
+        (t0 < t1).then_some((t0, t1))
+    }
+
+    /// Majorant segments of the ray over `[t0, t1]` (an interval returned by [`Medium::clip`]).
+    #[inline]
+    pub fn segments(&self, r: &IndexRay, t0: f32, t1: f32) -> Segments<'_> {
+        self.majorants.segments(r.o, r.d, t0, t1)
+    }
+
+    /// Data value at an index-space point.
+    #[inline]
+    pub fn value(&self, u: Vec3) -> f32 {
+        self.grid.sample(u, self.filter)
+    }
+
+    /// Extinction per world unit at an index-space point.
+    #[inline]
+    pub fn extinction(&self, u: Vec3) -> f32 {
+        self.tf.extinction(self.value(u))
+    }
+
+    /// Single-scattering albedo at an index-space point.
+    #[inline]
+    pub fn albedo(&self, u: Vec3) -> Vec3 {
+        self.tf.albedo(self.value(u))
+    }
+
+    /// Bytes held per voxel (values) plus the majorant grid.
+    pub fn memory_bytes(&self) -> usize {
+        self.grid.values().len() * 4 + self.majorants.bytes() * 3
+    }
+}

@@ -1,0 +1,311 @@
+//! Scene files (TOML): what to render and how. Every key is documented in `docs/scene-format.md`.
+//! Relative paths are resolved against the scene file's folder.
+
+use crate::error::{Error, Result};
+use crate::grid::Filter;
+use crate::integrator::{IntegratorKind, PathSettings, SceneMedia};
+use crate::io::{ByteOrder, DType, Format, RawLayout, ReadHints, read_volume};
+use crate::lights::{Lights, SphereLight};
+use crate::medium::{DEFAULT_MACROCELL, Medium};
+use crate::output::ToneMap;
+use crate::phase::Phase;
+use crate::render::RenderSettings;
+use crate::transfer::{PiecewiseLinear, TransferFunction, read_paraview_preset};
+use glam::{UVec3, Vec3};
+use serde::Deserialize;
+use splat_raster::Camera;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    pub volume: VolumeDesc,
+    pub transfer: TransferDesc,
+    #[serde(default, rename = "light")]
+    pub lights: Vec<SphereLight>,
+    #[serde(default)]
+    pub environment: EnvironmentDesc,
+    #[serde(default)]
+    pub phase: Phase,
+    pub camera: CameraDesc,
+    #[serde(default)]
+    pub render: RenderDesc,
+    #[serde(default)]
+    pub output: OutputDesc,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeDesc {
+    pub file: PathBuf,
+    pub format: Option<Format>,
+    pub dims: Option<[u32; 3]>,
+    pub dtype: Option<DType>,
+    #[serde(default)]
+    pub byte_order: ByteOrder,
+    #[serde(default)]
+    pub header_bytes: u64,
+    /// World size of a voxel; overrides the file's spacing; default the file's, else 1.
+    pub spacing: Option<[f32; 3]>,
+    /// World position of the box's minimum corner; default: the box is centred on the origin.
+    pub origin: Option<[f32; 3]>,
+    #[serde(default)]
+    pub filter: Filter,
+    /// Macrocell size of the majorant grid in voxels (a size >= the largest dim = one majorant).
+    #[serde(default = "default_macrocell")]
+    pub macrocell: u32,
+}
+
+fn default_macrocell() -> u32 {
+    DEFAULT_MACROCELL
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TfPoint {
+    pub value: f32,
+    pub color: [f32; 3],
+    pub opacity: f32,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransferDesc {
+    /// Data values mapped to normalised 0 and 1; default: the data's range.
+    pub window: Option<[f32; 2]>,
+    /// Extinction per world unit at opacity 1.
+    pub density_scale: f32,
+    pub points: Option<Vec<TfPoint>>,
+    pub preset: Option<PathBuf>,
+    pub preset_name: Option<String>,
+    /// `[[value, opacity], ...]`: opacity points used with a preset (replacing its `Points`).
+    pub opacity: Option<Vec<[f32; 2]>>,
+}
+
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentDesc {
+    #[serde(default)]
+    pub radiance: [f32; 3],
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraDesc {
+    pub eye: [f32; 3],
+    pub target: [f32; 3],
+    #[serde(default = "default_up")]
+    pub up: [f32; 3],
+    /// Vertical field of view in degrees.
+    pub fov_y: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderDesc {
+    pub spp: u32,
+    /// Largest number of real scattering vertices; -1 for unlimited.
+    pub max_depth: i64,
+    pub integrator: IntegratorKind,
+    pub seed: u64,
+    pub rr_start_depth: u32,
+}
+
+impl Default for RenderDesc {
+    fn default() -> Self {
+        Self {
+            spp: 16,
+            max_depth: 64,
+            integrator: IntegratorKind::Nee,
+            seed: 0,
+            rr_start_depth: 3,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputDesc {
+    /// PNG exposure in stops.
+    pub exposure: f32,
+    pub tonemap: ToneMap,
+}
+
+/// A scene ready to render.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub media: SceneMedia,
+    pub camera: Camera,
+    pub settings: RenderSettings,
+    pub output: OutputDesc,
+    /// What the readers reported but the renderer does not use.
+    pub notes: Vec<String>,
+    pub volume_path: PathBuf,
+}
+
+/// Max depth from the scene-file convention (-1 = unlimited).
+pub fn max_depth_from(v: i64) -> std::result::Result<Option<u32>, String> {
+    match v {
+        -1 => Ok(None),
+        0..=0xffff_fffe => Ok(Some(v as u32)),
+        _ => Err(format!(
+            "max_depth {v} is invalid: expected -1 (unlimited) or a count of scattering vertices >= 0"
+        )),
+    }
+}
+
+fn vec3(a: [f32; 3]) -> Vec3 {
+    Vec3::from_array(a)
+}
+
+/// Reads and builds the scene at `path`.
+pub fn load_scene(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let desc: SceneFile = toml::from_str(&text).map_err(|e| Error::Scene {
+        path: path.into(),
+        message: e.to_string(),
+    })?;
+    build_scene(path, desc)
+}
+
+/// Builds a scene from its parsed description; `path` names the file in errors and anchors
+/// relative paths.
+pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
+    let scene_err = |m: String| Error::Scene {
+        path: path.into(),
+        message: m,
+    };
+    let base = path.parent().unwrap_or(Path::new("."));
+    let v = &desc.volume;
+    let volume_path = base.join(&v.file);
+    let hints = ReadHints {
+        format: v.format,
+        raw: RawLayout {
+            dims: v.dims.map(UVec3::from_array),
+            dtype: v.dtype,
+            byte_order: v.byte_order,
+            header_bytes: v.header_bytes,
+        },
+    };
+    let loaded = read_volume(&volume_path, &hints)?;
+    let grid = loaded.grid;
+    let spacing = v.spacing.map(vec3).or(loaded.spacing).unwrap_or(Vec3::ONE);
+    let size = grid.dims().as_vec3() * spacing;
+    let origin = v.origin.map(vec3).unwrap_or(-0.5 * size);
+
+    let t = &desc.transfer;
+    let window = match t.window {
+        Some([lo, hi]) => (lo, hi),
+        None => {
+            let (lo, hi) = grid.range();
+            if hi > lo { (lo, hi) } else { (lo, lo + 1.0) }
+        }
+    };
+    let tf_err = |e: Error| scene_err(e.to_string());
+    let tf = match (&t.points, &t.preset) {
+        (Some(points), None) => {
+            let pts: Vec<(f32, Vec3, f32)> = points
+                .iter()
+                .map(|p| (p.value, vec3(p.color), p.opacity))
+                .collect();
+            TransferFunction::from_points(window, &pts, t.density_scale).map_err(tf_err)?
+        }
+        (None, Some(preset)) => {
+            let (colour, preset_opacity) =
+                read_paraview_preset(&base.join(preset), t.preset_name.as_deref())?;
+            let opacity = match (&t.opacity, preset_opacity) {
+                (Some(o), _) => {
+                    PiecewiseLinear::new(o.iter().map(|p| (p[0], p[1])).collect(), "opacity")
+                        .map_err(tf_err)?
+                }
+                (None, Some(o)) => o,
+                (None, None) => {
+                    return Err(scene_err(
+                        "transfer preset has no opacity `Points`: give `opacity = [[value, opacity], ...]`"
+                            .into(),
+                    ));
+                }
+            };
+            TransferFunction::new(window, colour, opacity, t.density_scale).map_err(tf_err)?
+        }
+        (Some(_), Some(_)) => {
+            return Err(scene_err(
+                "[transfer] has both `points` and `preset`: give one of them".into(),
+            ));
+        }
+        (None, None) => {
+            return Err(scene_err(
+                "[transfer] needs `points = [{ value, color, opacity }, ...]` or `preset = \"file.json\"`"
+                    .into(),
+            ));
+        }
+    };
+    desc.phase.validate().map_err(scene_err)?;
+    for (i, l) in desc.lights.iter().enumerate() {
+        if !(l.radius > 0.0 && l.radius.is_finite() && l.center.is_finite()) {
+            return Err(scene_err(format!(
+                "light {i}: radius {} / center {} invalid: expected a finite radius > 0",
+                l.radius, l.center
+            )));
+        }
+        if !(l.radiance.is_finite() && l.radiance.min_element() >= 0.0) {
+            return Err(scene_err(format!(
+                "light {i}: radiance {} invalid: expected finite values >= 0",
+                l.radiance
+            )));
+        }
+    }
+    let env = vec3(desc.environment.radiance);
+    if !(env.is_finite() && env.min_element() >= 0.0) {
+        return Err(scene_err(format!(
+            "environment radiance {env} invalid: expected finite values >= 0"
+        )));
+    }
+    let medium = Medium::new(grid, v.filter, origin, spacing, tf, v.macrocell)
+        .map_err(|e| scene_err(e.to_string()))?;
+    let c = &desc.camera;
+    let camera = Camera::look_at(
+        vec3(c.eye),
+        vec3(c.target),
+        vec3(c.up),
+        c.fov_y,
+        c.width,
+        c.height,
+    )
+    .map_err(|e| scene_err(format!("camera: {e}")))?;
+    let r = &desc.render;
+    let max_depth = max_depth_from(r.max_depth).map_err(scene_err)?;
+    let mut notes = loaded.notes;
+    if desc.lights.is_empty() && env.max_element() == 0.0 {
+        notes.push("the scene has no light: the image will be black".into());
+    }
+    Ok(Scene {
+        media: SceneMedia {
+            medium,
+            phase: desc.phase,
+            lights: Lights {
+                spheres: desc.lights,
+                environment: env,
+            },
+        },
+        camera,
+        settings: RenderSettings {
+            spp: r.spp,
+            seed: r.seed,
+            path: PathSettings {
+                integrator: r.integrator,
+                max_depth,
+                rr_start_depth: r.rr_start_depth,
+            },
+        },
+        output: desc.output,
+        notes,
+        volume_path,
+    })
+}

@@ -1,0 +1,96 @@
+//! Null-collision tracking over the majorant grid.
+//!
+//! - [`free_flight`]: delta tracking (Woodcock). Within a macrocell of majorant `m`, tentative
+//!   collisions are exponential with rate `m`; one at `x` is real with probability
+//!   `sigma_t(x) / m`. The exponential is memoryless, so crossing into the next macrocell simply
+//!   draws afresh with the new rate. Cells with `m = 0` are stepped over without a draw.
+//! - [`transmittance`]: ratio tracking over the same tentative collisions, multiplying by the
+//!   null probability `1 - sigma_t / m`, with Russian roulette once the estimate falls below
+//!   [`RR_TRANSMITTANCE`] (survivors are reset to that value, so the estimate stays unbiased).
+//!
+//! Both guarantee progress: if `t + step` rounds to `t` (a dense medium far from the origin),
+//! `t` moves to the next representable float, so no loop can stall.
+
+use crate::medium::{IndexRay, Medium};
+use crate::sampling::SampleStream;
+
+/// Ratio-tracking estimates below this play Russian roulette.
+pub const RR_TRANSMITTANCE: f32 = 0.1;
+
+#[inline]
+fn advance(t: f32, step: f32) -> f32 {
+    let n = t + step;
+    if n > t { n } else { t.next_up() }
+}
+
+#[inline]
+fn exp_step(rng: &mut SampleStream, majorant: f32) -> f32 {
+    // 1 - u lies in (0, 1], so the logarithm is finite.
+    -(1.0 - rng.next_f32()).ln() / majorant
+}
+
+/// Distance to the first real collision in `[t0, t1]`, or None if the ray passes through.
+#[inline]
+pub fn free_flight(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut SampleStream,
+) -> Option<f32> {
+    let (t0, t1) = medium.clip(ray, t0, t1)?;
+    for seg in medium.segments(ray, t0, t1) {
+        // Written so that NaN majorants are skipped like empty cells.
+        if !(seg.majorant > 0.0) {
+            continue;
+        }
+        let mut t = seg.t0;
+        loop {
+            t = advance(t, exp_step(rng, seg.majorant));
+            if !(t < seg.t1) {
+                break;
+            }
+            let sigma = medium.extinction(ray.at(t));
+            if rng.next_f32() * seg.majorant < sigma {
+                return Some(t);
+            }
+        }
+    }
+    None
+}
+
+/// Unbiased estimate of the transmittance over `[t0, t1]`.
+#[inline]
+pub fn transmittance(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut SampleStream,
+) -> f32 {
+    let Some((t0, t1)) = medium.clip(ray, t0, t1) else {
+        return 1.0;
+    };
+    let mut tr = 1.0f32;
+    for seg in medium.segments(ray, t0, t1) {
+        if !(seg.majorant > 0.0) {
+            continue;
+        }
+        let mut t = seg.t0;
+        loop {
+            t = advance(t, exp_step(rng, seg.majorant));
+            if !(t < seg.t1) {
+                break;
+            }
+            let sigma = medium.extinction(ray.at(t));
+            tr *= (1.0 - sigma / seg.majorant).max(0.0);
+            if tr < RR_TRANSMITTANCE {
+                if tr <= 0.0 || rng.next_f32() * RR_TRANSMITTANCE >= tr {
+                    return 0.0;
+                }
+                tr = RR_TRANSMITTANCE;
+            }
+        }
+    }
+    tr
+}

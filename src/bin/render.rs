@@ -1,0 +1,202 @@
+//! `render SCENE.toml`: path-trace a volume scene to EXR and PNG.
+
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use volume_pt::output::{ToneMap, write_exr, write_png};
+use volume_pt::scene::max_depth_from;
+use volume_pt::{Film, IntegratorKind, load_scene, render};
+
+/// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
+#[derive(Parser, Debug)]
+#[command(version, allow_negative_numbers = true)]
+struct Args {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Samples per pixel (overrides the scene).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// `uniform` (phase sampling only) or `nee` (light sampling + phase sampling, MIS).
+    #[arg(long)]
+    integrator: Option<IntegratorKind>,
+    /// Largest path length in real scattering vertices; -1 for unlimited.
+    #[arg(long)]
+    max_depth: Option<i64>,
+    /// Seed of the counter-based random numbers.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
+    #[arg(long)]
+    macrocell: Option<u32>,
+    /// Linear EXR output (default: out/<scene>.exr).
+    #[arg(short = 'o', long = "output")]
+    output: Option<PathBuf>,
+    /// Tone-mapped PNG output (default: next to the EXR).
+    #[arg(long)]
+    png: Option<PathBuf>,
+    /// PNG exposure in stops (overrides the scene).
+    #[arg(long)]
+    exposure: Option<f32>,
+    /// PNG tone map: `clip` or `aces` (overrides the scene).
+    #[arg(long)]
+    tonemap: Option<ToneMap>,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn ensure_parent(p: &Path) -> Result<()> {
+    if let Some(d) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(d)
+            .with_context(|| format!("{}: cannot create folder", d.display()))?;
+    }
+    Ok(())
+}
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> Result<()> {
+    let args = Args::parse();
+    if let Some(t) = args.threads {
+        if t == 0 {
+            bail!("--threads 0: expected at least 1 thread");
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("cannot start the thread pool")?;
+    }
+    let load_start = std::time::Instant::now();
+    let mut scene = load_scene(&args.scene)?;
+    for n in &scene.notes {
+        eprintln!("note: {}: {n}", scene.volume_path.display());
+    }
+    if let Some(s) = args.spp {
+        scene.settings.spp = s;
+    }
+    if let Some(i) = args.integrator {
+        scene.settings.path.integrator = i;
+    }
+    if let Some(d) = args.max_depth {
+        scene.settings.path.max_depth = max_depth_from(d).map_err(anyhow::Error::msg)?;
+    }
+    if let Some(s) = args.seed {
+        scene.settings.seed = s;
+    }
+    if let Some(m) = args.macrocell {
+        scene.media.medium.set_macrocell_size(m);
+    }
+    let exposure = args.exposure.unwrap_or(scene.output.exposure);
+    let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
+    let stem = args
+        .scene
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "render".into());
+    let exr_path = args
+        .output
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("out").join(format!("{stem}.exr")));
+    let png_path = args
+        .png
+        .clone()
+        .unwrap_or_else(|| exr_path.with_extension("png"));
+    ensure_parent(&exr_path)?;
+    ensure_parent(&png_path)?;
+
+    let cam = scene.camera;
+    let dims = scene.media.medium.grid().dims();
+    let maj = scene.media.medium.majorants();
+    eprintln!(
+        "volume {}x{}x{} ({:.1} MB), {} macrocells of {} voxels ({:.0}% empty), loaded in {:.2} s",
+        dims.x,
+        dims.y,
+        dims.z,
+        scene.media.medium.memory_bytes() as f64 / 1e6,
+        maj.cell_count(),
+        maj.cell_size(),
+        100.0 * maj.empty_fraction(),
+        load_start.elapsed().as_secs_f64()
+    );
+
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let cancel = cancel.clone();
+        ctrlc::set_handler(move || {
+            if cancel.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\ninterrupted: finishing the tiles under way, then writing the image (Ctrl-C again to quit now)");
+        })
+        .context("cannot install the Ctrl-C handler")?;
+    }
+    let total = scene.settings.spp as u64 * cam.width as u64 * cam.height as u64;
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(total)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{bar:40} {percent:>3}% {human_pos}/{human_len} samples, {per_sec}, eta {eta}",
+        )
+        .expect("valid template"),
+    );
+    let mut film = Film::new(cam.width, cam.height);
+    let stats = render(
+        &scene.media,
+        &cam,
+        &scene.settings,
+        &mut film,
+        &cancel,
+        &|n| bar.inc(n),
+    );
+    bar.finish_and_clear();
+
+    let pixels = film.mean();
+    write_exr(&exr_path, cam.width, cam.height, &pixels)?;
+    write_png(&png_path, cam.width, cam.height, &pixels, exposure, tonemap)?;
+    let depth = match scene.settings.path.max_depth {
+        Some(d) => format!("max path length {d} scattering vertices"),
+        None => "unlimited path length".into(),
+    };
+    if stats.nonfinite_samples > 0 {
+        eprintln!(
+            "warning: {} samples were NaN or infinite and were counted as black",
+            stats.nonfinite_samples
+        );
+    }
+    let done = if stats.cancelled {
+        format!(
+            "interrupted after {:.1} of {} spp",
+            film.total_samples() as f64 / (cam.width as f64 * cam.height as f64),
+            scene.settings.spp
+        )
+    } else {
+        format!("{} spp", scene.settings.spp)
+    };
+    println!(
+        "rendered {}x{} at {done} ({}, {depth}, seed {}) in {:.2} s: {:.3} M samples/s on {} threads; wrote {} and {}",
+        cam.width,
+        cam.height,
+        scene.settings.path.integrator,
+        scene.settings.seed,
+        stats.seconds,
+        stats.samples_per_second() / 1e6,
+        rayon::current_num_threads(),
+        exr_path.display(),
+        png_path.display()
+    );
+    Ok(())
+}

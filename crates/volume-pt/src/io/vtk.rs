@@ -1,6 +1,12 @@
 //! VTK image data through vtkio: legacy `.vtk` STRUCTURED_POINTS and XML `.vti` ImageData.
 //! The first scalar point-data array (one component) is the volume. VTK's point samples map to
 //! our voxel centres; the file's origin is reported as a note, the scene places the volume.
+//!
+//! Two vtkio 0.6.3 faults are worked around here. Its legacy parser rejects the blank lines that
+//! old VTK writers put between header sections (see [`tidy_legacy_header`]). Its XML reader
+//! hands every zlib block of a compressed array to one zlib stream, so only the first block (VTK
+//! writes 32 KiB blocks) is decoded and any larger array is dropped without an error; such arrays
+//! are decoded here from the file's text instead ([`decode_compressed_array`]).
 
 use super::{LoadedVolume, grid_for};
 use crate::error::{Error, Result};
@@ -24,9 +30,48 @@ fn to_f32(buf: IOBuffer) -> Option<Vec<f32>> {
     })
 }
 
+/// Legacy files written by old VTK versions put blank lines between header sections, which VTK
+/// itself accepts but vtkio's parser does not: drop them from the text header (everything up to
+/// the SCALARS line and its optional LOOKUP_TABLE line), leaving binary data untouched.
+fn tidy_legacy_header(bytes: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut rest = bytes;
+    let mut after_scalars = false;
+    while let Some(nl) = rest.iter().position(|&b| b == b'\n') {
+        let line = &rest[..=nl];
+        let text = String::from_utf8_lossy(line);
+        let trimmed = text.trim();
+        if trimmed.is_empty() {
+            rest = &rest[nl + 1..];
+            continue;
+        }
+        let upper = trimmed.to_ascii_uppercase();
+        if after_scalars && !upper.starts_with("LOOKUP_TABLE") {
+            break;
+        }
+        out.extend_from_slice(line);
+        rest = &rest[nl + 1..];
+        if upper.starts_with("LOOKUP_TABLE") {
+            break;
+        }
+        after_scalars = upper.starts_with("SCALARS");
+    }
+    out.extend_from_slice(rest);
+    out
+}
+
 pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let bad = |m: String| Error::format(path, m);
-    let vtk = vtkio::Vtk::import(path).map_err(|e| bad(format!("cannot parse VTK file: {e}")))?;
+    let is_legacy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("vtk"));
+    let vtk = if is_legacy {
+        let bytes = super::read_file(path)?;
+        vtkio::Vtk::parse_legacy_be(&tidy_legacy_header(&bytes)[..])
+    } else {
+        vtkio::Vtk::import(path)
+    }
+    .map_err(|e| bad(format!("cannot parse VTK file: {e}")))?;
     let DataSet::ImageData {
         extent,
         origin,
@@ -62,18 +107,23 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             ));
         }
     };
-    let array = piece
-        .data
-        .point
-        .into_iter()
-        .find_map(|a| match a {
-            Attribute::DataArray(da) if da.elem.num_comp() == 1 => Some(da),
-            _ => None,
-        })
-        .ok_or_else(|| bad("VTK file has no one-component point-data array".into()))?;
-    let name = array.name.clone();
-    let values =
-        to_f32(array.data).ok_or_else(|| bad(format!("VTK array `{name}` is a bit array")))?;
+    let array = piece.data.point.into_iter().find_map(|a| match a {
+        Attribute::DataArray(da) if da.elem.num_comp() == 1 => Some(da),
+        _ => None,
+    });
+    let (name, values) = match array {
+        Some(array) => {
+            let name = array.name.clone();
+            let values = to_f32(array.data)
+                .ok_or_else(|| bad(format!("VTK array `{name}` is a bit array")))?;
+            (name, values)
+        }
+        None if !is_legacy => {
+            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+            decode_compressed_array(&text).map_err(bad)?
+        }
+        None => return Err(bad("VTK file has no one-component point-data array".into())),
+    };
     let n = dims.x as usize * dims.y as usize * dims.z as usize;
     if values.len() != n {
         return Err(bad(format!(
@@ -95,4 +145,119 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
         spacing: Some(Vec3::from_array(spacing)),
         notes,
     })
+}
+
+/// The value of `name="..."` in an XML start tag.
+fn xml_attr<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
+    let key = format!(" {name}=\"");
+    let start = tag.find(&key)? + key.len();
+    let len = tag[start..].find('"')?;
+    Some(&tag[start..start + len])
+}
+
+/// Decodes the first one-component point-data array of a `.vti` whose data are inline, base64,
+/// zlib-compressed in blocks: header `[blocks, block size, last block size, compressed sizes...]`
+/// of `header_type` integers, then the compressed blocks, all base64-encoded together.
+fn decode_compressed_array(text: &str) -> std::result::Result<(String, Vec<f32>), String> {
+    use std::io::Read;
+    let root_start = text.find("<VTKFile").ok_or("no <VTKFile> element")?;
+    let root =
+        &text[root_start..root_start + text[root_start..].find('>').ok_or("unclosed <VTKFile>")?];
+    if xml_attr(root, "compressor") != Some("vtkZLibDataCompressor") {
+        return Err("VTK file has no readable one-component point-data array".into());
+    }
+    let big = xml_attr(root, "byte_order") == Some("BigEndian");
+    let wide = xml_attr(root, "header_type") == Some("UInt64");
+    let point_data = text
+        .find("<PointData")
+        .ok_or("VTK file has no <PointData>")?;
+    let mut rest = &text[point_data..];
+    loop {
+        let open = rest
+            .find("<DataArray")
+            .ok_or("VTK file has no one-component point-data array")?;
+        let tag_end = open + rest[open..].find('>').ok_or("unclosed <DataArray>")?;
+        let tag = &rest[open..tag_end];
+        let body_end = tag_end
+            + rest[tag_end..]
+                .find("</DataArray>")
+                .ok_or("unclosed <DataArray>")?;
+        let body = rest[tag_end + 1..body_end].trim();
+        rest = &rest[body_end..];
+        let comps = xml_attr(tag, "NumberOfComponents").unwrap_or("1");
+        if comps != "1" {
+            continue;
+        }
+        if xml_attr(tag, "format") != Some("binary") {
+            return Err("VTK array is not inline binary data".into());
+        }
+        let name = xml_attr(tag, "Name").unwrap_or("").to_string();
+        let ty = xml_attr(tag, "type").unwrap_or("");
+        let (size, dtype) = match ty {
+            "UInt8" => (1, super::DType::U8),
+            "Int8" => (1, super::DType::I8),
+            "UInt16" => (2, super::DType::U16),
+            "Int16" => (2, super::DType::I16),
+            "UInt32" => (4, super::DType::U32),
+            "Int32" => (4, super::DType::I32),
+            "Float32" => (4, super::DType::F32),
+            "Float64" => (8, super::DType::F64),
+            other => return Err(format!("VTK array `{name}` has unsupported type `{other}`")),
+        };
+        // VTK encodes the header and the compressed blocks as two separate base64 streams.
+        let b64: String = body.split_whitespace().collect();
+        let b64_err =
+            |e: base64::DecodeError| format!("VTK array `{name}` is not valid base64: {e}");
+        let hsize = if wide { 8 } else { 4 };
+        let first =
+            base64::decode(b64.get(..12).ok_or("VTK array is truncated")?).map_err(b64_err)?;
+        let read_int = |b: &[u8]| -> usize {
+            let mut a = [0u8; 8];
+            if big {
+                a[8 - hsize..].copy_from_slice(b);
+                u64::from_be_bytes(a) as usize
+            } else {
+                a[..hsize].copy_from_slice(b);
+                u64::from_le_bytes(a) as usize
+            }
+        };
+        let header_len = (3 + read_int(&first[..hsize])) * hsize;
+        let split = header_len.div_ceil(3) * 4;
+        let header = base64::decode(b64.get(..split).ok_or("VTK array header is truncated")?)
+            .map_err(b64_err)?;
+        let bytes = base64::decode(&b64[split..]).map_err(b64_err)?;
+        let int = |i: usize| -> std::result::Result<usize, String> {
+            let b = header
+                .get(i * hsize..(i + 1) * hsize)
+                .ok_or_else(|| format!("VTK array `{name}`: compressed header is truncated"))?;
+            Ok(read_int(b))
+        };
+        let blocks = int(0)?;
+        let mut offset = 0;
+        let mut raw = Vec::new();
+        for b in 0..blocks {
+            let len = int(3 + b)?;
+            let chunk = bytes
+                .get(offset..offset + len)
+                .ok_or_else(|| format!("VTK array `{name}`: block {b} is truncated"))?;
+            flate2::read::ZlibDecoder::new(chunk)
+                .read_to_end(&mut raw)
+                .map_err(|e| {
+                    format!("VTK array `{name}`: block {b} cannot be decompressed: {e}")
+                })?;
+            offset += len;
+        }
+        let order = if big {
+            super::ByteOrder::Big
+        } else {
+            super::ByteOrder::Little
+        };
+        if raw.len() % size != 0 {
+            return Err(format!(
+                "VTK array `{name}`: {} bytes is not a whole number of {ty}",
+                raw.len()
+            ));
+        }
+        return Ok((name, super::decode_samples(&raw, dtype, order)));
+    }
 }

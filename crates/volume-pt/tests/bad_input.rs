@@ -1,0 +1,191 @@
+//! Bad input gives a clear error that names the file and the fault; nothing panics.
+
+mod common;
+
+use common::*;
+use std::path::{Path, PathBuf};
+use volume_pt::load_scene;
+
+/// A fresh folder for one test's files.
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("volume-pt-bad-input-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const TF: &str = r#"
+[transfer]
+window = [0, 255]
+density_scale = 1.0
+points = [ { value = 0.0, color = [1, 1, 1], opacity = 0.0 }, { value = 1.0, color = [1, 1, 1], opacity = 1.0 } ]
+"#;
+
+const CAMERA: &str = r#"
+[camera]
+eye = [0, 0, 30]
+target = [0, 0, 0]
+fov_y = 30
+width = 8
+height = 8
+"#;
+
+fn write_scene(dir: &Path, volume: &str, transfer: &str, camera: &str) -> PathBuf {
+    let p = dir.join("scene.toml");
+    std::fs::write(&p, format!("{volume}\n{transfer}\n{camera}")).unwrap();
+    p
+}
+
+/// Loads the scene, expecting an error that mentions every one of `needles`.
+fn expect_error(scene: &Path, needles: &[&str]) {
+    let e = match load_scene(scene) {
+        Ok(_) => panic!("{}: expected an error", scene.display()),
+        Err(e) => e.to_string(),
+    };
+    for n in needles {
+        assert!(e.contains(n), "error `{e}` does not mention `{n}`");
+    }
+}
+
+#[test]
+fn truncated_and_oversized_raw_files() {
+    let d = scratch("raw-size");
+    let f = d.join("v_8x8x8_uint8.raw");
+    std::fs::write(&f, vec![7u8; 500]).unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"v_8x8x8_uint8.raw\"", TF, CAMERA);
+    expect_error(
+        &s,
+        &[
+            "v_8x8x8_uint8.raw",
+            "truncated",
+            "500 bytes",
+            "expected 512",
+        ],
+    );
+    std::fs::write(&f, vec![7u8; 520]).unwrap();
+    expect_error(&s, &["v_8x8x8_uint8.raw", "oversized", "520 bytes"]);
+    std::fs::write(&f, vec![7u8; 512]).unwrap();
+    load_scene(&s).expect("the right size loads");
+}
+
+#[test]
+fn wrong_dtype_is_caught() {
+    let d = scratch("dtype");
+    std::fs::write(d.join("v.raw"), vec![7u8; 512]).unwrap();
+    // A u8 file declared as uint16: the size no longer matches.
+    let s = write_scene(
+        &d,
+        "[volume]\nfile = \"v.raw\"\ndims = [8, 8, 8]\ndtype = \"uint16\"",
+        TF,
+        CAMERA,
+    );
+    expect_error(&s, &["v.raw", "truncated", "uint16"]);
+    // A dtype that does not exist.
+    let s = write_scene(
+        &d,
+        "[volume]\nfile = \"v.raw\"\ndims = [8, 8, 8]\ndtype = \"uint12\"",
+        TF,
+        CAMERA,
+    );
+    expect_error(&s, &["scene.toml", "uint12"]);
+    // No dtype at all and no file-name convention.
+    let s = write_scene(
+        &d,
+        "[volume]\nfile = \"v.raw\"\ndims = [8, 8, 8]",
+        TF,
+        CAMERA,
+    );
+    expect_error(&s, &["v.raw", "without dtype"]);
+}
+
+#[test]
+fn nan_voxels_are_rejected() {
+    let d = scratch("nan");
+    let mut bytes = Vec::new();
+    for i in 0..8 {
+        let v = if i == 5 { f32::NAN } else { i as f32 };
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::write(d.join("n_2x2x2_float32.raw"), bytes).unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"n_2x2x2_float32.raw\"", TF, CAMERA);
+    expect_error(&s, &["n_2x2x2_float32.raw", "voxel (1, 0, 1) is NaN"]);
+}
+
+#[test]
+fn unsorted_or_empty_transfer_functions() {
+    let d = scratch("tf");
+    std::fs::write(d.join("v_2x2x2_uint8.raw"), vec![1u8; 8]).unwrap();
+    let vol = "[volume]\nfile = \"v_2x2x2_uint8.raw\"";
+    let unsorted = TF.replace("value = 1.0", "value = -1.0");
+    expect_error(
+        &write_scene(&d, vol, &unsorted, CAMERA),
+        &["scene.toml", "not sorted"],
+    );
+    let empty = "[transfer]\ndensity_scale = 1.0\npoints = []";
+    expect_error(
+        &write_scene(&d, vol, empty, CAMERA),
+        &["scene.toml", "no control points"],
+    );
+    let none = "[transfer]\ndensity_scale = 1.0";
+    expect_error(
+        &write_scene(&d, vol, none, CAMERA),
+        &["scene.toml", "needs `points"],
+    );
+    let albedo = TF.replace(
+        "color = [1, 1, 1], opacity = 1.0",
+        "color = [1.5, 1, 1], opacity = 1.0",
+    );
+    expect_error(
+        &write_scene(&d, vol, &albedo, CAMERA),
+        &["scene.toml", "albedo"],
+    );
+    let window = TF.replace("[0, 255]", "[5, 5]");
+    expect_error(
+        &write_scene(&d, vol, &window, CAMERA),
+        &["scene.toml", "window"],
+    );
+}
+
+#[test]
+fn missing_files_and_zero_image_size() {
+    let d = scratch("missing");
+    let s = write_scene(
+        &d,
+        "[volume]\nfile = \"nowhere_8x8x8_uint8.raw\"",
+        TF,
+        CAMERA,
+    );
+    expect_error(&s, &["nowhere_8x8x8_uint8.raw", "no such file"]);
+    expect_error(&d.join("absent.toml"), &["absent.toml", "cannot read"]);
+    std::fs::write(d.join("v_2x2x2_uint8.raw"), vec![1u8; 8]).unwrap();
+    let vol = "[volume]\nfile = \"v_2x2x2_uint8.raw\"";
+    let cam = CAMERA.replace("width = 8", "width = 0");
+    expect_error(
+        &write_scene(&d, vol, TF, &cam),
+        &["scene.toml", "0x8", "at least 1"],
+    );
+    let typo = format!("{vol}\nspaceing = [1, 1, 1]");
+    expect_error(
+        &write_scene(&d, &typo, TF, CAMERA),
+        &["scene.toml", "spaceing"],
+    );
+}
+
+#[test]
+fn corrupt_headers_name_the_file() {
+    let d = scratch("headers");
+    std::fs::write(
+        d.join("bad.nrrd"),
+        b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 4 4\nencoding: raw\n\n0123",
+    )
+    .unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"bad.nrrd\"", TF, CAMERA);
+    expect_error(&s, &["bad.nrrd", "NRRD data is truncated", "expected 64"]);
+    std::fs::write(d.join("bad.nii"), b"not a nifti file at all").unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"bad.nii\"", TF, CAMERA);
+    expect_error(&s, &["bad.nii", "NIfTI"]);
+    std::fs::write(d.join("bad.vti"), b"<VTKFile type=\"ImageData\">").unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"bad.vti\"", TF, CAMERA);
+    expect_error(&s, &["bad.vti", "VTK"]);
+    let _ = data_dir();
+}

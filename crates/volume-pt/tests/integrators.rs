@@ -1,0 +1,247 @@
+//! The integrators against each other and against closed forms: white furnace, uniform vs NEE,
+//! majorant grid vs one global majorant, and a tiny light's single scattering.
+
+mod common;
+
+use common::*;
+use glam::{DVec3, Vec3};
+use splat_raster::Camera;
+use volume_pt::integrator::{IntegratorKind, PathSettings, SceneMedia, radiance};
+use volume_pt::sampling::SampleStream;
+use volume_pt::{Lights, Phase, SphereLight, load_scene};
+
+/// White furnace: albedo 1 under a unit environment, unlimited length: every pixel is 1.
+#[test]
+fn white_furnace_both_integrators() {
+    let data_scene = load_scene(&data_dir().join("scenes/default.toml")).unwrap();
+    let mut neghip = data_scene.media.medium.clone();
+    // Same data, albedo 1 everywhere: the real-volume furnace exercises the majorant grid.
+    let tf = volume_pt::TransferFunction::from_points(
+        (0.0, 255.0),
+        &[
+            (0.0, Vec3::ONE, 0.0),
+            (0.2, Vec3::ONE, 0.0),
+            (0.5, Vec3::ONE, 1.0),
+        ],
+        0.5,
+    )
+    .unwrap();
+    neghip.set_transfer_function(tf);
+    let media = [
+        (
+            "homogeneous",
+            homogeneous(3.0, Vec3::ONE, 1.0, 8),
+            Vec3::new(0.1, 0.2, -4.0),
+            Vec3::Z,
+        ),
+        (
+            "neghip",
+            neghip,
+            Vec3::new(0.0, 0.0, -60.0),
+            Vec3::new(0.05, 0.02, 1.0).normalize(),
+        ),
+    ];
+    for (name, medium, o, d) in media {
+        for phase in [Phase::Isotropic, Phase::HenyeyGreenstein { g: 0.6 }] {
+            let scene = scene(
+                medium.clone(),
+                phase,
+                Lights {
+                    spheres: vec![],
+                    environment: Vec3::ONE,
+                },
+            );
+            for integrator in [IntegratorKind::Uniform, IntegratorKind::Nee] {
+                let settings = PathSettings {
+                    integrator,
+                    max_depth: None,
+                    rr_start_depth: 1,
+                };
+                let (mean, var) = path_stats(&scene, &settings, o, d, 100_000, 3);
+                let se = var[0].sqrt();
+                // 5 standard errors (false alarm 5.7e-7), and the error itself must be small.
+                assert!(
+                    (mean[0] - 1.0).abs() <= 5.0 * se + 1e-6 && se < 2e-3,
+                    "{name} {phase:?} {integrator}: {} (se {se})",
+                    mean[0]
+                );
+            }
+        }
+    }
+}
+
+/// Per-pixel mean and variance of the mean of luminance over `n` samples per pixel.
+fn pixel_stats(
+    scene: &SceneMedia,
+    cam: &Camera,
+    settings: &PathSettings,
+    n: u32,
+    seed: u64,
+) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    for y in 0..cam.height {
+        for x in 0..cam.width {
+            let pixel = (y * cam.width + x) as u64;
+            let (mut s, mut s2) = (0.0f64, 0.0f64);
+            for i in 0..n {
+                let mut rng = SampleStream::new(seed, pixel, i as u64);
+                let (jx, jy) = rng.next_2d();
+                let d = cam.ray_direction(x as f32 + jx, y as f32 + jy);
+                let l = radiance(scene, settings, cam.position, d, &mut rng);
+                let lum = l.dot(Vec3::new(0.2126, 0.7152, 0.0722)) as f64;
+                s += lum;
+                s2 += lum * lum;
+            }
+            let m = s / n as f64;
+            out.push((m, (s2 / n as f64 - m * m).max(0.0) / (n as f64 - 1.0)));
+        }
+    }
+    out
+}
+
+/// Image-wide chi-square of per-pixel z-scores between two independent estimates; each pixel's
+/// |z| must stay below 5 and the sum below the 1e-5 upper quantile of chi-square.
+fn assert_agree(a: &[(f64, f64)], b: &[(f64, f64)], what: &str) {
+    let mut chi2 = 0.0;
+    let mut worst = 0.0f64;
+    let mut k = 0usize;
+    for (p, q) in a.iter().zip(b) {
+        let v = p.1 + q.1;
+        if v == 0.0 {
+            assert_eq!(p.0, q.0, "{what}: noiseless pixels differ");
+            continue;
+        }
+        let z = (p.0 - q.0) / v.sqrt();
+        chi2 += z * z;
+        k += 1;
+        worst = worst.max(z.abs());
+    }
+    assert!(
+        k > a.len() / 2,
+        "{what}: most pixels are noiseless, the test sees nothing"
+    );
+    let limit = chi2_upper(k as f64, 4.265);
+    eprintln!(
+        "{what}: chi2 = {chi2:.1} over {k} noisy pixels (limit {limit:.1}), max |z| = {worst:.2}"
+    );
+    assert!(
+        chi2 < limit && worst < 5.0,
+        "{what}: chi2 {chi2} (limit {limit}), max |z| {worst}"
+    );
+}
+
+fn lit_neghip() -> (SceneMedia, Camera) {
+    let s = load_scene(&data_dir().join("scenes/default.toml")).unwrap();
+    let mut media = s.media;
+    // A large light, so that phase sampling alone finds it often enough for a fair z-test.
+    media.lights = Lights {
+        spheres: vec![SphereLight {
+            center: Vec3::new(60.0, 70.0, 40.0),
+            radius: 35.0,
+            radiance: Vec3::new(3.0, 2.5, 2.0),
+        }],
+        environment: Vec3::new(0.2, 0.25, 0.3),
+    };
+    let cam = Camera::look_at(
+        Vec3::new(60.0, 45.0, 95.0),
+        Vec3::ZERO,
+        Vec3::Y,
+        30.0,
+        12,
+        12,
+    )
+    .unwrap();
+    (media, cam)
+}
+
+#[test]
+fn uniform_and_nee_agree_on_a_lit_volume() {
+    let (media, cam) = lit_neghip();
+    for max_depth in [Some(1), Some(8)] {
+        let u = PathSettings {
+            integrator: IntegratorKind::Uniform,
+            max_depth,
+            rr_start_depth: 3,
+        };
+        let n = PathSettings {
+            integrator: IntegratorKind::Nee,
+            ..u
+        };
+        let a = pixel_stats(&media, &cam, &u, 6000, 1);
+        let b = pixel_stats(&media, &cam, &n, 3000, 2);
+        assert_agree(&a, &b, &format!("uniform vs nee, max depth {max_depth:?}"));
+    }
+}
+
+#[test]
+fn majorant_grid_and_global_majorant_agree() {
+    let (media, cam) = lit_neghip();
+    let mut global = media.clone();
+    global.medium.set_macrocell_size(1 << 20);
+    assert_eq!(global.medium.majorants().cell_count(), 1);
+    let s = PathSettings {
+        integrator: IntegratorKind::Nee,
+        max_depth: Some(8),
+        rr_start_depth: 3,
+    };
+    let a = pixel_stats(&media, &cam, &s, 3000, 4);
+    let b = pixel_stats(&global, &cam, &s, 3000, 5);
+    assert_agree(&a, &b, "macrocells vs global majorant");
+}
+
+/// Single scattering of a tiny light (radius 1e-4 at distance 10) in a thin slab, against the
+/// closed form integrated in f64: L = int sigma_s e^(-sigma t) (1/4pi) Le Omega e^(-sigma s) dt.
+#[test]
+fn tiny_light_single_scattering_matches_quadrature() {
+    let sigma = 0.5f32;
+    let medium = homogeneous(sigma, Vec3::ONE, 1.0, 8);
+    let r = 1e-4f64;
+    let c = DVec3::new(0.0, 10.0, 0.0);
+    let le = 1e9f32;
+    let scene = scene(
+        medium,
+        Phase::Isotropic,
+        Lights {
+            spheres: vec![SphereLight {
+                center: c.as_vec3(),
+                radius: r as f32,
+                radiance: Vec3::splat(le),
+            }],
+            environment: Vec3::ZERO,
+        },
+    );
+    let o = Vec3::new(0.0, 0.0, -5.0);
+    let settings = PathSettings {
+        integrator: IntegratorKind::Nee,
+        max_depth: Some(1),
+        rr_start_depth: 3,
+    };
+    let (mean, var) = path_stats(&scene, &settings, o, Vec3::Z, 400_000, 8);
+
+    let steps = 100_000;
+    let s = sigma as f64;
+    let exact: f64 = (0..steps)
+        .map(|i| {
+            let z = -0.5 + (i as f64 + 0.5) / steps as f64;
+            let x = DVec3::new(0.0, 0.0, z);
+            let to = c - x;
+            let d = to.length();
+            let sin2 = r * r / (d * d);
+            let omega = 2.0 * std::f64::consts::PI * sin2 / (1.0 + (1.0 - sin2).sqrt());
+            // Length inside the box towards the light: leaves through y = 0.5.
+            let inside = 0.5 * d / to.y;
+            s * (-s * (z + 0.5)).exp() / (4.0 * std::f64::consts::PI)
+                * le as f64
+                * omega
+                * (-s * inside).exp()
+                / steps as f64
+        })
+        .sum();
+    let se = var[0].sqrt();
+    eprintln!("tiny light: {} vs {exact} (se {se})", mean[0]);
+    assert!(
+        (mean[0] - exact).abs() <= 5.0 * se && se < 0.01 * exact,
+        "{} vs {exact} (se {se})",
+        mean[0]
+    );
+}

@@ -1,0 +1,118 @@
+//! Every reader gives the same voxels as the raw file beside it. The NRRD and NIfTI files were
+//! written by independent writers (pynrrd, nibabel; see tools/make_fixtures.py); the VTK files
+//! are the originals the raws were converted from (data/SOURCES.md).
+
+mod common;
+
+use common::*;
+use glam::Vec3;
+use std::path::Path;
+use volume_pt::io::{ReadHints, read_volume};
+
+fn read(p: &Path) -> volume_pt::io::LoadedVolume {
+    read_volume(p, &ReadHints::default()).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn same_voxels(a: &Path, b: &Path, f: impl Fn(f32) -> f32) {
+    let va = read(a);
+    let vb = read(b);
+    assert_eq!(
+        va.grid.dims(),
+        vb.grid.dims(),
+        "{} vs {}",
+        a.display(),
+        b.display()
+    );
+    let mismatches = va
+        .grid
+        .values()
+        .iter()
+        .zip(vb.grid.values())
+        .filter(|(x, y)| f(**x) != **y)
+        .count();
+    assert_eq!(mismatches, 0, "{} vs {}", a.display(), b.display());
+}
+
+#[test]
+fn vtk_legacy_and_xml_match_the_raw_files() {
+    let d = data_dir().join("volumes");
+    same_voxels(
+        &d.join("ironProt_68x68x68_uint8.raw"),
+        &d.join("original/ironProt.vtk"),
+        |v| v,
+    );
+    same_voxels(
+        &d.join("hydrogen_orbital_64x64x64_float32.raw"),
+        &d.join("original/hydrogen.vti"),
+        |v| v,
+    );
+    assert_eq!(
+        read(&d.join("original/hydrogen.vti")).spacing,
+        Some(Vec3::ONE)
+    );
+}
+
+#[test]
+fn nrrd_attached_detached_gzip_and_big_endian_match() {
+    let d = data_dir();
+    let headsq = d.join("volumes/headsq_quarter_64x64x93_uint16.raw");
+    same_voxels(&headsq, &d.join("fixtures/headsq_gzip.nrrd"), |v| v);
+    same_voxels(&headsq, &d.join("fixtures/headsq_be_int16.nrrd"), |v| v);
+    same_voxels(
+        &d.join("volumes/neghip_64x64x64_uint8.raw"),
+        &d.join("fixtures/neghip_detached.nhdr"),
+        |v| v,
+    );
+    let g = read(&d.join("fixtures/headsq_gzip.nrrd"));
+    assert_eq!(g.spacing, Some(Vec3::new(3.2, 3.2, 1.5)));
+    let b = read(&d.join("fixtures/headsq_be_int16.nrrd"));
+    let s = b.spacing.unwrap();
+    assert!(
+        (s - Vec3::new(3.2, 3.2, 1.5)).abs().max_element() < 1e-6,
+        "{s}"
+    );
+    assert!(
+        b.notes.iter().any(|n| n.contains("space origin")),
+        "{:?}",
+        b.notes
+    );
+}
+
+#[test]
+fn nifti_plain_gzip_and_scaled_match() {
+    let d = data_dir();
+    let neghip = d.join("volumes/neghip_64x64x64_uint8.raw");
+    same_voxels(&neghip, &d.join("fixtures/neghip.nii.gz"), |v| v);
+    same_voxels(&neghip, &d.join("fixtures/neghip_scaled.nii.gz"), |v| {
+        2.0 * v - 10.0
+    });
+    same_voxels(
+        &d.join("volumes/hydrogen_orbital_64x64x64_float32.raw"),
+        &d.join("fixtures/hydrogen.nii"),
+        |v| v,
+    );
+    assert_eq!(
+        read(&d.join("fixtures/hydrogen.nii")).spacing,
+        Some(Vec3::splat(0.5))
+    );
+}
+
+/// The bundled copies are the shared originals; where `../shared` exists, check that too.
+#[test]
+fn shared_originals_match_when_present() {
+    let shared = data_dir().join("../../shared/data/volumes");
+    if !shared.exists() {
+        eprintln!("../shared/data is absent: skipping the check against the shared originals");
+        return;
+    }
+    same_voxels(
+        &shared.join("ironProt_68x68x68_uint8.raw"),
+        &shared.join("original/ironProt.vtk"),
+        |v| v,
+    );
+    same_voxels(
+        &shared.join("hydrogen_orbital_64x64x64_float32.raw"),
+        &shared.join("original/hydrogen.vti"),
+        |v| v,
+    );
+}

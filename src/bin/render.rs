@@ -28,6 +28,12 @@ struct Args {
     /// Seed of the counter-based random numbers.
     #[arg(long)]
     seed: Option<u64>,
+    /// Image width in pixels (overrides the scene).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height in pixels (overrides the scene).
+    #[arg(long)]
+    height: Option<u32>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -96,6 +102,18 @@ fn run() -> Result<()> {
     }
     if let Some(m) = args.macrocell {
         scene.media.medium.set_macrocell_size(m);
+    }
+    if args.width.is_some() || args.height.is_some() {
+        let c = scene.camera;
+        let (w, h) = (
+            args.width.unwrap_or(c.width),
+            args.height.unwrap_or(c.height),
+        );
+        if w == 0 || h == 0 {
+            bail!("image size {w}x{h} is empty: width and height must both be at least 1");
+        }
+        scene.camera.width = w;
+        scene.camera.height = h;
     }
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);

@@ -172,3 +172,47 @@ fn grazing_and_inside_rays_are_finite_and_correct() {
     let mut rng = SampleStream::new(2, 0, 0);
     assert!(free_flight(&medium, &ray, 0.0, f32::INFINITY, &mut rng).is_none());
 }
+
+/// Ratio tracking with a loose (global) majorant on a graded medium: the null ratios vary along
+/// the ray and the estimate often falls below the roulette threshold, so a biased roulette shows.
+#[test]
+fn ratio_tracking_with_loose_majorant_matches_beer_lambert() {
+    let dims = UVec3::new(2, 2, 16);
+    let values: Vec<f32> = (0..64).map(|i| (i / 4) as f32).collect();
+    let grid = ScalarGrid::new(dims, values).unwrap();
+    let tf = TransferFunction::from_points(
+        (0.0, 15.0),
+        &[(0.0, Vec3::ZERO, 0.0), (1.0, Vec3::ZERO, 1.0)],
+        1.0,
+    )
+    .unwrap();
+    for macrocell in [4, 1000] {
+        let medium = Medium::new(
+            grid.clone(),
+            Filter::Nearest,
+            Vec3::ZERO,
+            Vec3::new(1.0, 1.0, 0.25),
+            tf.clone(),
+            macrocell,
+        )
+        .unwrap();
+        // Nearest filter: sigma is piecewise constant, voxel k covers z in [k/4, (k+1)/4).
+        let tau: f64 = (0..16).map(|k| k as f64 / 15.0 * 0.25).sum();
+        let p = (-tau).exp();
+        let ray = medium.to_index_ray(Vec3::new(1.0, 1.0, -1.0), Vec3::Z);
+        let n = 1_000_000u64;
+        let (mut s, mut s2) = (0.0f64, 0.0f64);
+        for i in 0..n {
+            let mut rng = SampleStream::new(10, macrocell as u64, i);
+            let t = transmittance(&medium, &ray, 0.0, f32::INFINITY, &mut rng) as f64;
+            s += t;
+            s2 += t * t;
+        }
+        let mean = s / n as f64;
+        let se = ((s2 / n as f64 - mean * mean) / n as f64).sqrt();
+        assert!(
+            (mean - p).abs() <= Z * se,
+            "macrocell {macrocell}: {mean} vs {p} (se {se})"
+        );
+    }
+}

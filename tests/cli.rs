@@ -1,0 +1,121 @@
+//! The `render` program end to end: a render from the bundled scene, clear errors on bad input,
+//! and Ctrl-C writing the image accumulated so far.
+
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+
+fn render() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_render"))
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gscache-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn renders_the_default_scene_to_exr_and_png() {
+    let d = scratch("default");
+    let exr = d.join("a.exr");
+    let png = d.join("a.png");
+    let out = render()
+        .arg(repo().join("data/scenes/default.toml"))
+        .args([
+            "--spp",
+            "2",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--threads",
+            "2",
+            "-q",
+        ])
+        .arg("-o")
+        .arg(&exr)
+        .arg("--png")
+        .arg(&png)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("rendered 64x48 at 2 spp") && stdout.contains("samples/s"),
+        "{stdout}"
+    );
+    let (w, h, px) = volume_pt::output::read_exr(&exr).unwrap();
+    assert_eq!((w, h), (64, 48));
+    assert!(px.iter().all(|p| p.is_finite()));
+    // The environment is visible around the volume, and the volume is lit.
+    let mean: f32 = px.iter().map(|p| p.y).sum::<f32>() / px.len() as f32;
+    assert!(mean > 0.05, "image too dark: {mean}");
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (64, 48));
+}
+
+#[test]
+fn bad_input_is_a_clear_error_not_a_panic() {
+    let d = scratch("bad");
+    let scene = d.join("bad.toml");
+    std::fs::write(&scene, "[volume]\nfile = \"missing_8x8x8_uint8.raw\"\n[transfer]\ndensity_scale = 1\npoints = [{ value = 0, color = [1,1,1], opacity = 1 }]\n[camera]\neye = [0,0,5]\ntarget = [0,0,0]\nfov_y = 30\nwidth = 8\nheight = 8\n").unwrap();
+    let out = render().arg(&scene).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.starts_with("error: ")
+            && err.contains("missing_8x8x8_uint8.raw")
+            && err.contains("no such file"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+
+    let out = render()
+        .arg(repo().join("data/scenes/default.toml"))
+        .args(["--width", "0"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("0x512") && !err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn ctrl_c_writes_what_was_accumulated() {
+    let d = scratch("sigint");
+    let exr = d.join("partial.exr");
+    let child = render()
+        .arg(repo().join("data/scenes/default.toml"))
+        .args(["--spp", "100000", "--width", "32", "--height", "32", "-q"])
+        .arg("-o")
+        .arg(&exr)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("interrupted after"), "{stdout}");
+    let (_, _, px) = volume_pt::output::read_exr(&exr).unwrap();
+    assert!(px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0));
+}

@@ -6,21 +6,14 @@ use crate::sampling::{UNIFORM_SPHERE_PDF, direction_around, uniform_sphere};
 use glam::Vec3;
 use std::f32::consts::PI;
 
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum Phase {
+    #[default]
     Isotropic,
     /// Henyey-Greenstein with mean cosine `g` in (-1, 1).
     #[serde(alias = "hg")]
-    HenyeyGreenstein {
-        g: f32,
-    },
-}
-
-impl Default for Phase {
-    fn default() -> Self {
-        Phase::Isotropic
-    }
+    HenyeyGreenstein { g: f32 },
 }
 
 /// Below this |g| Henyey-Greenstein is sampled as isotropic (its inversion loses precision).

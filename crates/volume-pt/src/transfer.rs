@@ -245,7 +245,7 @@ pub fn read_paraview_preset(
             .map(|x| x.as_f64().map(|f| f as f32))
             .collect::<Option<_>>()
             .ok_or_else(|| bad(format!("`{key}` holds a non-number")))?;
-        if nums.is_empty() || nums.len() % stride != 0 {
+        if nums.is_empty() || !nums.len().is_multiple_of(stride) {
             return Err(bad(format!(
                 "`{key}` has {} numbers: expected a non-empty multiple of {stride}",
                 nums.len()

@@ -1,0 +1,139 @@
+//! `bench`: speed of the volume path tracer on the bundled and shared volumes.
+//!
+//! Prints Markdown tables (samples per second for `uniform` and `nee`, with the macrocell
+//! majorant grid and with one global majorant; and how time grows with spp and image size).
+//! Scenes that read `../shared/data` are skipped, with a note, when it is absent.
+
+use anyhow::Result;
+use clap::Parser;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
+
+#[derive(Parser, Debug)]
+#[command(version)]
+struct Args {
+    /// Scene files to measure (default: the bundled and shared scenes in data/scenes).
+    scenes: Vec<PathBuf>,
+    /// Image width and height.
+    #[arg(long, default_value_t = 512)]
+    size: u32,
+    /// Samples per pixel for the throughput table.
+    #[arg(long, default_value_t = 8)]
+    spp: u32,
+    /// Worker threads.
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Skip the spp / image-size scaling table.
+    #[arg(long)]
+    no_scaling: bool,
+}
+
+fn time_render(scene: &Scene, spp: u32, size: u32) -> (f64, f64) {
+    let mut cam = scene.camera;
+    cam.width = size;
+    cam.height = size;
+    let mut settings = scene.settings;
+    settings.spp = spp;
+    let mut film = Film::new(size, size);
+    let stats = render(
+        &scene.media,
+        &cam,
+        &settings,
+        &mut film,
+        &AtomicBool::new(false),
+        &|_| {},
+    );
+    (stats.seconds, stats.samples_per_second())
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    if let Some(t) = args.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()?;
+    }
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes");
+    let scenes = if args.scenes.is_empty() {
+        ["default", "hydrogen", "headsq", "chest_ct", "embryo"]
+            .iter()
+            .map(|s| root.join(format!("{s}.toml")))
+            .collect()
+    } else {
+        args.scenes.clone()
+    };
+    println!(
+        "threads: {}, image {}x{}, {} spp, max path length from each scene (64)\n",
+        rayon::current_num_threads(),
+        args.size,
+        args.size,
+        args.spp
+    );
+    println!(
+        "| scene | volume | integrator | M samples/s (macrocells of 8) | M samples/s (one global majorant) | grid speed-up |"
+    );
+    println!("|---|---|---|---|---|---|");
+    let mut loaded = Vec::new();
+    for path in &scenes {
+        let mut scene = match load_scene(path) {
+            Ok(s) => s,
+            Err(e) => {
+                if path.to_string_lossy().contains("chest")
+                    || path.to_string_lossy().contains("embryo")
+                {
+                    eprintln!(
+                        "note: skipping {}: {e} (is ../shared/data present?)",
+                        path.display()
+                    );
+                    continue;
+                }
+                return Err(e.into());
+            }
+        };
+        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        let d = scene.media.medium.grid().dims();
+        // Warm-up: page in the volume and the code.
+        time_render(&scene, 1, 64);
+        for integrator in [IntegratorKind::Uniform, IntegratorKind::Nee] {
+            scene.settings.path.integrator = integrator;
+            scene.media.medium.set_macrocell_size(8);
+            let (_, grid) = time_render(&scene, args.spp, args.size);
+            scene.media.medium.set_macrocell_size(1 << 20);
+            let (_, global) = time_render(&scene, args.spp, args.size);
+            println!(
+                "| {name} | {}x{}x{} | {integrator} | {:.3} | {:.3} | {:.2}x |",
+                d.x,
+                d.y,
+                d.z,
+                grid / 1e6,
+                global / 1e6,
+                grid / global
+            );
+        }
+        scene.media.medium.set_macrocell_size(8);
+        scene.settings.path.integrator = IntegratorKind::Nee;
+        loaded.push((name, scene));
+    }
+    if args.no_scaling || loaded.is_empty() {
+        return Ok(());
+    }
+    let (name, scene) = &loaded[0];
+    println!("\nScaling ({name}, nee): seconds per render\n");
+    println!("| image | 4 spp | 16 spp | 64 spp | time per sample (64 spp) |");
+    println!("|---|---|---|---|---|");
+    for size in [128, 256, 512] {
+        let t: Vec<f64> = [4, 16, 64]
+            .iter()
+            .map(|&s| time_render(scene, s, size).0)
+            .collect();
+        println!(
+            "| {size}x{size} | {:.3} | {:.3} | {:.3} | {:.1} ns |",
+            t[0],
+            t[1],
+            t[2],
+            t[2] / (64.0 * (size * size) as f64) * 1e9
+        );
+    }
+    Ok(())
+}

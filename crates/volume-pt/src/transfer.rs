@@ -332,4 +332,35 @@ mod tests {
         assert!(TransferFunction::new((1.0, 1.0), c.clone(), op.clone(), 1.0).is_err());
         assert!(TransferFunction::new((0.0, 1.0), c, op, f32::NAN).is_err());
     }
+
+    #[test]
+    fn paraview_preset_is_read_and_rescaled() {
+        let dir = std::env::temp_dir().join(format!("volume-pt-preset-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("presets.json");
+        std::fs::write(
+            &p,
+            r#"[{"Name": "A", "ColorSpace": "RGB", "RGBPoints": [-1, 0, 0, 1, 0, 1, 1, 1, 3, 1, 0, 0],
+                 "Points": [-1, 0, 0.5, 0, 3, 1, 0.5, 0]},
+                {"Name": "B", "RGBPoints": [0, 1, 1, 1]}]"#,
+        )
+        .unwrap();
+        let (c, o) = read_paraview_preset(&p, Some("A")).unwrap();
+        // x in [-1, 3] rescaled to [0, 1]: the middle point sits at 0.25.
+        assert_eq!(c.eval(0.25), Vec3::ONE);
+        assert_eq!(c.eval(0.0), Vec3::new(0.0, 0.0, 1.0));
+        assert!((o.unwrap().eval(0.5) - 0.5).abs() < 1e-6);
+        let (_, o) = read_paraview_preset(&p, Some("B")).unwrap();
+        assert!(o.is_none());
+        let e = read_paraview_preset(&p, None).unwrap_err().to_string();
+        assert!(
+            e.contains("presets.json") && e.contains("preset_name"),
+            "{e}"
+        );
+        let e = read_paraview_preset(&p, Some("C")).unwrap_err().to_string();
+        assert!(e.contains("no preset named `C`"), "{e}");
+        std::fs::write(&p, r#"{"RGBPoints": [0, 1, 1]}"#).unwrap();
+        let e = read_paraview_preset(&p, None).unwrap_err().to_string();
+        assert!(e.contains("multiple of 4"), "{e}");
+    }
 }

@@ -189,3 +189,37 @@ fn corrupt_headers_name_the_file() {
     expect_error(&s, &["bad.vti", "VTK"]);
     let _ = data_dir();
 }
+
+/// A scene can take its colours from a ParaView preset and its opacity from the scene.
+#[test]
+fn preset_with_scene_opacity_loads() {
+    let d = scratch("preset");
+    std::fs::write(
+        d.join("v_2x2x2_uint8.raw"),
+        vec![0u8, 255, 0, 255, 0, 255, 0, 255],
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("p.json"),
+        r#"{"Name": "x", "RGBPoints": [0, 0, 0, 1, 10, 1, 0, 0]}"#,
+    )
+    .unwrap();
+    let tf = "[transfer]\nwindow = [0, 255]\ndensity_scale = 2.0\npreset = \"p.json\"\nopacity = [[0.0, 0.0], [1.0, 0.5]]";
+    let s = load_scene(&write_scene(
+        &d,
+        "[volume]\nfile = \"v_2x2x2_uint8.raw\"",
+        tf,
+        CAMERA,
+    ))
+    .unwrap();
+    let tf = s.media.medium.transfer_function();
+    assert_eq!(tf.albedo(255.0), glam::Vec3::new(1.0, 0.0, 0.0));
+    assert_eq!(tf.extinction(255.0), 1.0);
+    assert_eq!(tf.extinction(0.0), 0.0);
+    // Without opacity anywhere, the error says what to add.
+    let tf = "[transfer]\ndensity_scale = 2.0\npreset = \"p.json\"";
+    expect_error(
+        &write_scene(&d, "[volume]\nfile = \"v_2x2x2_uint8.raw\"", tf, CAMERA),
+        &["scene.toml", "opacity"],
+    );
+}

@@ -216,3 +216,86 @@ fn ratio_tracking_with_loose_majorant_matches_beer_lambert() {
         );
     }
 }
+
+/// The majorant bounds the extinction everywhere, for random grids and random transfer
+/// functions (steps included), with trilinear and nearest reconstruction, before and after a
+/// transfer-function change rebuilt from the stored value ranges.
+#[test]
+fn majorants_bound_extinction_everywhere() {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(42);
+    for case in 0..20 {
+        let dims = UVec3::new(
+            rng.random_range(1..20),
+            rng.random_range(1..20),
+            rng.random_range(1..20),
+        );
+        let n = (dims.x * dims.y * dims.z) as usize;
+        // Sparse spikes make the halo matter.
+        let values: Vec<f32> = (0..n)
+            .map(|_| {
+                if rng.random::<f32>() < 0.1 {
+                    rng.random_range(0.0..100.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let grid = ScalarGrid::new(dims, values).unwrap();
+        let random_tf = |rng: &mut rand::rngs::StdRng| {
+            let mut xs: Vec<f32> = (0..rng.random_range(1..6))
+                .map(|_| rng.random::<f32>())
+                .collect();
+            xs.sort_by(f32::total_cmp);
+            if xs.len() > 2 {
+                xs[1] = xs[0]; // a step
+            }
+            let pts: Vec<(f32, Vec3, f32)> = xs
+                .iter()
+                .map(|&x| (x, Vec3::ONE, rng.random::<f32>()))
+                .collect();
+            TransferFunction::from_points(
+                (rng.random_range(-10.0..20.0), rng.random_range(30.0..120.0)),
+                &pts,
+                rng.random_range(0.1..10.0),
+            )
+            .unwrap()
+        };
+        let filter = if case % 2 == 0 {
+            Filter::Trilinear
+        } else {
+            Filter::Nearest
+        };
+        let cell = rng.random_range(1..6);
+        let mut medium = Medium::new(
+            grid,
+            filter,
+            Vec3::ZERO,
+            Vec3::ONE,
+            random_tf(&mut rng),
+            cell,
+        )
+        .unwrap();
+        for pass in 0..2 {
+            if pass == 1 {
+                medium.set_transfer_function(random_tf(&mut rng));
+            }
+            let maj = medium.majorants();
+            for _ in 0..20_000 {
+                let u = Vec3::new(
+                    rng.random::<f32>() * dims.x as f32,
+                    rng.random::<f32>() * dims.y as f32,
+                    rng.random::<f32>() * dims.z as f32,
+                );
+                let sigma = medium.extinction(u);
+                // The majorant of u's cell, found by walking a tiny segment through u.
+                let seg = maj.segments(u, Vec3::X, 0.0, 1e-6).next().unwrap();
+                assert!(
+                    sigma <= seg.majorant,
+                    "case {case} pass {pass}: sigma {sigma} > majorant {} at {u}",
+                    seg.majorant
+                );
+            }
+        }
+    }
+}

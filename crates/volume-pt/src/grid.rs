@@ -100,7 +100,8 @@ impl ScalarGrid {
     #[inline]
     pub fn sample_nearest(&self, u: Vec3) -> f32 {
         let max = (self.dims - 1).as_vec3();
-        let i = u.floor().clamp(Vec3::ZERO, max).as_uvec3();
+        // Clamped to >= 0 first, so truncation is floor.
+        let i = u.clamp(Vec3::ZERO, max).as_uvec3();
         self.voxel(i.x, i.y, i.z)
     }
 
@@ -108,9 +109,9 @@ impl ScalarGrid {
     pub fn sample_trilinear(&self, u: Vec3) -> f32 {
         let max = (self.dims - 1).as_vec3();
         let c = (u - 0.5).clamp(Vec3::ZERO, max);
-        let i0 = c.floor();
-        let f = c - i0;
-        let i0 = i0.as_uvec3();
+        // c >= 0, so truncation is floor (and avoids a libm call on baseline x86-64).
+        let i0 = c.as_uvec3();
+        let f = c - i0.as_vec3();
         let i1 = (i0 + 1).min(self.dims - 1);
         let sx = 1usize;
         let sy = self.dims.x as usize;

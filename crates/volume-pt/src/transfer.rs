@@ -12,11 +12,20 @@ use glam::Vec3;
 use std::path::Path;
 
 /// A piecewise-linear function of the normalised value, constant beyond its end points.
+///
+/// Evaluation finds the segment in O(1): `buckets` splits `[xs[0], xs[last]]` evenly and holds,
+/// for each bucket, the first control point right of the bucket's start, so only the few points
+/// inside one bucket are scanned. The result is exactly the binary-search result.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PiecewiseLinear<T> {
     xs: Vec<f32>,
     ys: Vec<T>,
+    bucket_scale: f32,
+    buckets: Vec<u32>,
 }
+
+/// Buckets of the segment lookup.
+const SEGMENT_BUCKETS: usize = 64;
 
 /// Values a piecewise-linear function can hold.
 pub trait Lerp: Copy {
@@ -63,13 +72,48 @@ impl<T: Lerp> PiecewiseLinear<T> {
                 p.0
             )));
         }
-        let (xs, ys) = points.into_iter().unzip();
-        Ok(Self { xs, ys })
+        let (xs, ys): (Vec<f32>, Vec<T>) = points.into_iter().unzip();
+        let (lo, hi) = (xs[0], xs[xs.len() - 1]);
+        let bucket_scale = if hi > lo {
+            SEGMENT_BUCKETS as f32 / (hi - lo)
+        } else {
+            0.0
+        };
+        let buckets = (0..SEGMENT_BUCKETS)
+            .map(|b| {
+                // The bucket index of t is floor((t - lo) * scale); every t in bucket b is at
+                // least this start, up to rounding, so start one point early to be safe.
+                let start = lo + b as f32 / bucket_scale.max(f32::MIN_POSITIVE);
+                xs.partition_point(|&x| x <= start).saturating_sub(1) as u32
+            })
+            .collect();
+        Ok(Self {
+            xs,
+            ys,
+            bucket_scale,
+            buckets,
+        })
+    }
+
+    /// Index of the first control point right of `t` (`partition_point(x <= t)`).
+    #[inline]
+    fn segment(&self, t: f32) -> usize {
+        let lo = self.xs[0];
+        // Written so that NaN goes to the first point.
+        if !(t >= lo) {
+            return 0;
+        }
+        let b = (((t - lo) * self.bucket_scale) as usize).min(SEGMENT_BUCKETS - 1);
+        let mut i = self.buckets[b] as usize;
+        while i < self.xs.len() && self.xs[i] <= t {
+            i += 1;
+        }
+        i
     }
 
     #[inline]
     pub fn eval(&self, t: f32) -> T {
-        let i = self.xs.partition_point(|&x| x <= t);
+        let i = self.segment(t);
         if i == 0 {
             return self.ys[0];
         }
@@ -291,6 +335,19 @@ mod tests {
 
     fn ramp() -> PiecewiseLinear<f32> {
         PiecewiseLinear::new(vec![(0.2, 0.0), (0.5, 1.0), (0.5, 0.3), (0.8, 0.6)], "o").unwrap()
+    }
+
+    #[test]
+    fn bucketed_segment_lookup_equals_binary_search() {
+        let xs = [0.0f32, 0.001, 0.3, 0.3, 0.31, 0.9999, 1.0];
+        let f = PiecewiseLinear::new(xs.iter().map(|&x| (x, x)).collect(), "o").unwrap();
+        for i in 0..=100_000 {
+            let t = -0.01 + 1.02 * i as f32 / 100_000.0;
+            assert_eq!(f.segment(t), xs.partition_point(|&x| x <= t), "t = {t}");
+        }
+        for t in xs {
+            assert_eq!(f.segment(t), xs.partition_point(|&x| x <= t), "t = {t}");
+        }
     }
 
     #[test]

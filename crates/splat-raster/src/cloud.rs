@@ -167,3 +167,25 @@ impl<F: Real> GaussianCloud<F> {
         ]
     }
 }
+
+impl GaussianCloud<f32> {
+    /// The cloud with its SH truncated to `degree` (colours of a lower degree, same means,
+    /// scales, rotations and opacities). An RGB cloud is returned unchanged.
+    pub fn sh_truncated(&self, degree: u32) -> Self {
+        let ColorModel::Sh(d) = self.color_model else {
+            return self.clone();
+        };
+        if degree >= d {
+            return self.clone();
+        }
+        let (from, to) = (3 * coeffs_for_degree(d), 3 * coeffs_for_degree(degree));
+        let mut out = self.clone();
+        out.colors = self
+            .colors
+            .chunks(from)
+            .flat_map(|c| c[..to].to_vec())
+            .collect();
+        out.color_model = ColorModel::Sh(degree);
+        out
+    }
+}

@@ -5,18 +5,29 @@
 //!
 //! - [`camera`]: the pinhole camera and the pixel convention every crate shares.
 //! - [`cloud`]: the Gaussian cloud, structure of arrays.
+//! - [`io`]: 3DGS PLY (read, write) and `.splat` (read).
 //! - [`project`]: EWA projection of one Gaussian, and its exact adjoint.
 //! - [`raster`]: tiles, depth order, front-to-back compositing, and the backward pass.
 //! - [`sh`]: spherical harmonics (degree 0-3) and their gradients.
+//! - [`stochastic`]: sorting-free stochastic splatting (seed 004 section 1).
+//! - [`random`]: stateless hashing for per-fragment random decisions.
+//! - [`loss`]: HDR (seed 002 Eq. 4), L1 and L2 losses with masks.
+//! - [`adamw`]: the fused AdamW step over the parameter arrays.
+//! - [`reference`]: a brute-force compositor the tiled one is tested against.
 //! - [`real`]: the f32/f64 scalar the kernels are generic over.
 
+pub mod adamw;
 pub mod camera;
 pub mod cloud;
+pub mod io;
+pub mod loss;
 pub mod project;
+pub mod random;
 pub mod raster;
 pub mod real;
 pub mod reference;
 pub mod sh;
+pub mod stochastic;
 
 pub use camera::{Camera, CameraError};
 pub use cloud::{CloudGradients, ColorModel, GaussianCloud};

@@ -181,6 +181,22 @@ fn bin<F: Real>(
     }
 }
 
+/// Projected splats binned into tiles without sorting (for stochastic splatting): the splats,
+/// their Gaussian ids, the tile-major entries, each tile's range, and the tiles per row.
+#[allow(clippy::type_complexity)]
+pub(crate) fn bin_for_stochastic(
+    cloud: &GaussianCloud<f32>,
+    camera: &Camera,
+    config: &RasterConfig,
+) -> (Vec<Splat<f32>>, Vec<u32>, Vec<u32>, Vec<(u32, u32)>, u32) {
+    let cam = CameraTerms::<f32>::new(camera);
+    let tiles_x = camera.width.div_ceil(TILE);
+    let tiles_y = camera.height.div_ceil(TILE);
+    let (splats, ids) = project_all(cloud, &cam, config);
+    let b = bin(splats, ids, tiles_x, tiles_y, false);
+    (b.splats, b.ids, b.entries, b.tile_ranges, tiles_x)
+}
+
 /// Evaluates alpha of splat `s` at pixel centre `(px, py)`; None when it is skipped.
 #[inline(always)]
 pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, F, F)> {

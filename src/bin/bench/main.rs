@@ -1,8 +1,14 @@
-//! `bench`: speed of the volume path tracer on the bundled and shared volumes.
+//! `bench`: speed of the renderers, as Markdown tables.
 //!
-//! Prints Markdown tables (samples per second for `uniform` and `nee`, with the macrocell
-//! majorant grid and with one global majorant; and how time grows with spp and image size).
-//! Scenes that read `../shared/data` are skipped, with a note, when it is absent.
+//! - `bench` (or `bench pt`): the volume path tracer on the bundled and shared volumes: samples
+//!   per second for `uniform` and `nee`, with the macrocell majorant grid and with one global
+//!   majorant, and how time grows with spp and image size.
+//! - `bench splat`: the rasteriser's forward and backward passes at 1280x720, the AdamW step,
+//!   memory per Gaussian.
+//!
+//! Inputs that live in `../shared/data` are skipped, with a note, when it is absent.
+
+mod splat_bench;
 
 use anyhow::Result;
 use clap::Parser;
@@ -11,7 +17,23 @@ use std::sync::atomic::AtomicBool;
 use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
 
 #[derive(Parser, Debug)]
-#[command(version)]
+#[command(version, args_conflicts_with_subcommands = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Sub>,
+    #[command(flatten)]
+    pt: Args,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum Sub {
+    /// The volume path tracer (the default).
+    Pt(Args),
+    /// The splatting rasteriser.
+    Splat(splat_bench::SplatArgs),
+}
+
+#[derive(clap::Args, Debug)]
 struct Args {
     /// Scene files to measure (default: the bundled and shared scenes in data/scenes).
     scenes: Vec<PathBuf>,
@@ -48,7 +70,15 @@ fn time_render(scene: &Scene, spp: u32, size: u32) -> (f64, f64) {
 }
 
 fn main() -> Result<()> {
-    let args = Args::parse();
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Sub::Splat(a)) => splat_bench::run(&a),
+        Some(Sub::Pt(a)) => run_pt(a),
+        None => run_pt(cli.pt),
+    }
+}
+
+fn run_pt(args: Args) -> Result<()> {
     if let Some(t) = args.threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(t)

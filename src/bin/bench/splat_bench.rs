@@ -1,0 +1,173 @@
+//! `bench splat`: forward and backward of the rasteriser at 1280x720.
+
+use anyhow::Result;
+use glam::Vec3;
+use splat_raster::adamw::{AdamW, AdamWConfig};
+use splat_raster::io::read_cloud;
+use splat_raster::random::{hash32, unit_f32};
+use splat_raster::raster::backward;
+use splat_raster::{Camera, ColorModel, GaussianCloud, PixelGrads, RasterConfig, render};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args, Debug)]
+pub struct SplatArgs {
+    /// Repetitions per measurement (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    reps: usize,
+    /// Largest synthetic cloud.
+    #[arg(long, default_value_t = 1_000_000)]
+    max_gaussians: usize,
+}
+
+/// Gaussians spread through the default scene's volume where its transfer function is opaque,
+/// sized like the cache's initialisation (half the mean spacing), seen by its camera: the
+/// density the radiance cache will have.
+fn volume_cloud(n: usize) -> Result<(GaussianCloud<f32>, Camera)> {
+    let scene = volume_pt::load_scene(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml"),
+    )?;
+    let m = &scene.media.medium;
+    let (lo, hi) = m.bounds();
+    let size = hi - lo;
+    let mut cloud = GaussianCloud::new(ColorModel::Rgb);
+    let mut k = 0u32;
+    let spacing = (size.x * size.y * size.z * 0.3 / n as f32).cbrt();
+    let s = (0.5 * spacing).ln();
+    while cloud.len() < n {
+        k += 1;
+        let r = |j: u32| unit_f32(hash32(&[5, k, j]));
+        let p = lo + size * Vec3::new(r(0), r(1), r(2));
+        let u = m.to_index_ray(p, Vec3::X).o;
+        if m.extinction(u) <= 0.05 * m.majorants().global_max() {
+            continue;
+        }
+        let a = m.albedo(u);
+        cloud.push(
+            p.to_array(),
+            [s; 3],
+            [1.0, 0.0, 0.0, 0.0],
+            &a.to_array(),
+            0.0,
+        );
+    }
+    let mut cam = scene.camera;
+    cam.width = 1280;
+    cam.height = 720;
+    Ok((cloud, cam))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn measure(
+    cloud: &GaussianCloud<f32>,
+    cam: &Camera,
+    reps: usize,
+    threads: usize,
+) -> (f64, f64, u64) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let cfg = RasterConfig::default();
+        let up = vec![[1.0f32, 0.5, 0.25]; (cam.width * cam.height) as usize];
+        let (mut f, mut b) = (Vec::new(), Vec::new());
+        let mut evals = 0;
+        for _ in 0..reps {
+            let t0 = Instant::now();
+            let (_, state) = render(cloud, cam, &cfg);
+            f.push(t0.elapsed().as_secs_f64());
+            evals = state.evaluations();
+            let t1 = Instant::now();
+            let g = backward(
+                cloud,
+                cam,
+                &state,
+                PixelGrads {
+                    color: &up,
+                    transmittance: None,
+                    depth: None,
+                },
+            );
+            b.push(t1.elapsed().as_secs_f64());
+            std::hint::black_box(g);
+        }
+        (median(f), median(b), evals)
+    })
+}
+
+pub fn run(a: &SplatArgs) -> Result<()> {
+    println!(
+        "1280x720, median of {} runs; evaluations = splat-pixel alpha evaluations of the forward pass\n",
+        a.reps
+    );
+    println!(
+        "| cloud | Gaussians | threads | forward ms | backward ms | backward / forward | M evaluations / s / core (forward) |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    let mut clouds: Vec<(String, GaussianCloud<f32>, Camera)> = Vec::new();
+    for n in [10_000, 100_000, 300_000, 1_000_000] {
+        if n > a.max_gaussians {
+            continue;
+        }
+        let (c, cam) = volume_cloud(n)?;
+        clouds.push((format!("volume-density (neghip) {}k", n / 1000), c, cam));
+    }
+    let plant =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/splats/plant_inria_sh0.ply");
+    match read_cloud(&plant) {
+        Ok(mut c) => {
+            // The asset carries zero SH bands; render it as what it is, degree 0.
+            c = c.sh_truncated(0);
+            let cam = Camera::look_at(
+                Vec3::new(0.9, -0.6, -1.0),
+                Vec3::new(0.0, 0.1, 0.0),
+                Vec3::new(0.0, -1.0, 0.0),
+                50.0,
+                1280,
+                720,
+            )?;
+            clouds.push(("plant (3DGS asset)".into(), c, cam));
+        }
+        Err(e) => eprintln!("note: skipping the plant asset ({e}); is ../shared/data present?"),
+    }
+    for (name, cloud, cam) in &clouds {
+        for threads in [1, 2] {
+            let (f, b, evals) = measure(cloud, cam, a.reps, threads);
+            println!(
+                "| {name} | {} | {threads} | {:.1} | {:.1} | {:.2} | {:.1} |",
+                cloud.len(),
+                f * 1e3,
+                b * 1e3,
+                b / f,
+                evals as f64 / f / threads as f64 / 1e6
+            );
+        }
+    }
+    // AdamW step over 300k Gaussians (14 floats each, RGB colour).
+    let (cloud, _) = volume_cloud(300_000)?;
+    let mut params = cloud.clone();
+    let grads = cloud.clone();
+    let mut opt = AdamW::new(AdamWConfig::default(), &cloud);
+    let mut times = Vec::new();
+    for _ in 0..20 {
+        let t0 = Instant::now();
+        opt.step(&mut params, &grads, 1.0);
+        times.push(t0.elapsed().as_secs_f64());
+    }
+    println!(
+        "\nAdamW step, 300k Gaussians x 14 floats, {} threads: median of 20 = {:.2} ms",
+        rayon::current_num_threads(),
+        median(times) * 1e3
+    );
+    println!(
+        "Memory per Gaussian: parameters {} B (RGB) / {} B (SH degree 3); AdamW moments twice that.",
+        cloud.bytes_per_gaussian(),
+        GaussianCloud::<f32>::new(ColorModel::Sh(3)).bytes_per_gaussian()
+    );
+    Ok(())
+}

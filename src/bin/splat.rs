@@ -1,0 +1,327 @@
+//! `splat`: render a Gaussian cloud (3DGS PLY or .splat) with the differentiable rasteriser, or
+//! fit a cloud to a target EXR seen from a given camera.
+
+use anyhow::{Context, Result, bail};
+use clap::{Args as ClapArgs, Parser, Subcommand};
+use glam::Vec3;
+use splat_raster::adamw::{AdamW, AdamWConfig};
+use splat_raster::io::{read_cloud, write_ply};
+use splat_raster::loss::{Loss, loss_and_grad};
+use splat_raster::raster::backward;
+use splat_raster::stochastic::render_stochastic;
+use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, PixelGrads, RasterConfig, render};
+use std::path::PathBuf;
+use volume_pt::output::{ToneMap, read_exr, write_exr, write_png};
+
+#[derive(Parser)]
+#[command(version, about = "Render or fit 3D Gaussian clouds on the CPU")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render ASSET (.ply or .splat) to EXR and PNG.
+    Render(RenderArgs),
+    /// Fit a cloud to TARGET.exr seen from the given camera.
+    Fit(FitArgs),
+}
+
+/// The camera: explicit (`--eye`, `--target`) or an orbit around the cloud.
+#[derive(ClapArgs, Clone)]
+struct CameraArgs {
+    /// Camera position `x,y,z` (with --target; otherwise an orbit around the cloud).
+    #[arg(long, value_parser = parse_vec3)]
+    eye: Option<Vec3>,
+    /// Point at the image centre `x,y,z` (default: the cloud's median).
+    #[arg(long, value_parser = parse_vec3)]
+    target: Option<Vec3>,
+    /// Image up direction `x,y,z`; 3DGS captures made with COLMAP are usually `0,-1,0`.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,-1,0", allow_hyphen_values = true)]
+    up: Vec3,
+    /// Orbit azimuth in degrees (orbit preset: around the cloud's median, at --distance).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    orbit: f32,
+    /// Orbit elevation in degrees.
+    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
+    elevation: f32,
+    /// Orbit distance in units of the cloud's extent.
+    #[arg(long, default_value_t = 1.6)]
+    distance: f32,
+    /// Vertical field of view in degrees.
+    #[arg(long, default_value_t = 50.0)]
+    fov: f32,
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    #[arg(long, default_value_t = 720)]
+    height: u32,
+}
+
+#[derive(ClapArgs)]
+struct RenderArgs {
+    asset: PathBuf,
+    #[command(flatten)]
+    camera: CameraArgs,
+    /// Background colour `r,g,b`.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,0,0")]
+    background: Vec3,
+    /// Mip-splatting low-pass (0.1 px^2 with opacity compensation) instead of 0.3 px^2.
+    #[arg(long)]
+    mip: bool,
+    /// Stochastic splatting with this many samples per pixel instead of sorted compositing.
+    #[arg(long)]
+    stochastic: Option<u32>,
+    #[arg(short = 'o', long, default_value = "out/splat.exr")]
+    output: PathBuf,
+    #[arg(long)]
+    png: Option<PathBuf>,
+}
+
+#[derive(ClapArgs)]
+struct FitArgs {
+    target: PathBuf,
+    #[command(flatten)]
+    camera: CameraArgs,
+    /// Start from this cloud (else random Gaussians in the camera's view).
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Random Gaussians to start from when there is no --init.
+    #[arg(long, default_value_t = 20_000)]
+    points: usize,
+    #[arg(long, default_value_t = 300)]
+    iterations: u32,
+    /// `hdr` (seed 002 Eq. 4), `l1` or `l2`.
+    #[arg(long, default_value = "l1")]
+    loss: String,
+    #[arg(short = 'o', long, default_value = "out/fitted.ply")]
+    output: PathBuf,
+}
+
+fn parse_vec3(s: &str) -> Result<Vec3, String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("`{s}`: {e}"))?;
+    match v[..] {
+        [x, y, z] => Ok(Vec3::new(x, y, z)),
+        _ => Err(format!("`{s}`: expected three numbers `x,y,z`")),
+    }
+}
+
+fn median_and_extent(cloud: &GaussianCloud<f32>) -> (Vec3, f32) {
+    if cloud.is_empty() {
+        return (Vec3::ZERO, 1.0);
+    }
+    let mut axes: [Vec<f32>; 3] = Default::default();
+    for m in cloud.means.chunks(3) {
+        for a in 0..3 {
+            if m[a].is_finite() {
+                axes[a].push(m[a]);
+            }
+        }
+    }
+    let mut med = [0.0; 3];
+    let mut ext = 0.0f32;
+    for a in 0..3 {
+        let v = &mut axes[a];
+        v.sort_by(f32::total_cmp);
+        if v.is_empty() {
+            continue;
+        }
+        med[a] = v[v.len() / 2];
+        // 2nd to 98th percentile: robust to floaters.
+        ext = ext.max(v[v.len() * 98 / 100] - v[v.len() * 2 / 100]);
+    }
+    (Vec3::from_array(med), ext.max(1e-3))
+}
+
+fn make_camera(c: &CameraArgs, cloud: Option<&GaussianCloud<f32>>) -> Result<Camera> {
+    let (centre, extent) = cloud.map(median_and_extent).unwrap_or((Vec3::ZERO, 1.0));
+    let target = c.target.unwrap_or(centre);
+    let eye = match c.eye {
+        Some(e) => e,
+        None => {
+            let (az, el) = (c.orbit.to_radians(), c.elevation.to_radians());
+            // Orbit in the plane perpendicular to `up`.
+            let up = c.up.normalize();
+            let side = if up.cross(Vec3::Z).length() > 0.1 {
+                up.cross(Vec3::Z).normalize()
+            } else {
+                up.cross(Vec3::X).normalize()
+            };
+            let fwd = side.cross(up);
+            target
+                + c.distance
+                    * extent
+                    * (el.cos() * (az.cos() * fwd + az.sin() * side) + el.sin() * up)
+        }
+    };
+    Ok(Camera::look_at(
+        eye, target, c.up, c.fov, c.width, c.height,
+    )?)
+}
+
+fn to_vec3(px: &[[f32; 3]]) -> Vec<Vec3> {
+    px.iter().map(|c| Vec3::from_array(*c)).collect()
+}
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> Result<()> {
+    let cli = Cli::parse();
+    if let Some(t) = cli.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()?;
+    }
+    match cli.command {
+        Command::Render(a) => {
+            let cloud = read_cloud(&a.asset)?;
+            let cam = make_camera(&a.camera, Some(&cloud))?;
+            let cfg = RasterConfig {
+                low_pass: if a.mip {
+                    LowPass::Mip
+                } else {
+                    LowPass::Classic
+                },
+                background: a.background.to_array(),
+                ..Default::default()
+            };
+            let t0 = std::time::Instant::now();
+            let (img, info) = match a.stochastic {
+                Some(n) => (
+                    render_stochastic(&cloud, &cam, &cfg, n, 0),
+                    format!("stochastic, {n} samples per pixel"),
+                ),
+                None => {
+                    let (img, state) = render(&cloud, &cam, &cfg);
+                    let info = format!(
+                        "sorted, {} visible, {} tile entries, {:.1} splat evaluations per pixel",
+                        state.visible_count(),
+                        state.entry_count(),
+                        state.evaluations() as f64 / (cam.width * cam.height) as f64
+                    );
+                    (img, info)
+                }
+            };
+            let secs = t0.elapsed().as_secs_f64();
+            if let Some(d) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(d)
+                    .with_context(|| format!("{}: cannot create folder", d.display()))?;
+            }
+            let px = to_vec3(&img.color);
+            write_exr(&a.output, cam.width, cam.height, &px)?;
+            let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
+            write_png(&png, cam.width, cam.height, &px, 0.0, ToneMap::Clip)?;
+            println!(
+                "rendered {} Gaussians at {}x{} in {:.1} ms ({info}); wrote {} and {}",
+                cloud.len(),
+                cam.width,
+                cam.height,
+                secs * 1e3,
+                a.output.display(),
+                png.display()
+            );
+        }
+        Command::Fit(a) => {
+            let (w, h, target) = read_exr(&a.target)?;
+            if (w, h) != (a.camera.width, a.camera.height) {
+                bail!(
+                    "{}: the target is {w}x{h} but the camera is {}x{}: pass --width {w} --height {h}",
+                    a.target.display(),
+                    a.camera.width,
+                    a.camera.height
+                );
+            }
+            let loss = match a.loss.as_str() {
+                "hdr" => Loss::Hdr,
+                "l1" => Loss::L1,
+                "l2" => Loss::L2,
+                other => bail!("unknown loss `{other}`: expected hdr, l1 or l2"),
+            };
+            let init = a.init.as_ref().map(|p| read_cloud(p)).transpose()?;
+            let cam = make_camera(&a.camera, init.as_ref())?;
+            let mut cloud = match init {
+                Some(c) => c,
+                None => {
+                    // Spread the start around the target's depth.
+                    let dist = match (a.camera.eye, a.camera.target) {
+                        (Some(e), Some(t)) => (t - e).length(),
+                        _ => a.camera.distance,
+                    };
+                    random_in_view(&cam, a.points, 0.7 * dist, 1.3 * dist)
+                }
+            };
+            let target: Vec<[f32; 3]> = target.iter().map(|v| v.to_array()).collect();
+            let cfg = RasterConfig::default();
+            let mut opt = AdamW::new(AdamWConfig::default(), &cloud);
+            let t0 = std::time::Instant::now();
+            for it in 0..a.iterations {
+                let (img, state) = render(&cloud, &cam, &cfg);
+                let (l, grad) = loss_and_grad(loss, &img.color, &target, None);
+                let grads = backward(
+                    &cloud,
+                    &cam,
+                    &state,
+                    PixelGrads {
+                        color: &grad,
+                        transmittance: None,
+                        depth: None,
+                    },
+                );
+                opt.step(&mut cloud, &grads, 1.0);
+                if it % 25 == 0 || it + 1 == a.iterations {
+                    println!("iteration {it:5}: loss {l:.5e}");
+                }
+            }
+            if let Some(d) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(d)?;
+            }
+            write_ply(&a.output, &cloud)?;
+            let (img, _) = render(&cloud, &cam, &cfg);
+            let png = a.output.with_extension("png");
+            write_png(&png, w, h, &to_vec3(&img.color), 0.0, ToneMap::Clip)?;
+            println!(
+                "fitted {} Gaussians in {:.1} s; wrote {} and {}",
+                cloud.len(),
+                t0.elapsed().as_secs_f64(),
+                a.output.display(),
+                png.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Random small Gaussians spread through the camera's view between two depths (a hash-based
+/// sequence, so fits are reproducible).
+fn random_in_view(cam: &Camera, n: usize, near: f32, far: f32) -> GaussianCloud<f32> {
+    use splat_raster::random::{hash32, unit_f32};
+    let mut c = GaussianCloud::new(ColorModel::Rgb);
+    for i in 0..n as u32 {
+        let r = |k: u32| unit_f32(hash32(&[99, i, k]));
+        let d = cam.ray_direction(r(0) * cam.width as f32, r(1) * cam.height as f32);
+        let depth = near + (far - near) * r(2);
+        let p = cam.position + d * depth;
+        // About two pixels wide at its depth.
+        let size = (2.0 * depth / cam.focal_pixels()).ln();
+        c.push(
+            p.to_array(),
+            [size; 3],
+            [1.0, 0.0, 0.0, 0.0],
+            &[0.5, 0.5, 0.5],
+            -1.0,
+        );
+    }
+    c
+}

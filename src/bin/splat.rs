@@ -83,7 +83,9 @@ struct RenderArgs {
 
 #[derive(ClapArgs)]
 struct FitArgs {
-    target: PathBuf,
+    /// The image to fit (EXR, linear RGB).
+    #[arg(value_name = "TARGET.exr")]
+    target_image: PathBuf,
     #[command(flatten)]
     camera: CameraArgs,
     /// Start from this cloud (else random Gaussians in the camera's view).
@@ -234,11 +236,11 @@ fn run() -> Result<()> {
             );
         }
         Command::Fit(a) => {
-            let (w, h, target) = read_exr(&a.target)?;
+            let (w, h, target) = read_exr(&a.target_image)?;
             if (w, h) != (a.camera.width, a.camera.height) {
                 bail!(
                     "{}: the target is {w}x{h} but the camera is {}x{}: pass --width {w} --height {h}",
-                    a.target.display(),
+                    a.target_image.display(),
                     a.camera.width,
                     a.camera.height
                 );

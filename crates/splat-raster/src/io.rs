@@ -110,7 +110,8 @@ pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
     }
     let mut big = false;
     // Elements: (name, count, properties (name, scalar)).
-    let mut elements: Vec<(String, usize, Vec<(String, Scalar)>)> = Vec::new();
+    type Element = (String, usize, Vec<(String, Scalar)>);
+    let mut elements: Vec<Element> = Vec::new();
     for line in lines {
         let words: Vec<&str> = line.split_whitespace().collect();
         match words.as_slice() {

@@ -464,7 +464,9 @@ pub fn backward<F: Real>(
     let mut out = cloud.zeros_like();
     let stride = cloud.color_stride();
     // Per splat (in Gaussian order), sum its records and back-propagate into its parameters.
-    let per_gaussian: Vec<(u32, [F; 3], [F; 3], [F; 4], Vec<F>, F)> = (0..n_splats)
+    // (Gaussian, d mean, d log-scale, d rotation, d colour, d opacity logit).
+    type GaussianGrad<F> = (u32, [F; 3], [F; 3], [F; 4], Vec<F>, F);
+    let per_gaussian: Vec<GaussianGrad<F>> = (0..n_splats)
         .into_par_iter()
         .with_min_len(256)
         .map(|si| {

@@ -140,7 +140,9 @@ fn hidden_and_culled_gaussians_do_not_change_the_image() {
 fn degenerate_gaussians_never_reach_image_or_gradients() {
     let mut cloud = random_cloud(20, ColorModel::Sh(1), 9).cast::<f32>();
     let col = vec![0.3f32; 12];
-    let bad: [([f32; 3], [f32; 3], [f32; 4], f32); 9] = [
+    // (mean, log-scale, rotation, opacity logit)
+    type Params = ([f32; 3], [f32; 3], [f32; 4], f32);
+    let bad: [Params; 9] = [
         ([f32::NAN, 0.0, 0.0], [-1.0; 3], [1.0, 0.0, 0.0, 0.0], 0.0),
         ([0.0, 0.0, 0.0], [f32::NAN; 3], [1.0, 0.0, 0.0, 0.0], 0.0),
         ([0.0, 0.0, 0.0], [-1.0; 3], [0.0, 0.0, 0.0, 0.0], 0.0),

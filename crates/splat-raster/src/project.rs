@@ -55,6 +55,8 @@ pub struct Splat<F: Real> {
     pub color: [F; 3],
     /// Camera-space depth of the mean.
     pub depth: F,
+    /// `-ln(255 opacity)`: below this exponent alpha is under 1/255, so `exp` need not run.
+    pub power_min: F,
     /// Inclusive pixel bounds: x0, y0, x1, y1.
     pub rect: [u32; 4],
 }
@@ -209,8 +211,9 @@ pub fn project<F: Real>(
     let v = f * ty / tz + cam.cy;
     // alpha >= 1/255 inside the ellipse d^T conic d <= 2 ln(255 opacity); its bounding box.
     let k2 = F::c(2.0) * (F::c(255.0) * opacity).ln();
-    let ex = (k2 * a).sqrt();
-    let ey = (k2 * c).sqrt();
+    // A hair wider than exact, so rounding can never cut a pixel whose alpha reaches 1/255.
+    let ex = (k2 * a).sqrt() * F::c(1.0 + 1e-5) + F::c(1e-3);
+    let ey = (k2 * c).sqrt() * F::c(1.0 + 1e-5) + F::c(1e-3);
     let half = F::c(0.5);
     let x0 = (u - ex - half).ceil().max(F::zero());
     let x1 = (u + ex - half).floor().min(F::c(cam.width as f64 - 1.0));
@@ -236,6 +239,7 @@ pub fn project<F: Real>(
         opacity,
         color,
         depth: tz,
+        power_min: -(F::c(255.0) * opacity).ln(),
         rect: [to_u(x0), to_u(y0), to_u(x1), to_u(y1)],
     })
 }

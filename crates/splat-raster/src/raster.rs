@@ -80,9 +80,30 @@ impl<F: Real> ForwardState<F> {
     pub fn visible_count(&self) -> usize {
         self.splats.len()
     }
-    /// Total splat evaluations the forward pass made (sum over pixels of entries processed).
+    /// Splat-pixel pairs the forward pass visits (every pixel of each splat's rectangle within
+    /// its tiles; pixels whose transmittance is exhausted stop earlier): the work measure of the
+    /// benchmarks.
     pub fn evaluations(&self) -> u64 {
-        self.n_contrib.iter().map(|&n| n as u64).sum()
+        (0..self.tile_ranges.len())
+            .into_par_iter()
+            .map(|ti| {
+                let (a, b) = self.tile_ranges[ti];
+                let (x0, y0) = (
+                    (ti as u32 % self.tiles_x) * TILE,
+                    (ti as u32 / self.tiles_x) * TILE,
+                );
+                let mut n = 0u64;
+                for &e in &self.entries[a as usize..b as usize] {
+                    let s = &self.splats[e as usize];
+                    let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
+                    let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+                    if ax <= bx && ay <= by {
+                        n += ((bx - ax + 1) * (by - ay + 1)) as u64;
+                    }
+                }
+                n
+            })
+            .sum()
     }
 }
 
@@ -203,7 +224,8 @@ pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, F, F)> 
     let dx = px - s.xy[0];
     let dy = py - s.xy[1];
     let power = -F::c(0.5) * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) - s.conic[1] * dx * dy;
-    if power > F::zero() {
+    // Most evaluations are pixels a splat does not reach: reject them before `exp`.
+    if power > F::zero() || power < s.power_min {
         return None;
     }
     let gauss = power.exp();
@@ -251,39 +273,61 @@ pub fn render<F: Real>(
                 depth: vec![F::zero(); tile_px],
                 n: vec![0; tile_px],
             };
+            // Splat-major: each splat visits only the tile pixels inside its rectangle, in depth
+            // order, so every pixel still sees its splats front to back with the same arithmetic
+            // as a per-pixel loop.
+            let (x0, y0) = (tx * TILE, ty * TILE);
+            let mut done = vec![false; tile_px];
+            let mut active = 0usize;
             for j in 0..TILE {
                 for i in 0..TILE {
-                    let (x, y) = (tx * TILE + i, ty * TILE + j);
-                    if x >= w || y >= h {
-                        continue;
+                    if x0 + i >= w || y0 + j >= h {
+                        done[(j * TILE + i) as usize] = true;
+                    } else {
+                        active += 1;
                     }
-                    let (px, py) = (F::c(x as f64 + 0.5), F::c(y as f64 + 0.5));
-                    let mut t = F::one();
-                    let mut c = [F::zero(); 3];
-                    let mut d = F::zero();
-                    let mut last = 0u32;
-                    for (k, s) in local.iter().enumerate() {
-                        let Some((alpha, _, _, _)) = splat_alpha(s, px, py) else {
+                }
+            }
+            let mut col = vec![[F::zero(); 3]; tile_px];
+            for (k, s) in local.iter().enumerate() {
+                if active == 0 {
+                    break;
+                }
+                let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
+                let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+                for y in ay..=by {
+                    let py = F::c(y as f64 + 0.5);
+                    for x in ax..=bx {
+                        let p = ((y - y0) * TILE + (x - x0)) as usize;
+                        if done[p] {
+                            continue;
+                        }
+                        let Some((alpha, _, _, _)) = splat_alpha(s, F::c(x as f64 + 0.5), py)
+                        else {
                             continue;
                         };
+                        let t = out.t[p];
                         let next_t = t * (F::one() - alpha);
                         if next_t < t_min {
-                            break;
+                            done[p] = true;
+                            active -= 1;
+                            continue;
                         }
                         let wgt = alpha * t;
+                        let c = &mut col[p];
                         for ch in 0..3 {
                             c[ch] = c[ch] + wgt * s.color[ch];
                         }
-                        d = d + wgt * s.depth;
-                        t = next_t;
-                        last = k as u32 + 1;
+                        out.depth[p] = out.depth[p] + wgt * s.depth;
+                        out.t[p] = next_t;
+                        out.n[p] = k as u32 + 1;
                     }
-                    let p = (j * TILE + i) as usize;
-                    out.color[p] = [c[0] + t * bg[0], c[1] + t * bg[1], c[2] + t * bg[2]];
-                    out.t[p] = t;
-                    out.depth[p] = d;
-                    out.n[p] = last;
                 }
+            }
+            for p in 0..tile_px {
+                let t = out.t[p];
+                let c = col[p];
+                out.color[p] = [c[0] + t * bg[0], c[1] + t * bg[1], c[2] + t * bg[2]];
             }
             out
         })
@@ -379,53 +423,100 @@ pub fn backward<F: Real>(
             let local: Vec<Splat<F>> = list.iter().map(|&i| state.splats[i as usize]).collect();
             let tx = ti as u32 % state.tiles_x;
             let ty = ti as u32 / state.tiles_x;
+            let (x0, y0) = (tx * TILE, ty * TILE);
+            // Per-pixel state of the back-to-front walk.
+            #[derive(Clone, Copy)]
+            struct Px<F> {
+                n: u32,
+                dl_dc: [F; 3],
+                dl_dd: F,
+                bg_dot: F,
+                t_final: F,
+                t: F,
+                accum: [F; 3],
+                accum_d: F,
+                last_alpha: F,
+                last_color: [F; 3],
+                last_depth: F,
+            }
+            let mut px = vec![
+                Px {
+                    n: 0,
+                    dl_dc: [zero; 3],
+                    dl_dd: zero,
+                    bg_dot: zero,
+                    t_final: zero,
+                    t: zero,
+                    accum: [zero; 3],
+                    accum_d: zero,
+                    last_alpha: zero,
+                    last_color: [zero; 3],
+                    last_depth: zero,
+                };
+                tile_px
+            ];
             for j in 0..TILE {
                 for i in 0..TILE {
-                    let (x, y) = (tx * TILE + i, ty * TILE + j);
+                    let (x, y) = (x0 + i, y0 + j);
                     if x >= w || y >= h {
                         continue;
                     }
-                    let p = ti * tile_px + (j * TILE + i) as usize;
+                    let p = (j * TILE + i) as usize;
                     let q = (y * w + x) as usize;
-                    let n = state.n_contrib[p] as usize;
                     let dl_dc = grads.color[q];
                     let dl_dt = grads.transmittance.map_or(zero, |g| g[q]);
-                    let dl_dd = grads.depth.map_or(zero, |g| g[q]);
-                    let t_final = state.final_t[p];
-                    // d/d alpha_i of the terms that depend on T_final: background and T itself.
-                    let bg_dot = dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt;
-                    let (px, py) = (F::c(x as f64 + 0.5), F::c(y as f64 + 0.5));
-                    let mut t = t_final;
-                    let mut accum = [zero; 3];
-                    let mut accum_d = zero;
-                    let mut last_alpha = zero;
-                    let mut last_color = [zero; 3];
-                    let mut last_depth = zero;
-                    for k in (0..n).rev() {
-                        let s = &local[k];
-                        let Some((alpha, gauss, dx, dy)) = splat_alpha(s, px, py) else {
+                    let t_final = state.final_t[ti * tile_px + p];
+                    px[p] = Px {
+                        n: state.n_contrib[ti * tile_px + p],
+                        dl_dc,
+                        dl_dd: grads.depth.map_or(zero, |g| g[q]),
+                        // d/d alpha_i of the terms that depend on T_final: background and T itself.
+                        bg_dot: dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt,
+                        t_final,
+                        t: t_final,
+                        ..px[p]
+                    };
+                }
+            }
+            for k in (0..local.len()).rev() {
+                let s = &local[k];
+                let r = &mut rec[k];
+                let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
+                let (bx, by) = (
+                    s.rect[2].min(x0 + TILE - 1).min(w - 1),
+                    s.rect[3].min(y0 + TILE - 1).min(h - 1),
+                );
+                for y in ay..=by {
+                    let py = F::c(y as f64 + 0.5);
+                    for x in ax..=bx {
+                        let st = &mut px[((y - y0) * TILE + (x - x0)) as usize];
+                        if k as u32 >= st.n {
+                            continue;
+                        }
+                        let Some((alpha, gauss, dx, dy)) = splat_alpha(s, F::c(x as f64 + 0.5), py)
+                        else {
                             continue;
                         };
-                        t = t / (F::one() - alpha);
-                        let wgt = alpha * t;
-                        let r = &mut rec[k];
+                        st.t = st.t / (F::one() - alpha);
+                        let wgt = alpha * st.t;
                         for ch in 0..3 {
-                            r.color[ch] = r.color[ch] + wgt * dl_dc[ch];
+                            r.color[ch] = r.color[ch] + wgt * st.dl_dc[ch];
                         }
-                        r.depth = r.depth + wgt * dl_dd;
+                        r.depth = r.depth + wgt * st.dl_dd;
                         let mut dl_dalpha = zero;
                         for ch in 0..3 {
-                            accum[ch] =
-                                last_alpha * last_color[ch] + (F::one() - last_alpha) * accum[ch];
-                            dl_dalpha = dl_dalpha + (s.color[ch] - accum[ch]) * dl_dc[ch];
+                            st.accum[ch] = st.last_alpha * st.last_color[ch]
+                                + (F::one() - st.last_alpha) * st.accum[ch];
+                            dl_dalpha = dl_dalpha + (s.color[ch] - st.accum[ch]) * st.dl_dc[ch];
                         }
-                        accum_d = last_alpha * last_depth + (F::one() - last_alpha) * accum_d;
-                        dl_dalpha = dl_dalpha + (s.depth - accum_d) * dl_dd;
-                        dl_dalpha = dl_dalpha * t;
-                        last_alpha = alpha;
-                        last_color = s.color;
-                        last_depth = s.depth;
-                        dl_dalpha = dl_dalpha - t_final / (F::one() - alpha) * bg_dot;
+                        st.accum_d =
+                            st.last_alpha * st.last_depth + (F::one() - st.last_alpha) * st.accum_d;
+                        dl_dalpha = dl_dalpha + (s.depth - st.accum_d) * st.dl_dd;
+                        dl_dalpha = dl_dalpha * st.t;
+                        st.last_alpha = alpha;
+                        st.last_color = s.color;
+                        st.last_depth = s.depth;
+                        dl_dalpha = dl_dalpha - st.t_final / (F::one() - alpha) * st.bg_dot;
                         // alpha = min(0.99, opacity * G): no gradient through the cap.
                         if s.opacity * gauss > F::c(ALPHA_MAX) {
                             continue;

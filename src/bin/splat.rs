@@ -6,10 +6,10 @@ use clap::{Args as ClapArgs, Parser, Subcommand};
 use glam::Vec3;
 use splat_raster::adamw::{AdamW, AdamWConfig};
 use splat_raster::io::{read_cloud, write_ply};
-use splat_raster::loss::{Loss, loss_and_grad};
-use splat_raster::raster::backward;
+use splat_raster::loss::Loss;
 use splat_raster::stochastic::render_stochastic;
-use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, PixelGrads, RasterConfig, render};
+use splat_raster::train::train_step;
+use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, RasterConfig, render};
 use std::path::PathBuf;
 use volume_pt::output::{ToneMap, read_exr, write_exr, write_png};
 
@@ -269,19 +269,7 @@ fn run() -> Result<()> {
             let mut opt = AdamW::new(AdamWConfig::default(), &cloud);
             let t0 = std::time::Instant::now();
             for it in 0..a.iterations {
-                let (img, state) = render(&cloud, &cam, &cfg);
-                let (l, grad) = loss_and_grad(loss, &img.color, &target, None);
-                let grads = backward(
-                    &cloud,
-                    &cam,
-                    &state,
-                    PixelGrads {
-                        color: &grad,
-                        transmittance: None,
-                        depth: None,
-                    },
-                );
-                opt.step(&mut cloud, &grads, 1.0);
+                let l = train_step(&mut cloud, &cam, &cfg, &target, None, loss, &mut opt, 1.0);
                 if it % 25 == 0 || it + 1 == a.iterations {
                     println!("iteration {it:5}: loss {l:.5e}");
                 }

@@ -9,6 +9,7 @@
 //! - [`project`]: EWA projection of one Gaussian, and its exact adjoint.
 //! - [`raster`]: tiles, depth order, front-to-back compositing, and the backward pass.
 //! - [`sh`]: spherical harmonics (degree 0-3) and their gradients.
+//! - [`train`]: one training step (render, loss, backward, AdamW).
 //! - [`stochastic`]: sorting-free stochastic splatting (seed 004 section 1).
 //! - [`random`]: stateless hashing for per-fragment random decisions.
 //! - [`loss`]: HDR (seed 002 Eq. 4), L1 and L2 losses with masks.
@@ -28,6 +29,7 @@ pub mod real;
 pub mod reference;
 pub mod sh;
 pub mod stochastic;
+pub mod train;
 
 pub use camera::{Camera, CameraError};
 pub use cloud::{CloudGradients, ColorModel, GaussianCloud};

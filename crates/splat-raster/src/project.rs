@@ -124,15 +124,35 @@ fn raw_color<F: Real>(
     }
 }
 
-/// Projects Gaussian `g`; None when it is culled.
+/// The 3D-to-2D geometry of one Gaussian that the forward pass and its adjoint share.
+struct Geometry<F: Real> {
+    p: V3<F>,
+    /// Camera-space mean.
+    t: V3<F>,
+    /// Norm of the stored quaternion and the unit quaternion.
+    qn: F,
+    qh: [F; 4],
+    /// Standard deviations, rotation, and `M = R S` (so `Sigma = M M^T`).
+    s: V3<F>,
+    r: M3<F>,
+    m: M3<F>,
+    /// Camera-space x and y after the guard-band clamp, and whether the clamp acted.
+    txc: F,
+    tyc: F,
+    x_clamped: bool,
+    y_clamped: bool,
+    /// `T = J W` (2x3) and `T Sigma` (rows).
+    tm: [V3<F>; 2],
+    ts: [V3<F>; 2],
+    /// The projected covariance before the low-pass: [[a0, b0], [b0, c0]].
+    a0: F,
+    b0: F,
+    c0: F,
+}
+
 #[inline]
-pub fn project<F: Real>(
-    cloud: &GaussianCloud<F>,
-    g: usize,
-    cam: &CameraTerms<F>,
-    low_pass: LowPass,
-    near: F,
-) -> Option<Splat<F>> {
+fn geometry<F: Real>(cloud: &GaussianCloud<F>, g: usize, cam: &CameraTerms<F>) -> Geometry<F> {
+    let zero = F::zero();
     let p = [
         cloud.means[3 * g],
         cloud.means[3 * g + 1],
@@ -150,14 +170,7 @@ pub fn project<F: Real>(
         cloud.log_scales[3 * g + 2],
     ];
     let t = mat_vec(&cam.w, sub3(p, cam.position));
-    // Written so that NaN fails.
-    if !(t[2] > near) || !t[0].is_finite() || !t[1].is_finite() {
-        return None;
-    }
     let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    if !(qn > F::zero()) || !qn.is_finite() {
-        return None;
-    }
     let qh = [q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn];
     let s = [ls[0].exp(), ls[1].exp(), ls[2].exp()];
     let r = quat_to_mat(qh);
@@ -168,14 +181,15 @@ pub fn project<F: Real>(
     ];
     let sigma = mat_mul(&m, &transpose(&m));
     let (tx, ty, tz) = (t[0], t[1], t[2]);
+    let x_clamped = !((tx / tz) >= -cam.lim_x && (tx / tz) <= cam.lim_x);
+    let y_clamped = !((ty / tz) >= -cam.lim_y && (ty / tz) <= cam.lim_y);
     let txc = (tx / tz).max(-cam.lim_x).min(cam.lim_x) * tz;
     let tyc = (ty / tz).max(-cam.lim_y).min(cam.lim_y) * tz;
     let f = cam.focal;
     let j = [
-        [f / tz, F::zero(), -f * txc / (tz * tz)],
-        [F::zero(), f / tz, -f * tyc / (tz * tz)],
+        [f / tz, zero, -f * txc / (tz * tz)],
+        [zero, f / tz, -f * tyc / (tz * tz)],
     ];
-    // T = J W (2x3).
     let tm = [
         [
             j[0][0] * cam.w[0][0] + j[0][2] * cam.w[2][0],
@@ -188,11 +202,49 @@ pub fn project<F: Real>(
             j[1][1] * cam.w[1][2] + j[1][2] * cam.w[2][2],
         ],
     ];
-    let ts0 = mat_t_vec(&sigma, tm[0]); // Sigma T0 (Sigma symmetric)
-    let ts1 = mat_t_vec(&sigma, tm[1]);
-    let a0 = dot3(tm[0], ts0);
-    let b0 = dot3(tm[0], ts1);
-    let c0 = dot3(tm[1], ts1);
+    // Sigma is symmetric, so Sigma^T T_i = Sigma T_i.
+    let ts = [mat_t_vec(&sigma, tm[0]), mat_t_vec(&sigma, tm[1])];
+    Geometry {
+        p,
+        t,
+        qn,
+        qh,
+        s,
+        r,
+        m,
+        txc,
+        tyc,
+        x_clamped,
+        y_clamped,
+        a0: dot3(tm[0], ts[0]),
+        b0: dot3(tm[0], ts[1]),
+        c0: dot3(tm[1], ts[1]),
+        tm,
+        ts,
+    }
+}
+
+/// Projects Gaussian `g`; None when it is culled.
+#[inline]
+pub fn project<F: Real>(
+    cloud: &GaussianCloud<F>,
+    g: usize,
+    cam: &CameraTerms<F>,
+    low_pass: LowPass,
+    near: F,
+) -> Option<Splat<F>> {
+    let geo = geometry(cloud, g, cam);
+    let (p, t, qn) = (geo.p, geo.t, geo.qn);
+    // Written so that NaN fails.
+    if !(t[2] > near) || !t[0].is_finite() || !t[1].is_finite() {
+        return None;
+    }
+    if !(qn > F::zero()) || !qn.is_finite() {
+        return None;
+    }
+    let (tx, ty, tz) = (t[0], t[1], t[2]);
+    let f = cam.focal;
+    let (a0, b0, c0) = (geo.a0, geo.b0, geo.c0);
     let k = F::c(low_pass.variance());
     let (a, c) = (a0 + k, c0 + k);
     let det = a * c - b0 * b0;
@@ -288,59 +340,28 @@ pub fn project_backward<F: Real>(
 ) {
     let zero = F::zero();
     let two = F::c(2.0);
-    let p = [
-        cloud.means[3 * g],
-        cloud.means[3 * g + 1],
-        cloud.means[3 * g + 2],
-    ];
-    let q = [
-        cloud.rotations[4 * g],
-        cloud.rotations[4 * g + 1],
-        cloud.rotations[4 * g + 2],
-        cloud.rotations[4 * g + 3],
-    ];
-    let ls = [
-        cloud.log_scales[3 * g],
-        cloud.log_scales[3 * g + 1],
-        cloud.log_scales[3 * g + 2],
-    ];
-    let t = mat_vec(&cam.w, sub3(p, cam.position));
-    let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    let qh = [q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn];
-    let s = [ls[0].exp(), ls[1].exp(), ls[2].exp()];
-    let r = quat_to_mat(qh);
-    let m = [
-        [r[0][0] * s[0], r[0][1] * s[1], r[0][2] * s[2]],
-        [r[1][0] * s[0], r[1][1] * s[1], r[1][2] * s[2]],
-        [r[2][0] * s[0], r[2][1] * s[1], r[2][2] * s[2]],
-    ];
-    let sigma = mat_mul(&m, &transpose(&m));
+    let geo = geometry(cloud, g, cam);
+    let Geometry {
+        p,
+        t,
+        qn,
+        qh,
+        s,
+        r,
+        m,
+        txc,
+        tyc,
+        x_clamped,
+        y_clamped,
+        tm,
+        ts,
+        a0,
+        b0,
+        c0,
+        ..
+    } = geo;
     let (tx, ty, tz) = (t[0], t[1], t[2]);
-    let x_clamped = !((tx / tz) >= -cam.lim_x && (tx / tz) <= cam.lim_x);
-    let y_clamped = !((ty / tz) >= -cam.lim_y && (ty / tz) <= cam.lim_y);
-    let txc = (tx / tz).max(-cam.lim_x).min(cam.lim_x) * tz;
-    let tyc = (ty / tz).max(-cam.lim_y).min(cam.lim_y) * tz;
     let f = cam.focal;
-    let j = [
-        [f / tz, zero, -f * txc / (tz * tz)],
-        [zero, f / tz, -f * tyc / (tz * tz)],
-    ];
-    let tm = [
-        [
-            j[0][0] * cam.w[0][0] + j[0][2] * cam.w[2][0],
-            j[0][0] * cam.w[0][1] + j[0][2] * cam.w[2][1],
-            j[0][0] * cam.w[0][2] + j[0][2] * cam.w[2][2],
-        ],
-        [
-            j[1][1] * cam.w[1][0] + j[1][2] * cam.w[2][0],
-            j[1][1] * cam.w[1][1] + j[1][2] * cam.w[2][1],
-            j[1][1] * cam.w[1][2] + j[1][2] * cam.w[2][2],
-        ],
-    ];
-    let ts = [mat_t_vec(&sigma, tm[0]), mat_t_vec(&sigma, tm[1])];
-    let a0 = dot3(tm[0], ts[0]);
-    let b0 = dot3(tm[0], ts[1]);
-    let c0 = dot3(tm[1], ts[1]);
     let k = F::c(low_pass.variance());
     let (a, c) = (a0 + k, c0 + k);
     let det = a * c - b0 * b0;

@@ -218,6 +218,20 @@ pub(crate) fn bin_for_stochastic(
     (b.splats, b.ids, b.entries, b.tile_ranges, tiles_x)
 }
 
+/// The pixels of tile `ti` inside the image: (x, y, index within the tile).
+pub(crate) fn tile_pixels(
+    ti: usize,
+    tiles_x: u32,
+    w: u32,
+    h: u32,
+) -> impl Iterator<Item = (u32, u32, usize)> {
+    let (x0, y0) = ((ti as u32 % tiles_x) * TILE, (ti as u32 / tiles_x) * TILE);
+    (0..TILE * TILE).filter_map(move |k| {
+        let (x, y) = (x0 + k % TILE, y0 + k / TILE);
+        (x < w && y < h).then_some((x, y, k as usize))
+    })
+}
+
 /// Evaluates alpha of splat `s` at pixel centre `(px, py)`; None when it is skipped.
 #[inline(always)]
 pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, F, F)> {
@@ -344,20 +358,12 @@ pub fn render<F: Real>(
     let mut n_contrib = Vec::with_capacity(n_tiles * tile_px);
     let mut final_t = Vec::with_capacity(n_tiles * tile_px);
     for (ti, o) in outs.iter().enumerate() {
-        let tx = ti as u32 % tiles_x;
-        let ty = ti as u32 / tiles_x;
-        for j in 0..TILE {
-            for i in 0..TILE {
-                let (x, y) = (tx * TILE + i, ty * TILE + j);
-                if x < w && y < h {
-                    let p = (j * TILE + i) as usize;
-                    let q = (y * w + x) as usize;
-                    color[q] = o.color[p];
-                    transmittance[q] = o.t[p];
-                    if let Some(d) = depth.as_mut() {
-                        d[q] = o.depth[p];
-                    }
-                }
+        for (x, y, p) in tile_pixels(ti, tiles_x, w, h) {
+            let q = (y * w + x) as usize;
+            color[q] = o.color[p];
+            transmittance[q] = o.t[p];
+            if let Some(d) = depth.as_mut() {
+                d[q] = o.depth[p];
             }
         }
         n_contrib.extend_from_slice(&o.n);

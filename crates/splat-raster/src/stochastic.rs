@@ -8,7 +8,9 @@
 use crate::camera::Camera;
 use crate::cloud::GaussianCloud;
 use crate::random::{hash32, unit_f32};
-use crate::raster::{RasterConfig, RenderOutput, TILE, bin_for_stochastic, splat_alpha};
+use crate::raster::{
+    RasterConfig, RenderOutput, TILE, bin_for_stochastic, splat_alpha, tile_pixels,
+};
 use rayon::prelude::*;
 
 /// Renders `samples` stochastic samples per pixel and returns their mean (transmittance is the
@@ -82,17 +84,10 @@ pub fn render_stochastic(
         depth: None,
     };
     for (ti, (col, tr)) in tiles.iter().enumerate() {
-        let tx = ti as u32 % tiles_x;
-        let ty = ti as u32 / tiles_x;
-        for j in 0..TILE {
-            for i in 0..TILE {
-                let (x, y) = (tx * TILE + i, ty * TILE + j);
-                if x < w && y < h {
-                    let q = (y * w + x) as usize;
-                    out.color[q] = col[(j * TILE + i) as usize];
-                    out.transmittance[q] = tr[(j * TILE + i) as usize];
-                }
-            }
+        for (x, y, p) in tile_pixels(ti, tiles_x, w, h) {
+            let q = (y * w + x) as usize;
+            out.color[q] = col[p];
+            out.transmittance[q] = tr[p];
         }
     }
     out

@@ -8,8 +8,8 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
 use splat_raster::loss::{Loss, loss_and_grad};
-use splat_raster::raster::backward;
-use splat_raster::{ColorModel, PixelGrads, RasterConfig, render};
+use splat_raster::train::train_step;
+use splat_raster::{ColorModel, RasterConfig, render};
 
 /// Fitting one value to noisy samples of a constant with the HDR loss (detached denominator):
 /// the fit converges to the sample mean. Samples are heavy-tailed like path-traced radiance:
@@ -86,21 +86,18 @@ fn perturbed_cloud_is_fitted_back() {
     let mut first = None;
     let mut last = 0.0;
     for _ in 0..400 {
-        let (out, state) = render(&cloud, &cam, &cfg);
-        let (l, grad) = loss_and_grad(Loss::L2, &out.color, &target.color, None);
+        let l = train_step(
+            &mut cloud,
+            &cam,
+            &cfg,
+            &target.color,
+            None,
+            Loss::L2,
+            &mut opt,
+            1.0,
+        );
         first.get_or_insert(l);
         last = l;
-        let grads = backward(
-            &cloud,
-            &cam,
-            &state,
-            PixelGrads {
-                color: &grad,
-                transmittance: None,
-                depth: None,
-            },
-        );
-        opt.step(&mut cloud, &grads, 1.0);
     }
     let first = first.unwrap();
     eprintln!("L2 loss {first:.3e} -> {last:.3e} ({:.0}x)", first / last);

@@ -303,6 +303,12 @@ pub fn render<F: Real>(
                 }
             }
             let mut col = vec![[F::zero(); 3]; tile_px];
+            // Pixel-centre coordinates of the tile's columns and rows, converted once.
+            let cx: [F; TILE as usize] =
+                std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
+            let cy: [F; TILE as usize] =
+                std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
+            let want_depth = config.depth;
             for (k, s) in local.iter().enumerate() {
                 if active == 0 {
                     break;
@@ -310,13 +316,13 @@ pub fn render<F: Real>(
                 let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
                 let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
                 for y in ay..=by {
-                    let py = F::c(y as f64 + 0.5);
+                    let py = cy[(y - y0) as usize];
                     for x in ax..=bx {
                         let p = ((y - y0) * TILE + (x - x0)) as usize;
                         if done[p] {
                             continue;
                         }
-                        let Some((alpha, _, _, _)) = splat_alpha(s, F::c(x as f64 + 0.5), py)
+                        let Some((alpha, _, _, _)) = splat_alpha(s, cx[(x - x0) as usize], py)
                         else {
                             continue;
                         };
@@ -332,7 +338,9 @@ pub fn render<F: Real>(
                         for ch in 0..3 {
                             c[ch] = c[ch] + wgt * s.color[ch];
                         }
-                        out.depth[p] = out.depth[p] + wgt * s.depth;
+                        if want_depth {
+                            out.depth[p] = out.depth[p] + wgt * s.depth;
+                        }
                         out.t[p] = next_t;
                         out.n[p] = k as u32 + 1;
                     }
@@ -484,6 +492,10 @@ pub fn backward<F: Real>(
                     };
                 }
             }
+            let cx: [F; TILE as usize] =
+                std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
+            let cy: [F; TILE as usize] =
+                std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
             for k in (0..local.len()).rev() {
                 let s = &local[k];
                 let r = &mut rec[k];
@@ -493,13 +505,14 @@ pub fn backward<F: Real>(
                     s.rect[3].min(y0 + TILE - 1).min(h - 1),
                 );
                 for y in ay..=by {
-                    let py = F::c(y as f64 + 0.5);
+                    let py = cy[(y - y0) as usize];
                     for x in ax..=bx {
                         let st = &mut px[((y - y0) * TILE + (x - x0)) as usize];
                         if k as u32 >= st.n {
                             continue;
                         }
-                        let Some((alpha, gauss, dx, dy)) = splat_alpha(s, F::c(x as f64 + 0.5), py)
+                        let Some((alpha, gauss, dx, dy)) =
+                            splat_alpha(s, cx[(x - x0) as usize], py)
                         else {
                             continue;
                         };

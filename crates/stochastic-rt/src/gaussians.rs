@@ -1,0 +1,194 @@
+//! Gaussians prepared for tracing, and their response along a ray.
+//!
+//! In canonical space `y = S^-1 R^T (x - mu)` a Gaussian is `exp(-|y|^2 / 2)`; along the ray
+//! `o + t d` the response is a 1D Gaussian whose mean `t*` (the point of maximum response) is
+//! where the ray is shaded (`mean` depth mode). Alpha there is `min(0.99, opacity G)`, and
+//! intersections with alpha below 1/255 are negligible, as in splat-raster; so each Gaussian is
+//! bounded by the ellipsoid `|y|^2 <= 2 ln(255 opacity)` and its exact axis-aligned box: the
+//! BVH sees exactly the intersections that a brute-force loop accepts.
+
+use glam::Vec3;
+use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
+use splat_raster::sh;
+use splat_raster::{ColorModel, GaussianCloud};
+
+/// Where along the ray an intersection is placed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DepthMode {
+    /// The mean of the 1D Gaussian along the ray (seed 000 "OursMean").
+    #[default]
+    Mean,
+    /// The Gaussian's centre projected onto the camera's forward axis, as a rasteriser sorts
+    /// (seed 000 section 4.1, "OursCenter").
+    Center,
+}
+
+/// The Gaussians of a cloud that can be seen, in tracing form (structure of arrays).
+#[derive(Debug, Clone)]
+pub struct TraceGaussians {
+    /// Index in the source cloud.
+    pub ids: Vec<u32>,
+    pub means: Vec<Vec3>,
+    /// Rows of `S^-1 R^T`, world offset to canonical space.
+    pub canonical: Vec<[Vec3; 3]>,
+    pub opacity: Vec<f32>,
+    /// Squared canonical radius of the alpha >= 1/255 ellipsoid: `2 ln(255 opacity)`.
+    pub cutoff: Vec<f32>,
+    pub lower: Vec<Vec3>,
+    pub upper: Vec<Vec3>,
+    /// `3 * coefficients` per Gaussian, `[coefficient][channel]`, as in the cloud.
+    pub colors: Vec<f32>,
+    pub color_model: ColorModel,
+}
+
+/// An accepted ray-Gaussian intersection: where, and with what alpha.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Intersection {
+    pub t: f32,
+    pub alpha: f32,
+}
+
+impl TraceGaussians {
+    /// Prepares every Gaussian that can contribute; non-finite, degenerate (zero quaternion,
+    /// zero or infinite scale) and too faint (opacity below 1/255) ones are left out.
+    pub fn new(cloud: &GaussianCloud<f32>) -> Self {
+        let stride = cloud.color_stride();
+        let mut out = TraceGaussians {
+            ids: Vec::new(),
+            means: Vec::new(),
+            canonical: Vec::new(),
+            opacity: Vec::new(),
+            cutoff: Vec::new(),
+            lower: Vec::new(),
+            upper: Vec::new(),
+            colors: Vec::new(),
+            color_model: cloud.color_model,
+        };
+        for g in 0..cloud.len() {
+            let mean = Vec3::from_slice(&cloud.means[3 * g..3 * g + 3]);
+            let q = &cloud.rotations[4 * g..4 * g + 4];
+            let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+            let s = Vec3::from_slice(&cloud.log_scales[3 * g..3 * g + 3]).exp();
+            let opacity = 1.0 / (1.0 + (-cloud.opacity_logits[g]).exp());
+            let color = &cloud.colors[g * stride..(g + 1) * stride];
+            // Written so that NaN fails.
+            let finite = qn > 0.0
+                && qn.is_finite()
+                && mean.is_finite()
+                && s.is_finite()
+                && s.min_element() > 0.0;
+            let visible = opacity >= ALPHA_MIN as f32 && color.iter().all(|c| c.is_finite());
+            if !(finite && visible) {
+                continue;
+            }
+            let r = glam::Mat3::from_quat(glam::Quat::from_xyzw(
+                q[1] / qn,
+                q[2] / qn,
+                q[3] / qn,
+                q[0] / qn,
+            ));
+            let inv_s = 1.0 / s;
+            // Rows of S^-1 R^T are the columns of R scaled by 1/s.
+            let canonical = [r.x_axis * inv_s.x, r.y_axis * inv_s.y, r.z_axis * inv_s.z];
+            if !canonical.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            let cutoff = 2.0 * (255.0 * opacity).ln();
+            // Exact box of the ellipsoid |S^-1 R^T (x - mu)| <= sqrt(cutoff): half-extent along
+            // world axis i is sqrt(cutoff) * |row i of R S|; a hair wider against rounding.
+            let m = glam::Mat3::from_cols(r.x_axis * s.x, r.y_axis * s.y, r.z_axis * s.z);
+            let rows = [m.row(0), m.row(1), m.row(2)];
+            let half = Vec3::new(rows[0].length(), rows[1].length(), rows[2].length())
+                * cutoff.sqrt()
+                * (1.0 + 1e-5)
+                + 1e-6 * (1.0 + mean.abs().max_element());
+            if !half.is_finite() {
+                continue;
+            }
+            out.ids.push(g as u32);
+            out.means.push(mean);
+            out.canonical.push(canonical);
+            out.opacity.push(opacity);
+            out.cutoff.push(cutoff);
+            out.lower.push(mean - half);
+            out.upper.push(mean + half);
+            out.colors.extend_from_slice(color);
+        }
+        out
+    }
+
+    pub fn len(&self) -> usize {
+        self.ids.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+
+    /// The intersection of the ray `o + t d` (t in `(t_min, t_max)`) with Gaussian `i`, if
+    /// its alpha reaches 1/255. `forward` is the camera's forward axis (for `Center` depth).
+    #[inline]
+    #[allow(clippy::too_many_arguments)] // the hot path: plain values, no per-call struct
+    pub fn intersect(
+        &self,
+        i: usize,
+        o: Vec3,
+        d: Vec3,
+        t_min: f32,
+        t_max: f32,
+        mode: DepthMode,
+        forward: Vec3,
+    ) -> Option<Intersection> {
+        let a = &self.canonical[i];
+        let off = o - self.means[i];
+        let oc = Vec3::new(a[0].dot(off), a[1].dot(off), a[2].dot(off));
+        let dc = Vec3::new(a[0].dot(d), a[1].dot(d), a[2].dot(d));
+        let dd = dc.length_squared();
+        if !(dd > 0.0) {
+            return None;
+        }
+        let t_star = -oc.dot(dc) / dd;
+        // Squared canonical distance at the closest point, computed from the point itself
+        // (no cancellation for rays far from the Gaussian).
+        let q = (oc + t_star * dc).length_squared();
+        if !(q <= self.cutoff[i]) {
+            return None;
+        }
+        let alpha = (self.opacity[i] * (-0.5 * q).exp()).min(ALPHA_MAX as f32);
+        if !(alpha >= ALPHA_MIN as f32) {
+            return None;
+        }
+        let t = match mode {
+            DepthMode::Mean => t_star,
+            DepthMode::Center => {
+                let fd = forward.dot(d);
+                if !(fd > 0.0) {
+                    return None;
+                }
+                (self.means[i] - o).dot(forward) / fd
+            }
+        };
+        (t > t_min && t < t_max).then_some(Intersection { t, alpha })
+    }
+
+    /// Colour of Gaussian `i` seen from `eye` (3DGS convention for SH: view direction from the
+    /// eye to the mean; clamped at 0, never above).
+    #[inline]
+    pub fn color(&self, i: usize, eye: Vec3) -> Vec3 {
+        match self.color_model {
+            ColorModel::Rgb => Vec3::from_slice(&self.colors[3 * i..3 * i + 3]).max(Vec3::ZERO),
+            ColorModel::Sh(deg) => {
+                let n = sh::coeffs_for_degree(deg);
+                let c = &self.colors[3 * n * i..3 * n * (i + 1)];
+                let dir = (self.means[i] - eye).normalize_or_zero();
+                let mut basis = [0.0f32; 16];
+                sh::basis(deg, dir.to_array(), &mut basis, None);
+                let mut out = Vec3::splat(0.5);
+                for k in 0..n {
+                    out += basis[k] * Vec3::new(c[3 * k], c[3 * k + 1], c[3 * k + 2]);
+                }
+                out.max(Vec3::ZERO)
+            }
+        }
+    }
+}

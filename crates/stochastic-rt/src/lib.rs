@@ -3,17 +3,20 @@
 //!
 //! - [`gaussians`]: per-Gaussian data for tracing (canonical transforms, cut-offs, bounds) and
 //!   the ray-Gaussian response.
+//! - [`random`]: the acceptance numbers: an integer hash, or seed 000's trigonometric hash.
 //! - [`scene`]: the BVH over the Gaussians' bounds (obvhs `Bvh2`).
-//! - [`estimators`]: `exact` (every hit, sorted, Eq. 3) and `stochastic` (closest accepted hit,
-//!   Eq. 6).
+//! - [`estimators`]: `exact` (every hit, sorted, Eq. 3), `kbuffer` (K closest per pass,
+//!   3DGRT-style), `stochastic` (closest accepted hit, Eq. 6; N samples per traversal, section
+//!   3.5) and `stochastic-pass` (seed 004 section 4).
 //!
-//! Work in progress (issue 4): the K-buffer, N-sample and stochastic-pass estimators, the
-//! trigonometric hash, the `splat trace` program and the benchmarks come next.
+//! Work in progress (issue 4): the `splat trace` program and the benchmarks come next.
 
 pub mod estimators;
 pub mod gaussians;
+pub mod random;
 pub mod scene;
 
 pub use estimators::{Estimator, TraceSettings, trace_image};
 pub use gaussians::{DepthMode, TraceGaussians};
+pub use random::RandomKind;
 pub use scene::GaussianScene;

@@ -7,8 +7,12 @@ use rand::{RngExt, SeedableRng};
 use splat_raster::io::read_ply;
 use splat_raster::{Camera, ColorModel, GaussianCloud};
 use std::path::PathBuf;
-use stochastic_rt::estimators::{all_hits, trace_exact, trace_stochastic};
-use stochastic_rt::{DepthMode, GaussianScene};
+use stochastic_rt::estimators::{
+    TraceRay, all_hits, k_closest_after, trace_exact, trace_kbuffer, trace_stochastic,
+    trace_stochastic_pass,
+};
+use stochastic_rt::random::SampleKey;
+use stochastic_rt::{DepthMode, GaussianScene, RandomKind};
 
 fn random_cloud(n: usize, seed: u64) -> GaussianCloud<f32> {
     let mut rng = StdRng::seed_from_u64(seed);
@@ -59,7 +63,13 @@ fn brute_hits(scene: &GaussianScene, o: Vec3, d: Vec3) -> Vec<(u32, u32)> {
 
 fn bvh_hits(scene: &GaussianScene, o: Vec3, d: Vec3) -> Vec<(u32, u32)> {
     let g = &scene.gaussians;
-    let mut v: Vec<(u32, u32)> = all_hits(scene, o, d, DepthMode::Mean, Vec3::Z)
+    let r = TraceRay {
+        o,
+        d,
+        mode: DepthMode::Mean,
+        forward: Vec3::Z,
+    };
+    let mut v: Vec<(u32, u32)> = all_hits(scene, &r)
         .into_iter()
         .map(|(t, _, i)| (g.ids[i], t.to_bits()))
         .collect();
@@ -110,55 +120,92 @@ fn bvh_and_brute_force_report_identical_hit_sets() {
     }
 }
 
-#[test]
-fn stochastic_estimate_is_unbiased_against_exact() {
+/// Exact mean and second moment of one estimate of each estimator on a ray (channel 0).
+fn moments(scene: &GaussianScene, r: &TraceRay, bg: Vec3, pass_k: Option<usize>) -> (f64, f64) {
+    let g = &scene.gaussians;
+    let c0 = |i: usize| g.color(i, r.o).x as f64;
+    match pass_k {
+        None => {
+            // Closest accepted: Gaussian i wins with weight T_i alpha_i, the background with T.
+            let mut hits = all_hits(scene, r);
+            hits.sort_by(|a, b| a.0.total_cmp(&b.0).then(g.ids[a.2].cmp(&g.ids[b.2])));
+            let (mut t, mut m1, mut m2) = (1.0f64, 0.0, 0.0);
+            for (_, alpha, i) in hits {
+                let w = t * alpha as f64;
+                m1 += w * c0(i);
+                m2 += w * c0(i) * c0(i);
+                t *= 1.0 - alpha as f64;
+            }
+            (m1 + t * bg.x as f64, m2 + t * (bg.x as f64).powi(2))
+        }
+        Some(k) => {
+            // Pass j is reached with probability prod of earlier T, accepted with p_j = 1 - T_j,
+            // and returns L_j / p_j.
+            let (mut reach, mut m1, mut m2) = (1.0f64, 0.0, 0.0);
+            let mut buf = Vec::new();
+            let mut after = None;
+            loop {
+                k_closest_after(scene, r, after, k, &mut buf);
+                if buf.is_empty() {
+                    break;
+                }
+                let (mut t, mut l) = (1.0f32, 0.0f32);
+                for &(_, alpha, i) in &buf {
+                    l += t * alpha * g.color(i, r.o).x;
+                    t *= 1.0 - alpha;
+                }
+                let p = 1.0 - t as f64;
+                let est = l as f64 / p;
+                m1 += reach * p * est;
+                m2 += reach * p * est * est;
+                reach *= 1.0 - p;
+                if buf.len() < k {
+                    break;
+                }
+                let &(tl, _, i) = buf.last().unwrap();
+                after = Some((tl, g.ids[i]));
+            }
+            (m1 + reach * bg.x as f64, m2 + reach * (bg.x as f64).powi(2))
+        }
+    }
+}
+
+/// Per-pixel z-scores of `n` estimates against the exact mean with the exact variance, summed
+/// into a chi-square; asserts it under the 1e-5 upper quantile and every |z| under 5.5.
+fn check_unbiased(
+    name: &str,
+    n: u32,
+    per_estimate_var_scale: f64,
+    pass_k: Option<usize>,
+    estimate: impl Fn(&GaussianScene, &TraceRay, Vec3, u32, u32) -> Vec3,
+) -> f64 {
     let cloud = random_cloud(300, 2);
     let scene = GaussianScene::new(&cloud);
     let cam =
-        Camera::look_at(Vec3::new(0.2, 0.1, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 32, 24).unwrap();
+        Camera::look_at(Vec3::new(0.2, 0.1, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 24, 18).unwrap();
     let (_, _, fwd) = cam.axes();
     let bg = Vec3::new(0.2, 0.3, 0.4);
-    let n = 400u32;
-    let (mut chi2, mut k, mut worst) = (0.0f64, 0usize, 0.0f64);
-    let mut mse = [0.0f64; 3];
+    let (mut chi2, mut k, mut worst, mut mse) = (0.0f64, 0usize, 0.0f64, 0.0f64);
     for p in 0..cam.width * cam.height {
         let d = cam.ray_direction((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
-        let exact = trace_exact(&scene, cam.position, d, DepthMode::Mean, fwd, bg);
-        // Exact variance of one estimate: the composite of squared colours minus the square.
-        let mut hits = all_hits(&scene, cam.position, d, DepthMode::Mean, fwd);
-        hits.sort_by(|a, b| {
-            a.0.total_cmp(&b.0)
-                .then(scene.gaussians.ids[a.2].cmp(&scene.gaussians.ids[b.2]))
-        });
-        let (mut t, mut second) = (1.0f64, 0.0f64);
-        for (_, alpha, i) in &hits {
-            second +=
-                t * *alpha as f64 * (scene.gaussians.color(*i, cam.position).x as f64).powi(2);
-            t *= 1.0 - *alpha as f64;
-        }
-        second += t * (bg.x as f64).powi(2);
-        let var = (second - (exact.x as f64).powi(2)).max(0.0);
-        let mut sums = [0.0f64; 3];
-        for s in 0..n {
-            let e = trace_stochastic(&scene, cam.position, d, DepthMode::Mean, fwd, bg, 9, p, s).x
-                as f64;
-            assert!(e.is_finite());
-            sums[0] += e;
-            if s < 4 {
-                sums[1] += e;
-            }
-            if s < 64 {
-                sums[2] += e;
-            }
-        }
-        let means = [sums[0] / n as f64, sums[1] / 4.0, sums[2] / 64.0];
-        for (j, m) in means.iter().enumerate() {
-            mse[j] += (m - exact.x as f64).powi(2);
-        }
+        let r = TraceRay {
+            o: cam.position,
+            d,
+            mode: DepthMode::Mean,
+            forward: fwd,
+        };
+        let (m1, m2) = moments(&scene, &r, bg, pass_k);
+        let var = (m2 - m1 * m1).max(0.0) * per_estimate_var_scale;
+        let mean = (0..n)
+            .map(|s| estimate(&scene, &r, bg, p, s).x as f64)
+            .sum::<f64>()
+            / n as f64;
+        assert!(mean.is_finite());
+        mse += (mean - m1).powi(2);
         if var < 1e-9 {
             continue;
         }
-        let z = (means[0] - exact.x as f64) / (var / n as f64).sqrt();
+        let z = (mean - m1) / (var / n as f64).sqrt();
         chi2 += z * z;
         worst = worst.max(z.abs());
         k += 1;
@@ -166,17 +213,86 @@ fn stochastic_estimate_is_unbiased_against_exact() {
     let a = 2.0 / (9.0 * k as f64);
     let limit = k as f64 * (1.0 - a + 4.265 * a.sqrt()).powi(3);
     eprintln!(
-        "stochastic vs exact: chi2 {chi2:.1} over {k} pixels (limit {limit:.1}, false alarm 1e-5), max |z| {worst:.2}; MSE at 4/64/400 spp {:.3e} {:.3e} {:.3e}",
-        mse[1], mse[2], mse[0]
+        "{name}: chi2 {chi2:.1} over {k} pixels (limit {limit:.1}, false alarm 1e-5), max |z| {worst:.2}"
     );
-    assert!(k > 300, "too few noisy pixels: {k}");
+    assert!(k > 200, "{name}: too few noisy pixels: {k}");
     assert!(
         chi2 < limit && worst < 5.5,
-        "chi2 {chi2} (limit {limit}), max |z| {worst}"
+        "{name}: chi2 {chi2} (limit {limit}), max |z| {worst}"
     );
-    // MSE falls as 1/spp: from 4 to 64 samples by about 16x.
-    let r = mse[1] / mse[2];
-    assert!((10.0..25.0).contains(&r), "MSE ratio 4 -> 64 spp: {r}");
+    mse / (cam.width * cam.height) as f64
+}
+
+#[test]
+fn stochastic_estimators_are_unbiased_against_exact() {
+    for kind in [RandomKind::Hash, RandomKind::Trig] {
+        check_unbiased(
+            &format!("stochastic ({kind:?})"),
+            400,
+            1.0,
+            None,
+            |s, r, bg, p, i| trace_stochastic(s, r, bg, &SampleKey::new(9, p, i), 1, kind),
+        );
+    }
+    check_unbiased(
+        "stochastic, 8 samples per traversal",
+        100,
+        1.0 / 8.0,
+        None,
+        |s, r, bg, p, i| trace_stochastic(s, r, bg, &SampleKey::new(9, p, i), 8, RandomKind::Hash),
+    );
+    check_unbiased(
+        "stochastic pass, k = 4",
+        400,
+        1.0,
+        Some(4),
+        |s, r, bg, p, i| trace_stochastic_pass(s, r, bg, &SampleKey::new(9, p, i), 4),
+    );
+}
+
+#[test]
+fn stochastic_mse_falls_as_one_over_spp() {
+    let est = |s: &GaussianScene, r: &TraceRay, bg: Vec3, p: u32, i: u32| {
+        trace_stochastic(s, r, bg, &SampleKey::new(3, p, i), 1, RandomKind::Hash)
+    };
+    let m4 = check_unbiased("4 spp", 4, 1.0, None, est);
+    let m64 = check_unbiased("64 spp", 64, 1.0, None, est);
+    let r = m4 / m64;
+    eprintln!("MSE 4 spp / 64 spp = {r:.2} (16 expected)");
+    assert!((11.0..23.0).contains(&r), "MSE ratio {r}");
+}
+
+#[test]
+fn kbuffer_equals_exact_without_its_stop() {
+    let cloud = random_cloud(300, 4);
+    let scene = GaussianScene::new(&cloud);
+    let cam =
+        Camera::look_at(Vec3::new(0.0, 0.2, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 24, 18).unwrap();
+    let (_, _, fwd) = cam.axes();
+    let bg = Vec3::new(0.1, 0.2, 0.3);
+    let mut max_hits = 0;
+    for p in 0..cam.width * cam.height {
+        let d = cam.ray_direction((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
+        let r = TraceRay {
+            o: cam.position,
+            d,
+            mode: DepthMode::Mean,
+            forward: fwd,
+        };
+        max_hits = max_hits.max(all_hits(&scene, &r).len());
+        let e = trace_exact(&scene, &r, bg);
+        for k in [1, 3, 16] {
+            let kb = trace_kbuffer(&scene, &r, bg, k, 0.0);
+            assert!(
+                (kb - e).abs().max_element() <= 1e-6,
+                "pixel {p}, k {k}: {kb} vs {e}"
+            );
+        }
+    }
+    assert!(
+        max_hits > 16,
+        "rays must need several passes ({max_hits} hits at most)"
+    );
 }
 
 #[test]
@@ -204,20 +320,27 @@ fn degenerate_gaussians_never_produce_nan() {
     let (_, _, fwd) = cam.axes();
     for p in 0..cam.width * cam.height {
         let d = cam.ray_direction((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
-        assert!(trace_exact(&scene, cam.position, d, DepthMode::Mean, fwd, Vec3::ZERO).is_finite());
+        let r = TraceRay {
+            o: cam.position,
+            d,
+            mode: DepthMode::Mean,
+            forward: fwd,
+        };
+        assert!(trace_exact(&scene, &r, Vec3::ZERO).is_finite());
+        assert!(trace_kbuffer(&scene, &r, Vec3::ZERO, 4, 0.01).is_finite());
         assert!(
             trace_stochastic(
                 &scene,
-                cam.position,
-                d,
-                DepthMode::Mean,
-                fwd,
+                &r,
                 Vec3::ZERO,
-                1,
-                p,
-                0
+                &SampleKey::new(1, p, 0),
+                4,
+                RandomKind::Trig
             )
             .is_finite()
+        );
+        assert!(
+            trace_stochastic_pass(&scene, &r, Vec3::ZERO, &SampleKey::new(1, p, 0), 4).is_finite()
         );
     }
 }

@@ -1,0 +1,70 @@
+//! The random numbers that decide acceptance, both stateless: an integer hash keyed on
+//! (seed, pixel, sample, Gaussian id), and seed 000's trigonometric hash (Eq. 8-10) of the hit
+//! position, perturbed per (seed, pixel, sample) as the paper perturbs it per frame.
+
+use glam::Vec3;
+use splat_raster::random::{hash32, unit_f32};
+
+/// Which generator decides acceptance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RandomKind {
+    /// xxHash32-style integer hash of (seed, pixel, sample, Gaussian id).
+    #[default]
+    Hash,
+    /// `xi(p) = r2(p_xy + r1(p_z))` with `r1(q) = fract(b1 sin(a1 q))` and
+    /// `r2(q) = fract(b2 sin(a2 . q))` (seed 000, Eq. 8-10), at the perturbed hit position.
+    Trig,
+}
+
+/// The key of one estimate: what the integer hash mixes, and the trig hash's perturbation.
+#[derive(Debug, Clone, Copy)]
+pub struct SampleKey {
+    pub seed: u32,
+    pub pixel: u32,
+    pub sample: u32,
+    /// Per-(seed, pixel, sample) offset added to hit positions by the trigonometric hash.
+    offset: Vec3,
+}
+
+impl SampleKey {
+    pub fn new(seed: u32, pixel: u32, sample: u32) -> Self {
+        let h = |k: u32| unit_f32(hash32(&[seed, pixel, sample, 0x9e37_79b9 ^ k]));
+        Self {
+            seed,
+            pixel,
+            sample,
+            offset: Vec3::new(h(1), h(2), h(3)),
+        }
+    }
+}
+
+#[inline]
+fn fract(x: f32) -> f32 {
+    x - x.floor()
+}
+
+/// Seed 000's trigonometric hash of a position, in [0, 1).
+#[inline]
+pub fn trig_hash(p: Vec3) -> f32 {
+    let r1 = fract(47_453.547 * (91.3458 * p.z).sin());
+    let (x, y) = (p.x + r1, p.y + r1);
+    // Both components of r2 use the same coefficients; one is enough.
+    fract(43_758.547 * (12.9898 * x + 78.233 * y).sin()).min(0.999_999_94)
+}
+
+/// The acceptance number for Gaussian `id` hit at position `p`, for slot `slot` of a
+/// multi-sample traversal.
+#[inline]
+pub fn acceptance(kind: RandomKind, key: &SampleKey, id: u32, slot: u32, p: Vec3) -> f32 {
+    match kind {
+        RandomKind::Hash => unit_f32(hash32(&[
+            key.seed,
+            key.pixel,
+            key.sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab)),
+            id,
+        ])),
+        RandomKind::Trig => trig_hash(
+            p + key.offset + slot as f32 * Vec3::new(0.618_034, 0.414_213_57, 0.732_050_8),
+        ),
+    }
+}

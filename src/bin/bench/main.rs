@@ -5,10 +5,13 @@
 //!   majorant, and how time grows with spp and image size.
 //! - `bench splat`: the rasteriser's forward and backward passes at 1280x720, the AdamW step,
 //!   memory per Gaussian.
+//! - `bench trace`: the ray tracer's estimators: rays per second, error at equal time, and the
+//!   multi-sample table.
 //!
 //! Inputs that live in `../shared/data` are skipped, with a note, when it is absent.
 
 mod splat_bench;
+mod trace_bench;
 
 use anyhow::Result;
 use clap::Parser;
@@ -31,6 +34,8 @@ enum Sub {
     Pt(Args),
     /// The splatting rasteriser.
     Splat(splat_bench::SplatArgs),
+    /// The stochastic Gaussian ray tracer.
+    Trace(trace_bench::TraceArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -73,6 +78,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Sub::Splat(a)) => splat_bench::run(&a),
+        Some(Sub::Trace(a)) => trace_bench::run(&a),
         Some(Sub::Pt(a)) => run_pt(a),
         None => run_pt(cli.pt),
     }

@@ -23,7 +23,7 @@ pub struct SplatArgs {
 /// Gaussians spread through the default scene's volume where its transfer function is opaque,
 /// sized like the cache's initialisation (half the mean spacing), seen by its camera: the
 /// density the radiance cache will have.
-fn volume_cloud(n: usize) -> Result<(GaussianCloud<f32>, Camera)> {
+pub fn volume_cloud(n: usize) -> Result<(GaussianCloud<f32>, Camera)> {
     let scene = volume_pt::load_scene(
         &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml"),
     )?;

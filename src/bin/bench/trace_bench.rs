@@ -6,7 +6,7 @@ use splat_raster::Camera;
 use splat_raster::io::read_cloud;
 use std::path::PathBuf;
 use std::time::Instant;
-use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image};
+use stochastic_rt::{Estimator, GaussianScene, RandomKind, TraceSettings, trace_image};
 
 #[derive(clap::Args, Debug)]
 pub struct TraceArgs {
@@ -19,6 +19,49 @@ pub struct TraceArgs {
     /// Total samples per pixel for the multi-sample table (seed 000 Tables 4-5 use 1024).
     #[arg(long, default_value_t = 64)]
     multi_total: u32,
+    /// Gaussians in the volume-density cloud (0 to skip it).
+    #[arg(long, default_value_t = 1_000_000)]
+    volume_gaussians: usize,
+}
+
+/// Stochastic with each acceptance generator, and exact, on a cloud and camera (2 threads).
+fn hash_table(name: &str, scene: &GaussianScene, cam: &Camera, spp: u32) {
+    let exact_t = Instant::now();
+    let exact = trace_image(
+        scene,
+        cam,
+        &TraceSettings {
+            estimator: Estimator::Exact,
+            ..Default::default()
+        },
+    );
+    let exact_s = exact_t.elapsed().as_secs_f64();
+    let rays = (cam.width * cam.height) as f64;
+    println!(
+        "| {name} | exact | 1 | {exact_s:.2} | {:.3} | 0 |",
+        rays / exact_s / 1e6
+    );
+    for (label, random) in [
+        ("integer hash", RandomKind::Hash),
+        ("trig hash (Eq. 8-10)", RandomKind::Trig),
+    ] {
+        let settings = TraceSettings {
+            estimator: Estimator::Stochastic {
+                samples_per_traversal: 1,
+            },
+            spp,
+            random,
+            ..Default::default()
+        };
+        let t = Instant::now();
+        let img = trace_image(scene, cam, &settings);
+        let secs = t.elapsed().as_secs_f64();
+        println!(
+            "| {name} | stochastic, {label} | {spp} | {secs:.2} | {:.3} | {:.3e} |",
+            rays * spp as f64 / secs / 1e6,
+            mse(&img, &exact)
+        );
+    }
 }
 
 fn mse(a: &[Vec3], b: &[Vec3]) -> f64 {
@@ -132,6 +175,24 @@ pub fn run(a: &TraceArgs) -> Result<()> {
                 e * secs
             );
         }
+    }
+    println!("\nAcceptance generators, and a volume-density cloud (2 threads, {w}x{h})\n");
+    println!("| cloud | estimator | spp | seconds | M rays/s | MSE vs exact |");
+    println!("|---|---|---|---|---|---|");
+    hash_table("plant", &scene, &cam, a.spp);
+    if a.volume_gaussians > 0 {
+        let (vcloud, mut vcam) = crate::splat_bench::volume_cloud(a.volume_gaussians)?;
+        vcam.width = w;
+        vcam.height = h;
+        let t = Instant::now();
+        let vscene = GaussianScene::new(&vcloud);
+        let build = t.elapsed().as_secs_f64();
+        let name = format!(
+            "volume-density {}k (BVH {:.0} ms)",
+            vcloud.len() / 1000,
+            build * 1e3
+        );
+        hash_table(&name, &vscene, &vcam, a.spp);
     }
     println!(
         "\nMulti-sample (seed 000 Tables 4-5): {} samples per pixel as m traversals x n samples, 2 threads\n",

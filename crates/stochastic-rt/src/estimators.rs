@@ -74,6 +74,19 @@ pub struct TraceRay {
     pub forward: Vec3,
 }
 
+impl TraceRay {
+    /// The camera ray through the centre of pixel `p` (row-major index).
+    pub fn through_pixel(camera: &Camera, p: u32, mode: DepthMode) -> Self {
+        let (x, y) = (p % camera.width, p / camera.width);
+        TraceRay {
+            o: camera.position,
+            d: camera.ray_direction(x as f32 + 0.5, y as f32 + 0.5),
+            mode,
+            forward: camera.axes().2,
+        }
+    }
+}
+
 /// Every intersection of the ray, unsorted: (t, alpha, Gaussian index).
 pub fn all_hits(scene: &GaussianScene, r: &TraceRay) -> Vec<(f32, f32, usize)> {
     let mut hits = Vec::new();
@@ -275,8 +288,6 @@ pub fn trace_ray(
 /// Traces the camera's image: the mean of `spp` estimates per pixel, row-major (one estimate
 /// for the deterministic estimators).
 pub fn trace_image(scene: &GaussianScene, camera: &Camera, settings: &TraceSettings) -> Vec<Vec3> {
-    let (_, _, forward) = camera.axes();
-    let w = camera.width;
     let spp = match settings.estimator {
         Estimator::Exact | Estimator::KBuffer { .. } => 1,
         _ => settings.spp.max(1),
@@ -285,13 +296,7 @@ pub fn trace_image(scene: &GaussianScene, camera: &Camera, settings: &TraceSetti
         .into_par_iter()
         .with_min_len(64)
         .map(|p| {
-            let d = camera.ray_direction((p % w) as f32 + 0.5, (p / w) as f32 + 0.5);
-            let r = TraceRay {
-                o: camera.position,
-                d,
-                mode: settings.depth_mode,
-                forward,
-            };
+            let r = TraceRay::through_pixel(camera, p, settings.depth_mode);
             let mut sum = glam::DVec3::ZERO;
             for s in 0..spp {
                 sum += trace_ray(scene, &r, settings, p, s).as_dvec3();

@@ -183,17 +183,10 @@ fn check_unbiased(
     let scene = GaussianScene::new(&cloud);
     let cam =
         Camera::look_at(Vec3::new(0.2, 0.1, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 24, 18).unwrap();
-    let (_, _, fwd) = cam.axes();
     let bg = Vec3::new(0.2, 0.3, 0.4);
     let (mut chi2, mut k, mut worst, mut mse) = (0.0f64, 0usize, 0.0f64, 0.0f64);
     for p in 0..cam.width * cam.height {
-        let d = cam.ray_direction((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
-        let r = TraceRay {
-            o: cam.position,
-            d,
-            mode: DepthMode::Mean,
-            forward: fwd,
-        };
+        let r = TraceRay::through_pixel(&cam, p, DepthMode::Mean);
         let (m1, m2) = moments(&scene, &r, bg, pass_k);
         let var = (m2 - m1 * m1).max(0.0) * per_estimate_var_scale;
         let mean = (0..n)
@@ -268,17 +261,10 @@ fn kbuffer_equals_exact_without_its_stop() {
     let scene = GaussianScene::new(&cloud);
     let cam =
         Camera::look_at(Vec3::new(0.0, 0.2, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 24, 18).unwrap();
-    let (_, _, fwd) = cam.axes();
     let bg = Vec3::new(0.1, 0.2, 0.3);
     let mut max_hits = 0;
     for p in 0..cam.width * cam.height {
-        let d = cam.ray_direction((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
-        let r = TraceRay {
-            o: cam.position,
-            d,
-            mode: DepthMode::Mean,
-            forward: fwd,
-        };
+        let r = TraceRay::through_pixel(&cam, p, DepthMode::Mean);
         max_hits = max_hits.max(all_hits(&scene, &r).len());
         let e = trace_exact(&scene, &r, bg);
         for k in [1, 3, 16] {
@@ -317,15 +303,8 @@ fn degenerate_gaussians_never_produce_nan() {
     let scene = GaussianScene::new(&cloud);
     let cam =
         Camera::look_at(Vec3::new(0.0, 0.0, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 24, 16).unwrap();
-    let (_, _, fwd) = cam.axes();
     for p in 0..cam.width * cam.height {
-        let d = cam.ray_direction((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
-        let r = TraceRay {
-            o: cam.position,
-            d,
-            mode: DepthMode::Mean,
-            forward: fwd,
-        };
+        let r = TraceRay::through_pixel(&cam, p, DepthMode::Mean);
         assert!(trace_exact(&scene, &r, Vec3::ZERO).is_finite());
         assert!(trace_kbuffer(&scene, &r, Vec3::ZERO, 4, 0.01).is_finite());
         assert!(

@@ -2,13 +2,17 @@
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
+use gs_cache::{CacheConfig, GsCache, Lookup};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::output::{ToneMap, write_exr, write_png};
 use volume_pt::scene::max_depth_from;
-use volume_pt::{Film, IntegratorKind, load_scene, render};
+use volume_pt::{
+    Film, IntegratorKind, RenderStats, Scene, load_scene, render, render_cached_frame,
+    sample_cache_points,
+};
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
 #[derive(Parser, Debug)]
@@ -55,6 +59,51 @@ struct Args {
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+    #[command(flatten)]
+    cache: CacheArgs,
+}
+
+/// The gs-cache radiance cache (seed 002): read where paths stop, trained between frames.
+#[derive(clap::Args, Debug)]
+struct CacheArgs {
+    /// `off`, `raster` (levels drawn by the splatting rasteriser) or `rt` (by the stochastic
+    /// Gaussian ray tracer).
+    #[arg(long, default_value = "off")]
+    cache: CacheMode,
+    /// Algorithm 1's coefficient C (0 stops every path at its first vertex into the cache).
+    #[arg(long, default_value_t = 0.5)]
+    cache_c: f32,
+    /// Gaussians in the first level (level i has N / 2^i).
+    #[arg(long, default_value_t = 300_000)]
+    cache_points: usize,
+    /// Levels (level i holds paths of length i + 1).
+    #[arg(long, default_value_t = 3)]
+    cache_levels: usize,
+    /// Frames of `--spp` samples each, trained between them; the image is their mean.
+    #[arg(long, default_value_t = 1)]
+    frames: u32,
+    /// Frames rendered and trained on before the image starts accumulating.
+    #[arg(long, default_value_t = 0)]
+    warmup: u32,
+    /// Read the cache but never train it.
+    #[arg(long)]
+    no_train: bool,
+    /// No early termination (Algorithm 1): the cache is read only by paths that end with nothing.
+    #[arg(long)]
+    no_early: bool,
+    /// Write the trained levels as 3DGS PLY files into this folder.
+    #[arg(long)]
+    save_cache: Option<PathBuf>,
+    /// Start from levels saved by `--save-cache` instead of initialising from the volume.
+    #[arg(long)]
+    load_cache: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum CacheMode {
+    Off,
+    Raster,
+    Rt,
 }
 
 fn ensure_parent(p: &Path) -> Result<()> {
@@ -172,14 +221,22 @@ fn run() -> Result<()> {
         .expect("valid template"),
     );
     let mut film = Film::new(cam.width, cam.height);
-    let stats = render(
-        &scene.media,
-        &cam,
-        &scene.settings,
-        &mut film,
-        &cancel,
-        &|n| bar.inc(n),
-    );
+    let stats = if args.cache.cache == CacheMode::Off {
+        if args.cache.frames != 1 || args.cache.warmup != 0 {
+            bail!("--frames and --warmup need a cache (--cache raster or --cache rt)");
+        }
+        render(
+            &scene.media,
+            &cam,
+            &scene.settings,
+            &mut film,
+            &cancel,
+            &|n| bar.inc(n),
+        )
+    } else {
+        bar.set_length(total * args.cache.frames as u64);
+        render_with_cache(&scene, &args.cache, &mut film, &cancel, &bar)?
+    };
     bar.finish_and_clear();
 
     let pixels = film.mean();
@@ -201,6 +258,11 @@ fn run() -> Result<()> {
             film.total_samples() as f64 / (cam.width as f64 * cam.height as f64),
             scene.settings.spp
         )
+    } else if args.cache.cache != CacheMode::Off {
+        format!(
+            "{} frames of {} spp with the {:?} cache",
+            args.cache.frames, scene.settings.spp, args.cache.cache
+        )
     } else {
         format!("{} spp", scene.settings.spp)
     };
@@ -217,4 +279,107 @@ fn run() -> Result<()> {
         png_path.display()
     );
     Ok(())
+}
+
+/// Initialises (or loads) the cache, renders the warm-up and the accumulated frames, prints
+/// the per-frame costs, and saves the cache when asked.
+fn render_with_cache(
+    scene: &Scene,
+    a: &CacheArgs,
+    film: &mut Film,
+    cancel: &AtomicBool,
+    bar: &ProgressBar,
+) -> Result<RenderStats> {
+    let mut config = CacheConfig {
+        levels: a.cache_levels,
+        points: a.cache_points,
+        train: !a.no_train,
+        lookup: match a.cache {
+            CacheMode::Rt => Lookup::ray_traced(),
+            _ => Lookup::Raster,
+        },
+        ..Default::default()
+    };
+    config.termination.coefficient = a.cache_c;
+    config.termination.early = !a.no_early;
+    config.validate()?;
+    let t0 = std::time::Instant::now();
+    let mut cache = match &a.load_cache {
+        Some(dir) => GsCache::load(dir, config)?,
+        None => {
+            let (points, albedo) =
+                sample_cache_points(&scene.media, config.points, scene.settings.seed);
+            if points.len() < config.points {
+                bail!(
+                    "{}: only {} of {} cache points found: the transfer function leaves the volume almost empty",
+                    scene.volume_path.display(),
+                    points.len(),
+                    config.points
+                );
+            }
+            GsCache::new(&points, &albedo, config)?
+        }
+    };
+    eprintln!(
+        "cache: {} Gaussians in {} levels ({:.1} MB of parameters), {} in {:.0} ms",
+        cache.gaussian_count(),
+        cache.levels().len(),
+        cache.parameter_bytes() as f64 / 1e6,
+        if a.load_cache.is_some() {
+            "loaded"
+        } else {
+            "initialised"
+        },
+        t0.elapsed().as_secs_f64() * 1e3
+    );
+    let start = std::time::Instant::now();
+    let (mut pt, mut st, mut ot, mut samples, mut nonfinite) = (0.0, 0.0, 0.0, 0u64, 0u64);
+    let mut counted = 0u32;
+    for f in 0..a.warmup + a.frames {
+        if cancel.load(Ordering::Relaxed) {
+            break;
+        }
+        let accumulate = f >= a.warmup;
+        let s = render_cached_frame(
+            &scene.media,
+            &scene.camera,
+            &scene.settings,
+            film,
+            &mut cache,
+            accumulate,
+            cancel,
+        )?;
+        nonfinite += s.nonfinite_samples;
+        if accumulate {
+            bar.inc(s.samples);
+            samples += s.samples;
+            pt += s.trace_seconds;
+            st += s.lookup_seconds;
+            ot += s.train_seconds;
+            counted += 1;
+        }
+    }
+    if counted > 0 {
+        let n = counted as f64 * 1e-3;
+        eprintln!(
+            "per frame: path tracing {:.1} ms, cache lookup {:.1} ms, training {:.1} ms",
+            pt / n,
+            st / n,
+            ot / n
+        );
+    }
+    if let Some(dir) = &a.save_cache {
+        cache.save(dir)?;
+        eprintln!(
+            "cache: wrote {} levels to {}",
+            cache.levels().len(),
+            dir.display()
+        );
+    }
+    Ok(RenderStats {
+        samples,
+        seconds: start.elapsed().as_secs_f64(),
+        cancelled: cancel.load(Ordering::Relaxed),
+        nonfinite_samples: nonfinite,
+    })
 }

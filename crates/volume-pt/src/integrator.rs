@@ -16,6 +16,7 @@ use crate::phase::Phase;
 use crate::sampling::{SampleStream, power_heuristic};
 use crate::tracking::{free_flight, transmittance};
 use glam::Vec3;
+use gs_cache::CachedPath;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -86,6 +87,21 @@ pub fn radiance(
     dir: Vec3,
     rng: &mut SampleStream,
 ) -> Vec3 {
+    radiance_cached(scene, settings, origin, dir, rng, None)
+}
+
+/// [`radiance`] with a radiance cache: the path tells `cache` every vertex, re-weighting and
+/// radiance it adds, stops into it where Algorithm 1 says so, and reads it when it leaves the
+/// volume with nothing (the estimator is written out in the gs-cache crate docs). With no cache
+/// this is exactly [`radiance`], random numbers included.
+pub fn radiance_cached(
+    scene: &SceneMedia,
+    settings: &PathSettings,
+    origin: Vec3,
+    dir: Vec3,
+    rng: &mut SampleStream,
+    mut cache: Option<&mut CachedPath>,
+) -> Vec3 {
     let SceneMedia {
         medium,
         phase,
@@ -110,17 +126,31 @@ pub fn radiance(
             } else {
                 power_heuristic(phase_pdf, em.nee_pdf)
             };
-            l += beta * em.radiance * w;
+            let x = em.radiance * w;
+            l += beta * x;
+            if let Some(c) = cache.as_deref_mut() {
+                c.radiance(x);
+                l += beta * c.escaped(l);
+            }
             break;
         };
         if depth >= max_depth {
             break;
         }
         let x = o + d * t;
-        beta *= medium.albedo(ray.at(t));
+        let albedo = medium.albedo(ray.at(t));
+        beta *= albedo;
         depth += 1;
         if !(beta.max_element() > 0.0) {
             break;
+        }
+        if let Some(c) = cache.as_deref_mut() {
+            c.vertex(albedo);
+            let q = c.continue_probability();
+            if q < 1.0 && rng.next_f32() >= q {
+                l += beta * c.stop_into_cache();
+                break;
+            }
         }
 
         if nee && let Some(ls) = lights.sample(x, rng.next_f32(), rng.next_2d()) {
@@ -137,7 +167,11 @@ pub fn radiance(
                 let tr = transmittance(medium, &shadow, 0.0, ls.distance, rng);
                 if tr > 0.0 {
                     let w = power_heuristic(ls.pdf, f);
-                    l += beta * ls.radiance * (f * tr * w / ls.pdf);
+                    let x = ls.radiance * (f * tr * w / ls.pdf);
+                    l += beta * x;
+                    if let Some(c) = cache.as_deref_mut() {
+                        c.radiance(x);
+                    }
                 }
             }
         }
@@ -148,6 +182,9 @@ pub fn radiance(
                 break;
             }
             beta /= survive;
+            if let Some(c) = cache.as_deref_mut() {
+                c.scale(Vec3::splat(1.0 / survive));
+            }
         }
 
         let (d_new, pdf) = phase.sample(d, rng.next_2d());

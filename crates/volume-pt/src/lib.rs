@@ -9,10 +9,12 @@
 //! - [`phase`], [`lights`]: phase functions; sphere lights and a constant environment.
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
 //! - [`render`], [`film`]: tiles, passes, threads; accumulation.
+//! - [`cached`]: rendering with the gs-cache radiance cache (initial points, cached frames).
 //! - [`output`]: EXR and PNG.
 //! - [`scene`]: the TOML scene file.
 //! - [`sampling`]: counter-based random numbers and warps.
 
+pub mod cached;
 pub mod error;
 pub mod film;
 pub mod grid;
@@ -29,10 +31,11 @@ pub mod scene;
 pub mod tracking;
 pub mod transfer;
 
+pub use cached::{CachedFrameStats, render_cached_frame, sample_cache_points};
 pub use error::{Error, Result};
 pub use film::Film;
 pub use grid::{Filter, ScalarGrid};
-pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance};
+pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance, radiance_cached};
 pub use lights::{Lights, SphereLight};
 pub use medium::Medium;
 pub use phase::Phase;

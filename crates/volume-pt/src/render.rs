@@ -3,9 +3,10 @@
 //! so the image is bit-identical for a seed whatever the thread count or pass split.
 
 use crate::film::{Film, Tile};
-use crate::integrator::{PathSettings, SceneMedia, radiance};
+use crate::integrator::{PathSettings, SceneMedia, radiance_cached};
 use crate::sampling::SampleStream;
 use glam::{DVec3, Vec3};
+use gs_cache::{CacheFrame, CachedPath, TerminationConfig};
 use rayon::prelude::*;
 use splat_raster::Camera;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -40,14 +41,25 @@ fn pass_size(spp: u32, pixels: u64) -> u32 {
     ((target_samples_per_pass / pixels.max(1)) as u32).clamp(1, spp.max(1))
 }
 
-fn render_tile(
+/// A cache to read during a pass, and where the pass's training samples go: per level, per
+/// tile pixel, a sum and a count.
+pub(crate) struct TileCache<'a> {
+    pub frame: &'a CacheFrame,
+    pub termination: TerminationConfig,
+    pub sums: Vec<Vec3>,
+    pub counts: Vec<u32>,
+}
+
+pub(crate) fn render_tile(
     tile: &mut Tile,
     scene: &SceneMedia,
     camera: &Camera,
     settings: &RenderSettings,
     samples: std::ops::Range<u32>,
+    mut cache: Option<&mut TileCache>,
 ) -> u64 {
     let mut nonfinite = 0;
+    let tile_px = (tile.width * tile.height) as usize;
     for j in 0..tile.height {
         for i in 0..tile.width {
             let (x, y) = (tile.x0 + i, tile.y0 + j);
@@ -58,7 +70,27 @@ fn render_tile(
                 let mut rng = SampleStream::new(settings.seed, pixel, s as u64);
                 let (jx, jy) = rng.next_2d();
                 let dir = camera.ray_direction(x as f32 + jx, y as f32 + jy);
-                let l: Vec3 = radiance(scene, &settings.path, camera.position, dir, &mut rng);
+                let l: Vec3 = match cache.as_deref_mut() {
+                    None => {
+                        radiance_cached(scene, &settings.path, camera.position, dir, &mut rng, None)
+                    }
+                    Some(tc) => {
+                        let mut path = CachedPath::new(tc.frame, pixel as usize, tc.termination);
+                        let l = radiance_cached(
+                            scene,
+                            &settings.path,
+                            camera.position,
+                            dir,
+                            &mut rng,
+                            Some(&mut path),
+                        );
+                        for (level, v) in path.samples() {
+                            tc.sums[level * tile_px + k] += v;
+                            tc.counts[level * tile_px + k] += 1;
+                        }
+                        l
+                    }
+                };
                 // Written so that NaN fails: a bad sample counts as black, never reaches the film.
                 if l.is_finite() && l.min_element() >= 0.0 {
                     sum += l.as_dvec3();
@@ -95,7 +127,7 @@ pub fn render(
             if cancel.load(Ordering::Relaxed) {
                 return;
             }
-            let bad = render_tile(tile, scene, camera, settings, s0..s1);
+            let bad = render_tile(tile, scene, camera, settings, s0..s1, None);
             nonfinite.fetch_add(bad, Ordering::Relaxed);
             progress((tile.width * tile.height * (s1 - s0)) as u64);
         });

@@ -36,6 +36,11 @@ enum Sub {
     Splat(splat_bench::SplatArgs),
     /// The stochastic Gaussian ray tracer.
     Trace(trace_bench::TraceArgs),
+    /// Error of EXR images against a reference EXR: relMSE and PSNR.
+    Compare {
+        reference: PathBuf,
+        images: Vec<PathBuf>,
+    },
 }
 
 #[derive(clap::Args, Debug)]
@@ -80,8 +85,30 @@ fn main() -> Result<()> {
         Some(Sub::Splat(a)) => splat_bench::run(&a),
         Some(Sub::Trace(a)) => trace_bench::run(&a),
         Some(Sub::Pt(a)) => run_pt(a),
+        Some(Sub::Compare { reference, images }) => compare(&reference, &images),
         None => run_pt(cli.pt),
     }
+}
+
+fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
+    use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
+    let (_, _, r) = volume_pt::output::read_exr(reference)?;
+    let peak = hdr_peak(&r);
+    println!("| image | relMSE | PSNR (dB, peak {peak:.3}) |");
+    println!("|---|---|---|");
+    for p in images {
+        let (_, _, x) = volume_pt::output::read_exr(p)?;
+        if x.len() != r.len() {
+            anyhow::bail!("{}: size differs from the reference", p.display());
+        }
+        println!(
+            "| {} | {:.4e} | {:.2} |",
+            p.display(),
+            rel_mse(&x, &r),
+            psnr(&x, &r, peak)
+        );
+    }
+    Ok(())
 }
 
 fn run_pt(args: Args) -> Result<()> {

@@ -1,0 +1,306 @@
+//! The cache: its levels and their optimisers, the per-frame lookup images, and training.
+
+use crate::config::{CacheConfig, Lookup, Optimizer};
+use crate::error::{CacheError, Result};
+use crate::init::initial_levels;
+use crate::schedule::Schedule;
+use crate::targets::TrainingTargets;
+use glam::Vec3;
+use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
+use splat_raster::loss::{Loss, loss_and_grad};
+use splat_raster::raster::ForwardState;
+use splat_raster::{Camera, GaussianCloud, PixelGrads, RasterConfig, backward, render};
+use std::time::Instant;
+use stochastic_rt::{DepthMode, GaussianScene, TraceSettings, trace_image};
+
+/// One level: the Gaussians for paths of one length, and their optimiser state.
+#[derive(Debug, Clone)]
+pub struct Level {
+    pub cloud: GaussianCloud<f32>,
+    optimizer: AdamW,
+}
+
+/// The cache as drawn from one camera: what the renderer reads during a pass.
+#[derive(Debug, Clone)]
+pub struct CacheFrame {
+    camera: Camera,
+    /// Per level, the cached radiance per pixel (row-major).
+    images: Vec<Vec<[f32; 3]>>,
+    /// Per level, the rasteriser's state for the backward pass (raster lookup only, and only
+    /// while the levels are unchanged since they were drawn).
+    states: Vec<Option<ForwardState<f32>>>,
+}
+
+impl CacheFrame {
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+    pub fn levels(&self) -> usize {
+        self.images.len()
+    }
+    /// Cached radiance of `level` (0-based: paths of length `level + 1`) at row-major `pixel`.
+    #[inline]
+    pub fn value(&self, level: usize, pixel: usize) -> Vec3 {
+        Vec3::from_array(self.images[level][pixel])
+    }
+    /// The whole image of a level.
+    pub fn image(&self, level: usize) -> &[[f32; 3]] {
+        &self.images[level]
+    }
+}
+
+/// What the last frame cost, in seconds, and the losses it reached.
+#[derive(Debug, Clone, Default)]
+pub struct FrameReport {
+    /// Drawing the levels (the paper's splat time, ST).
+    pub lookup_seconds: f64,
+    /// Loss, backward pass and optimiser step of every level (OT).
+    pub train_seconds: f64,
+    /// HDR loss per level before the step (None: the level had no sample).
+    pub losses: Vec<Option<f64>>,
+    /// Learning-rate factor of Eq. 5 used for the step.
+    pub lr_scale: f32,
+}
+
+/// A multi-level radiance cache (see the crate docs for what it estimates).
+#[derive(Debug, Clone)]
+pub struct GsCache {
+    config: CacheConfig,
+    levels: Vec<Level>,
+    schedule: Schedule,
+    frame: Option<CacheFrame>,
+    report: FrameReport,
+    raster: RasterConfig,
+}
+
+fn adamw_config(config: &CacheConfig) -> AdamWConfig {
+    let lr = &config.learning_rates;
+    let wd = match config.optimizer {
+        Optimizer::AdamW => config.weight_decay,
+        Optimizer::Adam => 0.0,
+    };
+    let g = |lr, weight_decay| GroupSettings { lr, weight_decay };
+    AdamWConfig {
+        beta1: 0.9,
+        beta2: 0.999,
+        epsilon: 1e-8,
+        means: g(lr.position, 0.0),
+        log_scales: g(lr.scale, 0.0),
+        rotations: g(lr.rotation, 0.0),
+        colors: g(lr.color, wd),
+        opacity_logits: g(lr.opacity, wd),
+    }
+}
+
+impl GsCache {
+    /// A cache initialised from points and their albedos (seed 002 section 3.2).
+    pub fn new(points: &[Vec3], albedo: &[Vec3], config: CacheConfig) -> Result<Self> {
+        let levels = initial_levels(points, albedo, &config)?;
+        Self::from_levels(levels, config)
+    }
+
+    /// A cache from existing level clouds (loaded from disk, or made elsewhere). The clouds must
+    /// have SH degree 0 colour; `config.levels` is set to their number.
+    pub fn from_levels(clouds: Vec<GaussianCloud<f32>>, mut config: CacheConfig) -> Result<Self> {
+        config.levels = clouds.len();
+        if clouds.is_empty() || clouds.len() > crate::config::MAX_LEVELS {
+            return Err(CacheError::Config(format!(
+                "{} level clouds: expected 1..={}",
+                clouds.len(),
+                crate::config::MAX_LEVELS
+            )));
+        }
+        let opt = adamw_config(&config);
+        let levels = clouds
+            .into_iter()
+            .enumerate()
+            .map(|(i, cloud)| {
+                cloud
+                    .check()
+                    .map_err(|e| CacheError::Init(format!("level {i}: {e}")))?;
+                if cloud.color_model != splat_raster::ColorModel::Sh(0) {
+                    return Err(CacheError::Init(format!(
+                        "level {i} has colour model {:?}: expected SH degree 0",
+                        cloud.color_model
+                    )));
+                }
+                let optimizer = AdamW::new(opt, &cloud);
+                Ok(Level { cloud, optimizer })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            config,
+            levels,
+            schedule: Schedule::default(),
+            frame: None,
+            report: FrameReport::default(),
+            raster: RasterConfig::default(),
+        })
+    }
+
+    pub fn config(&self) -> &CacheConfig {
+        &self.config
+    }
+
+    /// Changes the settings that can change while rendering (termination, learning rates,
+    /// lookup, training on/off). The number of levels and Gaussians stays.
+    pub fn set_config(&mut self, mut config: CacheConfig) -> Result<()> {
+        config.levels = self.levels.len();
+        config.points = self.levels[0].cloud.len();
+        config.validate()?;
+        let opt = adamw_config(&config);
+        for l in &mut self.levels {
+            l.optimizer.config = opt;
+        }
+        self.config = config;
+        Ok(())
+    }
+
+    pub fn levels(&self) -> &[Level] {
+        &self.levels
+    }
+
+    /// Gaussians over all levels.
+    pub fn gaussian_count(&self) -> usize {
+        self.levels.iter().map(|l| l.cloud.len()).sum()
+    }
+
+    /// Bytes of Gaussian parameters (14 f32 each with degree-0 colour), without the optimiser's
+    /// two moments (which double it again).
+    pub fn parameter_bytes(&self) -> usize {
+        self.levels
+            .iter()
+            .map(|l| l.cloud.len() * l.cloud.bytes_per_gaussian())
+            .sum()
+    }
+
+    /// Restarts Eq. 5's schedule: call it when the transfer function or the lights change (a
+    /// camera change is noticed by [`GsCache::begin_frame`]).
+    pub fn reset_schedule(&mut self) {
+        self.schedule.reset();
+    }
+
+    /// Training steps since the schedule was last reset.
+    pub fn frames_since_reset(&self) -> u32 {
+        self.schedule.frames()
+    }
+
+    /// Draws every level from `camera` for the coming pass. A camera different from the last
+    /// frame's restarts the learning-rate schedule.
+    pub fn begin_frame(&mut self, camera: &Camera) -> &CacheFrame {
+        let start = Instant::now();
+        if self.frame.as_ref().is_some_and(|f| f.camera != *camera) {
+            self.schedule.reset();
+        }
+        let (images, states) = match self.config.lookup {
+            Lookup::Raster => self
+                .levels
+                .iter()
+                .map(|l| {
+                    let (out, state) = render(&l.cloud, camera, &self.raster);
+                    (out.color, Some(state))
+                })
+                .unzip(),
+            Lookup::RayTrace { estimator, spp } => {
+                let settings = TraceSettings {
+                    estimator,
+                    depth_mode: DepthMode::Center,
+                    spp: spp.max(1),
+                    ..Default::default()
+                };
+                self.levels
+                    .iter()
+                    .map(|l| {
+                        let scene = GaussianScene::new(&l.cloud);
+                        let img = trace_image(&scene, camera, &settings);
+                        (img.into_iter().map(|c| c.to_array()).collect(), None)
+                    })
+                    .unzip()
+            }
+        };
+        self.report.lookup_seconds = start.elapsed().as_secs_f64();
+        self.frame.insert(CacheFrame {
+            camera: *camera,
+            images,
+            states,
+        })
+    }
+
+    /// The images drawn by the last [`GsCache::begin_frame`].
+    pub fn frame(&self) -> Option<&CacheFrame> {
+        self.frame.as_ref()
+    }
+
+    /// One optimisation step per level against this frame's samples (HDR loss, Eq. 4, with the
+    /// prediction detached in the denominator; AdamW; Eq. 5's schedule). Does nothing when
+    /// training is off. The targets must match the frame's camera.
+    pub fn train(&mut self, targets: &TrainingTargets) -> Result<&FrameReport> {
+        let start = Instant::now();
+        self.report.losses = vec![None; self.levels.len()];
+        if !self.config.train {
+            self.report.train_seconds = 0.0;
+            return Ok(&self.report);
+        }
+        let Some(frame) = self.frame.as_mut() else {
+            return Err(CacheError::Config(
+                "train() called before begin_frame(): the targets need the frame's camera".into(),
+            ));
+        };
+        let camera = frame.camera;
+        if targets.levels() != self.levels.len()
+            || targets.width() != camera.width
+            || targets.height() != camera.height
+        {
+            return Err(CacheError::Config(format!(
+                "training targets are {} levels of {}x{}: expected {} levels of {}x{}",
+                targets.levels(),
+                targets.width(),
+                targets.height(),
+                self.levels.len(),
+                camera.width,
+                camera.height
+            )));
+        }
+        let lr_scale = self.schedule.next_scale();
+        self.report.lr_scale = lr_scale;
+        for (i, level) in self.levels.iter_mut().enumerate() {
+            let (target, mask) = targets.level_target(i, self.config.masked_targets);
+            if !mask.iter().any(|&m| m) {
+                continue;
+            }
+            // The lookup's forward pass is reused when it was the rasteriser's: the level has
+            // not changed since it was drawn.
+            let (prediction, state) = match frame.states[i].take() {
+                Some(state) => (std::mem::take(&mut frame.images[i]), state),
+                None => {
+                    let (out, state) = render(&level.cloud, &camera, &self.raster);
+                    (out.color, state)
+                }
+            };
+            let (loss, grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
+            if !loss.is_finite() {
+                continue;
+            }
+            let grads = backward(
+                &level.cloud,
+                &camera,
+                &state,
+                PixelGrads {
+                    color: &grad,
+                    transmittance: None,
+                    depth: None,
+                },
+            );
+            level.optimizer.step(&mut level.cloud, &grads, lr_scale);
+            self.report.losses[i] = Some(loss);
+            frame.images[i] = prediction;
+        }
+        self.report.train_seconds = start.elapsed().as_secs_f64();
+        Ok(&self.report)
+    }
+
+    /// Timings and losses of the last frame.
+    pub fn report(&self) -> &FrameReport {
+        &self.report
+    }
+}

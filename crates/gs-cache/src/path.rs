@@ -1,0 +1,138 @@
+//! The bookkeeping one path needs to read and train the cache, so that every renderer linking
+//! the cache gets it right: the albedo product of Algorithm 1, each level's throughput-relative
+//! radiance sum (the training sample), early and natural termination.
+//!
+//! The renderer keeps its own throughput `W` and radiance sum `L`; it tells the path each change
+//! it makes: a new real scattering vertex ([`CachedPath::vertex`]), a re-weighting such as
+//! Russian roulette ([`CachedPath::scale`]), and radiance it adds as `W * x`
+//! ([`CachedPath::radiance`]). See the crate docs for the estimator.
+
+use crate::cache::CacheFrame;
+use crate::config::{MAX_LEVELS, TerminationConfig};
+use crate::termination::continue_probability;
+use glam::Vec3;
+
+/// One path's view of the cache.
+#[derive(Debug, Clone)]
+pub struct CachedPath<'a> {
+    frame: &'a CacheFrame,
+    pixel: usize,
+    termination: TerminationConfig,
+    /// Vertices so far (the path length if it ended now).
+    length: usize,
+    albedo_product: Vec3,
+    /// Per level reached: the renderer's throughput divided by its throughput at that level's
+    /// vertex, kept as a product (never a division by a tiny throughput).
+    relative: [Vec3; MAX_LEVELS],
+    /// Per level reached: the radiance gathered from its vertex on, per unit of its throughput.
+    sums: [Vec3; MAX_LEVELS],
+    /// Levels whose sample is complete and unbiased (the path went on past their vertex and
+    /// ended without replacing its own future by the cache value of that same level).
+    sampled: [bool; MAX_LEVELS],
+}
+
+impl<'a> CachedPath<'a> {
+    /// A path through row-major pixel `pixel` of the frame's camera.
+    pub fn new(frame: &'a CacheFrame, pixel: usize, termination: TerminationConfig) -> Self {
+        Self {
+            frame,
+            pixel,
+            termination,
+            length: 0,
+            albedo_product: Vec3::ONE,
+            relative: [Vec3::ZERO; MAX_LEVELS],
+            sums: [Vec3::ZERO; MAX_LEVELS],
+            sampled: [false; MAX_LEVELS],
+        }
+    }
+
+    fn active(&self) -> usize {
+        self.length.min(self.frame.levels())
+    }
+
+    /// The path length so far.
+    pub fn length(&self) -> usize {
+        self.length
+    }
+
+    /// A new real scattering vertex with single-scattering albedo `albedo`, by which the
+    /// renderer has just multiplied its throughput.
+    pub fn vertex(&mut self, albedo: Vec3) {
+        for m in 0..self.active() {
+            self.relative[m] *= albedo;
+        }
+        self.albedo_product *= albedo;
+        self.length += 1;
+        if self.length <= self.frame.levels() {
+            let n = self.length - 1;
+            self.relative[n] = Vec3::ONE;
+            self.sums[n] = Vec3::ZERO;
+            self.sampled[n] = true;
+        }
+    }
+
+    /// The renderer multiplied its throughput by `factor` (e.g. `1 / p` after surviving Russian
+    /// roulette with probability `p`).
+    pub fn scale(&mut self, factor: Vec3) {
+        for m in 0..self.active() {
+            self.relative[m] *= factor;
+        }
+    }
+
+    /// The renderer added `W * x` to its radiance.
+    pub fn radiance(&mut self, x: Vec3) {
+        for m in 0..self.active() {
+            self.sums[m] += self.relative[m] * x;
+        }
+    }
+
+    /// Algorithm 1 at the current vertex: the probability of going on. 1 where no level holds
+    /// this length or early termination is off.
+    pub fn continue_probability(&self) -> f32 {
+        if self.length == 0 || self.length > self.frame.levels() {
+            return 1.0;
+        }
+        continue_probability(&self.termination, self.albedo_product)
+    }
+
+    /// The path stops into the cache at the current vertex: returns `x`, the cached value of
+    /// this length, which the renderer adds as `W * x`. The shorter levels take it into their
+    /// samples; this level gets no sample from this path.
+    pub fn stop_into_cache(&mut self) -> Vec3 {
+        let Some(n) = self
+            .length
+            .checked_sub(1)
+            .filter(|&n| n < self.frame.levels())
+        else {
+            return Vec3::ZERO;
+        };
+        let x = self.frame.value(n, self.pixel);
+        self.sampled[n] = false;
+        for m in 0..n {
+            self.sums[m] += self.relative[m] * x;
+        }
+        x
+    }
+
+    /// The path left the volume after its last vertex. If natural termination is on and the
+    /// path gathered no radiance at all (`path_radiance` is zero), returns the cached value of
+    /// its length, which the renderer adds as `W * x` to the image only: the training samples
+    /// stay the true (zero) ones. Otherwise returns zero.
+    pub fn escaped(&self, path_radiance: Vec3) -> Vec3 {
+        let carried_nothing = !(path_radiance.max_element() > 0.0);
+        match self.length.checked_sub(1) {
+            Some(n) if self.termination.natural && carried_nothing && n < self.frame.levels() => {
+                self.frame.value(n, self.pixel)
+            }
+            _ => Vec3::ZERO,
+        }
+    }
+
+    /// The training samples the path produced: `(level, value)` for every level whose vertex it
+    /// reached and went on from.
+    pub fn samples(&self) -> impl Iterator<Item = (usize, Vec3)> + '_ {
+        (0..self.active())
+            .filter(|&m| self.sampled[m])
+            .map(|m| (m, self.sums[m]))
+    }
+}

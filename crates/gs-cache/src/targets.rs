@@ -1,0 +1,78 @@
+//! Per-level training targets: each pixel's mean sample for each level this frame, and how many
+//! samples it had (no sample: the pixel takes no part in that level's loss).
+
+/// Training samples of one frame, one image per level, row-major.
+#[derive(Debug, Clone)]
+pub struct TrainingTargets {
+    width: u32,
+    height: u32,
+    sums: Vec<Vec<[f32; 3]>>,
+    counts: Vec<Vec<u32>>,
+}
+
+impl TrainingTargets {
+    pub fn new(levels: usize, width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize;
+        Self {
+            width,
+            height,
+            sums: vec![vec![[0.0; 3]; n]; levels],
+            counts: vec![vec![0; n]; levels],
+        }
+    }
+
+    pub fn levels(&self) -> usize {
+        self.sums.len()
+    }
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite and
+    /// non-negative are dropped (they would poison the loss).
+    pub fn add(&mut self, level: usize, pixel: usize, value: [f32; 3]) {
+        if !value.iter().all(|v| *v >= 0.0 && v.is_finite()) {
+            return;
+        }
+        let s = &mut self.sums[level][pixel];
+        for c in 0..3 {
+            s[c] += value[c];
+        }
+        self.counts[level][pixel] += 1;
+    }
+
+    /// Forgets every sample, keeping the buffers.
+    pub fn clear(&mut self) {
+        for s in &mut self.sums {
+            s.fill([0.0; 3]);
+        }
+        for c in &mut self.counts {
+            c.fill(0);
+        }
+    }
+
+    /// Samples gathered for `level`.
+    pub fn sample_count(&self, level: usize) -> u64 {
+        self.counts[level].iter().map(|&c| c as u64).sum()
+    }
+
+    /// The mean target image of `level` and its mask (pixels with at least one sample). With
+    /// `masked = false` every pixel is valid and pixels without samples target zero.
+    pub fn level_target(&self, level: usize, masked: bool) -> (Vec<[f32; 3]>, Vec<bool>) {
+        let sums = &self.sums[level];
+        let counts = &self.counts[level];
+        let mut target = vec![[0.0f32; 3]; sums.len()];
+        let mut mask = vec![!masked; sums.len()];
+        for i in 0..sums.len() {
+            if counts[i] > 0 {
+                let inv = 1.0 / counts[i] as f32;
+                target[i] = sums[i].map(|v| v * inv);
+                mask[i] = true;
+            }
+        }
+        (target, mask)
+    }
+}

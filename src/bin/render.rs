@@ -85,6 +85,9 @@ struct CacheArgs {
     /// Frames rendered and trained on before the image starts accumulating.
     #[arg(long, default_value_t = 0)]
     warmup: u32,
+    /// Multiplies every learning rate (seed 002's values are the default).
+    #[arg(long, default_value_t = 1.0)]
+    cache_lr_scale: f32,
     /// Read the cache but never train it.
     #[arg(long)]
     no_train: bool,
@@ -97,6 +100,9 @@ struct CacheArgs {
     /// Start from levels saved by `--save-cache` instead of initialising from the volume.
     #[arg(long)]
     load_cache: Option<PathBuf>,
+    /// Write each level's image as drawn for the last frame (EXR and PNG) into this folder.
+    #[arg(long)]
+    cache_images: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -301,6 +307,16 @@ fn render_with_cache(
         ..Default::default()
     };
     config.termination.coefficient = a.cache_c;
+    let lr = &mut config.learning_rates;
+    for v in [
+        &mut lr.position,
+        &mut lr.color,
+        &mut lr.rotation,
+        &mut lr.scale,
+        &mut lr.opacity,
+    ] {
+        *v *= a.cache_lr_scale;
+    }
     config.termination.early = !a.no_early;
     config.validate()?;
     let t0 = std::time::Instant::now();
@@ -367,6 +383,30 @@ fn render_with_cache(
             st / n,
             ot / n
         );
+    }
+    if let Some(dir) = &a.cache_images {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create folder", dir.display()))?;
+        let cam = scene.camera;
+        let frame = cache.begin_frame(&cam);
+        for level in 0..frame.levels() {
+            let img: Vec<glam::Vec3> = frame
+                .image(level)
+                .iter()
+                .map(|c| glam::Vec3::from_array(*c))
+                .collect();
+            let stem = dir.join(format!("length_{}", level + 1));
+            write_exr(&stem.with_extension("exr"), cam.width, cam.height, &img)?;
+            write_png(
+                &stem.with_extension("png"),
+                cam.width,
+                cam.height,
+                &img,
+                0.0,
+                ToneMap::Aces,
+            )?;
+        }
+        eprintln!("cache: wrote the level images to {}", dir.display());
     }
     if let Some(dir) = &a.save_cache {
         cache.save(dir)?;

@@ -56,8 +56,12 @@ pub struct FrameReport {
     pub lookup_seconds: f64,
     /// Loss, backward pass and optimiser step of every level (OT).
     pub train_seconds: f64,
-    /// HDR loss per level before the step (None: the level had no sample).
+    /// HDR loss per level before the step (None: the level had no sample). Its value is not a
+    /// measure of fit on noisy targets (its weights depend on the prediction); see `mse`.
     pub losses: Vec<Option<f64>>,
+    /// Mean squared error per level before the step, over the pixels with a sample: with the
+    /// same targets, lower is closer to their expectation.
+    pub mse: Vec<Option<f64>>,
     /// Learning-rate factor of Eq. 5 used for the step.
     pub lr_scale: f32,
 }
@@ -237,6 +241,7 @@ impl GsCache {
     pub fn train(&mut self, targets: &TrainingTargets) -> Result<&FrameReport> {
         let start = Instant::now();
         self.report.losses = vec![None; self.levels.len()];
+        self.report.mse = vec![None; self.levels.len()];
         if !self.config.train {
             self.report.train_seconds = 0.0;
             return Ok(&self.report);
@@ -293,6 +298,7 @@ impl GsCache {
             );
             level.optimizer.step(&mut level.cloud, &grads, lr_scale);
             self.report.losses[i] = Some(loss);
+            self.report.mse[i] = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);
             frame.images[i] = prediction;
         }
         self.report.train_seconds = start.elapsed().as_secs_f64();

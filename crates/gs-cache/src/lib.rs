@@ -12,7 +12,6 @@
 //! - [`targets`]: per-level training targets with masks.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
-//! - [`capi`]: the C ABI (header `include/gs_cache.h`).
 //!
 //! # The estimator
 //!
@@ -72,7 +71,6 @@
 //! volume see the lights and the environment exactly.
 
 pub mod cache;
-pub mod capi;
 pub mod config;
 pub mod error;
 pub mod init;

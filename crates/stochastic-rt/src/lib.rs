@@ -9,7 +9,6 @@
 //!   3DGRT-style), `stochastic` (closest accepted hit, Eq. 6; N samples per traversal, section
 //!   3.5) and `stochastic-pass` (seed 004 section 4).
 //!
-//! Work in progress (issue 4): the `splat trace` program and the benchmarks come next.
 
 pub mod estimators;
 pub mod gaussians;

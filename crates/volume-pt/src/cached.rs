@@ -51,6 +51,16 @@ pub fn sample_cache_points(media: &SceneMedia, n: usize, seed: u64) -> (Vec<Vec3
     found.into_iter().flatten().unzip()
 }
 
+/// One tile's training samples: per level, per tile pixel, a sum and a count.
+struct TileSamples {
+    x0: u32,
+    y0: u32,
+    width: u32,
+    height: u32,
+    sums: Vec<Vec3>,
+    counts: Vec<u32>,
+}
+
 /// What one cached frame did.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct CachedFrameStats {
@@ -90,7 +100,7 @@ pub fn render_cached_frame(
         &mut scratch
     };
     let frame = cache.frame().expect("begin_frame draws the frame");
-    let tile_samples: Vec<(u32, u32, u32, u32, Vec<Vec3>, Vec<u32>)> = film_ref
+    let tile_samples: Vec<TileSamples> = film_ref
         .tiles
         .par_iter_mut()
         .filter_map(|tile| {
@@ -113,23 +123,25 @@ pub fn render_cached_frame(
                 Some(&mut tc),
             );
             nonfinite.fetch_add(bad, Ordering::Relaxed);
-            Some((
-                tile.x0,
-                tile.y0,
-                tile.width,
-                tile.height,
-                tc.sums,
-                tc.counts,
-            ))
+            Some(TileSamples {
+                x0: tile.x0,
+                y0: tile.y0,
+                width: tile.width,
+                height: tile.height,
+                sums: tc.sums,
+                counts: tc.counts,
+            })
         })
         .collect();
     let trace_seconds = start.elapsed().as_secs_f64();
     let mut targets = TrainingTargets::new(levels, camera.width, camera.height);
-    for (x0, y0, w, h, sums, counts) in &tile_samples {
+    for t in &tile_samples {
+        let (x0, y0, w, h) = (t.x0, t.y0, t.width, t.height);
+        let (sums, counts) = (&t.sums, &t.counts);
         let tile_px = (w * h) as usize;
         for level in 0..levels {
-            for j in 0..*h {
-                for i in 0..*w {
+            for j in 0..h {
+                for i in 0..w {
                     let k = level * tile_px + (j * w + i) as usize;
                     let pixel = ((y0 + j) * camera.width + x0 + i) as usize;
                     if counts[k] > 0 {

@@ -73,13 +73,14 @@ mod tests {
     #[test]
     fn hand_computed() {
         let r = vec![Vec3::splat(1.0), Vec3::splat(0.0)];
-        let x = vec![Vec3::splat(2.0), Vec3::splat(0.1)];
-        // (1)^2/(1 + 0.01) and (0.1)^2/(0 + 0.01) = 1.
+        // 0.125 is exact in f32, so the expected values are exact too.
+        let x = vec![Vec3::splat(2.0), Vec3::splat(0.125)];
+        // (1)^2/(1 + 0.01) and (0.125)^2/(0 + 0.01) = 1.5625.
         let m = rel_mse_map(&x, &r);
-        assert!((m[0] - 1.0 / 1.01).abs() < 1e-12 && (m[1] - 1.0).abs() < 1e-9);
-        // MSE = (1 + 0.01) / 2; PSNR with peak 1.
-        assert!((mse(&x, &r) - 0.505).abs() < 1e-7);
-        assert!((psnr(&x, &r, 1.0) - 10.0 * (1.0f64 / 0.505).log10()).abs() < 1e-5);
+        assert!((m[0] - 1.0 / 1.01).abs() < 1e-12 && (m[1] - 1.5625).abs() < 1e-9);
+        // MSE = (1 + 0.015625) / 2; PSNR with peak 1.
+        assert!((mse(&x, &r) - 0.5078125).abs() < 1e-12);
+        assert!((psnr(&x, &r, 1.0) - 10.0 * (1.0f64 / 0.5078125).log10()).abs() < 1e-9);
     }
 
     #[test]

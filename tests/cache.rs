@@ -236,12 +236,8 @@ fn persistence_and_ray_traced_lookup() {
     for (a, b) in cache.levels().iter().zip(loaded.levels()) {
         assert_eq!(a.cloud, b.cloud);
     }
-    let _ = std::fs::remove_dir_all(&dir);
     let mut rt = GsCache::load(
-        &{
-            cache.save(&dir).unwrap();
-            dir.clone()
-        },
+        &dir,
         CacheConfig {
             lookup: Lookup::ray_traced(),
             ..small_config()

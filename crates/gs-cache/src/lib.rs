@@ -12,6 +12,7 @@
 //! - [`targets`]: per-level training targets with masks.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
+//! - [`capi`]: the C ABI (header `include/gs_cache.h`; a C program using it in `c/`).
 //!
 //! # The estimator
 //!
@@ -71,6 +72,7 @@
 //! volume see the lights and the environment exactly.
 
 pub mod cache;
+pub mod capi;
 pub mod config;
 pub mod error;
 pub mod init;

@@ -44,15 +44,15 @@ fn cached(scene: &Scene, cache: &mut GsCache, frames: u32, keep: u32, seed: u64)
     let mut film = Film::new(SIZE, SIZE);
     let mut settings = scene.settings;
     settings.spp = 1;
+    settings.seed = seed;
     for f in 0..frames {
-        settings.seed = seed + f as u64;
         render_cached_frame(
             &scene.media,
             &scene.camera,
             &settings,
-            &mut film,
+            f,
+            (f + keep >= frames).then_some(&mut film),
             cache,
-            f + keep >= frames,
             &AtomicBool::new(false),
         )
         .unwrap();
@@ -113,9 +113,9 @@ fn natural_termination_bias_is_the_documented_one() {
             &s.media,
             &s.camera,
             &settings,
-            &mut film,
+            0,
+            Some(&mut film),
             &mut cache,
-            true,
             &AtomicBool::new(false),
         )
         .unwrap();
@@ -151,9 +151,7 @@ fn masks_keep_the_cache_bright_and_training_lowers_the_loss() {
     let reference = plain(&s, 256, 1000);
     let mean = |img: &[Vec3]| img.iter().map(|c| c.element_sum() as f64).sum::<f64>();
     let r = mean(&reference);
-    let mut lr = small_config();
-    lr.learning_rates.color *= 16.0;
-    lr.learning_rates.opacity *= 16.0;
+    let lr = small_config();
     let mut masked = new_cache(&s, lr);
     let img_masked = cached(&s, &mut masked, 120, 40, 50);
     let mut unmasked = new_cache(
@@ -174,27 +172,42 @@ fn masks_keep_the_cache_bright_and_training_lowers_the_loss() {
         u < m - 0.05,
         "unmasked {u:.3} is not darker than masked {m:.3}"
     );
-    // The loss falls: with early termination off the cache draws no random number, so the
-    // same seed gives the same paths and the same targets before and after training.
+    // The loss falls: the squared error of each level against low-noise targets (64 spp, early
+    // termination off so every level gets samples from every path) is measured on a copy of
+    // the cache before and after 150 frames of training at 1 spp. The start is already close
+    // (albedo times the mean radiance), and the floor includes the targets' own noise, so the
+    // fall is modest (19%, 19%, 10% when written); the seeds are fixed and the run
+    // deterministic, and a cache that does not learn, or learns the wrong way, fails it.
     let mut still = lr;
     still.termination.early = false;
-    let mut fresh = new_cache(&s, still);
-    let mut trained = fresh.clone();
-    cached(&s, &mut trained, 60, 1, 300);
-    cached(&s, &mut fresh, 1, 1, 999);
-    cached(&s, &mut trained, 1, 1, 999);
-    for (i, (a, b)) in fresh
-        .report()
-        .mse
-        .iter()
-        .zip(&trained.report().mse)
-        .enumerate()
-    {
-        let (a, b) = (a.unwrap(), b.unwrap());
+    let probe = |cache: &GsCache| -> Vec<f64> {
+        let mut copy = cache.clone();
+        let mut settings = s.settings;
+        settings.spp = 64;
+        settings.seed = 4242;
+        render_cached_frame(
+            &s.media,
+            &s.camera,
+            &settings,
+            0,
+            None,
+            &mut copy,
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        copy.report().mse.iter().map(|m| m.unwrap()).collect()
+    };
+    let mut cache = new_cache(&s, still);
+    let before = probe(&cache);
+    cached(&s, &mut cache, 150, 0, 300);
+    let after = probe(&cache);
+    for (i, (a, b)) in before.iter().zip(&after).enumerate() {
         eprintln!("level {i}: squared error {a:.4} -> {b:.4}");
+    }
+    for (i, (a, b)) in before.iter().zip(&after).enumerate() {
         assert!(
-            b < 0.9 * a,
-            "level {i}: squared error {a} -> {b} did not fall by 10%"
+            *b < 0.92 * a,
+            "level {i}: squared error {a} -> {b} did not fall by 8%"
         );
     }
 }
@@ -205,10 +218,7 @@ fn masks_keep_the_cache_bright_and_training_lowers_the_loss() {
 fn warm_cache_beats_nee_at_one_spp() {
     let s = scene();
     let reference = plain(&s, 256, 1000);
-    let mut config = small_config();
-    config.learning_rates.color *= 16.0;
-    config.learning_rates.opacity *= 16.0;
-    let mut cache = new_cache(&s, config);
+    let mut cache = new_cache(&s, small_config());
     cached(&s, &mut cache, 60, 0, 500);
     let (mut e_cache, mut e_nee) = (0.0, 0.0);
     for k in 0..8 {
@@ -223,8 +233,8 @@ fn warm_cache_beats_nee_at_one_spp() {
     assert!(e_cache < 0.8 * e_nee, "cache {e_cache} vs nee {e_nee}");
 }
 
-/// Levels saved as PLY load back identical, and a ray-traced lookup gives images of the same
-/// brightness as the rasterised one.
+/// Levels saved as PLY load back drawing the same images (the files hold absolute radiance),
+/// and a ray-traced lookup gives images of the same brightness as the rasterised one.
 #[test]
 fn persistence_and_ray_traced_lookup() {
     let s = scene();
@@ -232,9 +242,19 @@ fn persistence_and_ray_traced_lookup() {
     cached(&s, &mut cache, 3, 1, 1);
     let dir = std::env::temp_dir().join(format!("gs-cache-test-{}", std::process::id()));
     cache.save(&dir).unwrap();
-    let loaded = GsCache::load(&dir, small_config()).unwrap();
-    for (a, b) in cache.levels().iter().zip(loaded.levels()) {
-        assert_eq!(a.cloud, b.cloud);
+    let mut loaded = GsCache::load(&dir, small_config()).unwrap();
+    let drawn = cache.begin_frame(&s.camera).clone();
+    let again = loaded.begin_frame(&s.camera);
+    assert_eq!(again.levels(), drawn.levels());
+    for level in 0..drawn.levels() {
+        for (a, b) in drawn.image(level).iter().zip(again.image(level)) {
+            for c in 0..3 {
+                assert!(
+                    (a[c] - b[c]).abs() <= 1e-4 * a[c].abs().max(1.0),
+                    "level {level}: saved cache drew {a:?}, loaded {b:?}"
+                );
+            }
+        }
     }
     let mut rt = GsCache::load(
         &dir,

@@ -360,9 +360,9 @@ fn render_with_cache(
             &scene.media,
             &scene.camera,
             &scene.settings,
-            film,
+            f,
+            accumulate.then_some(&mut *film),
             &mut cache,
-            accumulate,
             cancel,
         )?;
         nonfinite += s.nonfinite_samples;

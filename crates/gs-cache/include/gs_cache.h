@@ -68,6 +68,9 @@ typedef struct GsCacheConfig {
   bool train;
   // Per-level masks (see the crate docs); false only for ablations.
   bool masked_targets;
+  // Learning rates relative to each level's mean radiance (see the crate docs); false for
+  // seed 002's absolute colours.
+  bool normalized_radiance;
   enum GsCacheLookup lookup;
 } GsCacheConfig;
 

@@ -2,7 +2,7 @@
 
 use crate::config::{CacheConfig, Lookup, Optimizer};
 use crate::error::{CacheError, Result};
-use crate::init::initial_levels;
+use crate::init::{SH_C0, initial_levels};
 use crate::schedule::Schedule;
 use crate::targets::TrainingTargets;
 use glam::Vec3;
@@ -18,6 +18,26 @@ use stochastic_rt::{DepthMode, GaussianScene, TraceSettings, trace_image};
 pub struct Level {
     pub cloud: GaussianCloud<f32>,
     optimizer: AdamW,
+    /// The level's radiance is its cloud's colour times this (see
+    /// [`CacheConfig::normalized_radiance`]); `None` until the first samples set it.
+    radiance_scale: Option<f32>,
+    /// The cloud's colours are absolute radiance (loaded from disk), not yet divided by the
+    /// scale; a fresh cloud's albedo colours are already relative.
+    absolute_colors: bool,
+}
+
+impl Level {
+    /// The factor from the cloud's colours to radiance.
+    pub fn radiance_scale(&self) -> f32 {
+        self.radiance_scale.unwrap_or(1.0)
+    }
+}
+
+/// Multiplies a degree-0 cloud's colours (`0.5 + C0 * dc`, before the clamp at 0) by `factor`.
+pub(crate) fn scale_colors(cloud: &mut GaussianCloud<f32>, factor: f32) {
+    for dc in &mut cloud.colors {
+        *dc = ((0.5 + SH_C0 * *dc) * factor - 0.5) / SH_C0;
+    }
 }
 
 /// The cache as drawn from one camera: what the renderer reads during a pass.
@@ -100,7 +120,11 @@ impl GsCache {
     /// A cache initialised from points and their albedos (seed 002 section 3.2).
     pub fn new(points: &[Vec3], albedo: &[Vec3], config: CacheConfig) -> Result<Self> {
         let levels = initial_levels(points, albedo, &config)?;
-        Self::from_levels(levels, config)
+        let mut cache = Self::from_levels(levels, config)?;
+        for l in &mut cache.levels {
+            l.absolute_colors = false;
+        }
+        Ok(cache)
     }
 
     /// A cache from existing level clouds (loaded from disk, or made elsewhere). The clouds must
@@ -129,7 +153,12 @@ impl GsCache {
                     )));
                 }
                 let optimizer = AdamW::new(opt, &cloud);
-                Ok(Level { cloud, optimizer })
+                Ok(Level {
+                    cloud,
+                    optimizer,
+                    radiance_scale: None,
+                    absolute_colors: true,
+                })
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(Self {
@@ -222,6 +251,13 @@ impl GsCache {
                     .unzip()
             }
         };
+        let mut images: Vec<Vec<[f32; 3]>> = images;
+        for (image, level) in images.iter_mut().zip(&self.levels) {
+            let s = level.radiance_scale();
+            if s != 1.0 {
+                image.iter_mut().flatten().for_each(|v| *v *= s);
+            }
+        }
         self.report.lookup_seconds = start.elapsed().as_secs_f64();
         self.frame.insert(CacheFrame {
             camera: *camera,
@@ -242,10 +278,6 @@ impl GsCache {
         let start = Instant::now();
         self.report.losses = vec![None; self.levels.len()];
         self.report.mse = vec![None; self.levels.len()];
-        if !self.config.train {
-            self.report.train_seconds = 0.0;
-            return Ok(&self.report);
-        }
         let Some(frame) = self.frame.as_mut() else {
             return Err(CacheError::Config(
                 "train() called before begin_frame(): the targets need the frame's camera".into(),
@@ -266,6 +298,22 @@ impl GsCache {
                 camera.height
             )));
         }
+        if !self.config.train {
+            // A frozen fresh cache still takes its radiance scale from its first samples.
+            for (i, level) in self.levels.iter_mut().enumerate() {
+                if self.config.normalized_radiance
+                    && level.radiance_scale.is_none()
+                    && !level.absolute_colors
+                {
+                    let (target, mask) = targets.level_target(i, true);
+                    if mask.iter().any(|&m| m) {
+                        level.radiance_scale = Some(mean_luminance(&target, &mask));
+                    }
+                }
+            }
+            self.report.train_seconds = 0.0;
+            return Ok(&self.report);
+        }
         let lr_scale = self.schedule.next_scale();
         self.report.lr_scale = lr_scale;
         for (i, level) in self.levels.iter_mut().enumerate() {
@@ -273,16 +321,34 @@ impl GsCache {
             if !mask.iter().any(|&m| m) {
                 continue;
             }
+            let scale_before = level.radiance_scale();
+            if level.radiance_scale.is_none() && self.config.normalized_radiance {
+                let s = mean_luminance(&target, &mask);
+                level.radiance_scale = Some(s);
+                if level.absolute_colors {
+                    scale_colors(&mut level.cloud, 1.0 / s);
+                    // The drawn image no longer matches the cloud: draw it again below.
+                    frame.states[i] = None;
+                }
+                level.absolute_colors = false;
+            }
+            let scale = level.radiance_scale();
             // The lookup's forward pass is reused when it was the rasteriser's: the level has
             // not changed since it was drawn.
-            let (prediction, state) = match frame.states[i].take() {
-                Some(state) => (std::mem::take(&mut frame.images[i]), state),
+            let (mut prediction, state, drawn_scale) = match frame.states[i].take() {
+                Some(state) => (std::mem::take(&mut frame.images[i]), state, scale_before),
                 None => {
                     let (out, state) = render(&level.cloud, &camera, &self.raster);
-                    (out.color, state)
+                    (out.color, state, 1.0)
                 }
             };
-            let (loss, grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
+            if scale != drawn_scale {
+                let f = scale / drawn_scale;
+                prediction.iter_mut().flatten().for_each(|v| *v *= f);
+            }
+            let (loss, mut grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
+            // The cloud draws radiance / scale: the chain rule multiplies its gradient by scale.
+            grad.iter_mut().flatten().for_each(|g| *g *= scale);
             if !loss.is_finite() {
                 continue;
             }
@@ -309,4 +375,22 @@ impl GsCache {
     pub fn report(&self) -> &FrameReport {
         &self.report
     }
+}
+
+/// The mean luminance of a level's first samples, floored so a black first frame cannot give a
+/// zero or NaN scale.
+fn mean_luminance(target: &[[f32; 3]], mask: &[bool]) -> f32 {
+    let (sum, n) =
+        target
+            .iter()
+            .zip(mask)
+            .filter(|(_, m)| **m)
+            .fold((0.0f64, 0u64), |(s, n), (t, _)| {
+                (
+                    s + crate::termination::luminance(Vec3::from_array(*t)) as f64,
+                    n + 1,
+                )
+            });
+    let mean = if n > 0 { (sum / n as f64) as f32 } else { 0.0 };
+    if mean > 1e-3 { mean } else { 1e-3 }
 }

@@ -80,6 +80,9 @@ pub struct GsCacheConfig {
     pub train: bool,
     /// Per-level masks (see the crate docs); false only for ablations.
     pub masked_targets: bool,
+    /// Learning rates relative to each level's mean radiance (see the crate docs); false for
+    /// seed 002's absolute colours.
+    pub normalized_radiance: bool,
     pub lookup: GsCacheLookup,
 }
 
@@ -189,6 +192,7 @@ impl From<&GsCacheConfig> for CacheConfig {
             initial_opacity: c.initial_opacity,
             train: c.train,
             masked_targets: c.masked_targets,
+            normalized_radiance: c.normalized_radiance,
             lookup: match c.lookup {
                 GsCacheLookup::Raster => Lookup::Raster,
                 GsCacheLookup::RayTrace => Lookup::ray_traced(),
@@ -226,6 +230,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         initial_opacity: d.initial_opacity,
         train: d.train,
         masked_targets: d.masked_targets,
+        normalized_radiance: d.normalized_radiance,
         lookup: GsCacheLookup::Raster,
     }
 }

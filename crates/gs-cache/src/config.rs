@@ -112,6 +112,11 @@ pub struct CacheConfig {
     /// without a sample as zero targets: the cache then learns values thinned by the probability
     /// of reaching the level and renders too dark (kept for the ablation; see the crate docs).
     pub masked_targets: bool,
+    /// Each level draws its cloud times a radiance scale, set from the mean of its first
+    /// frame's samples, so the learning rates act in units of the scene's own radiance (Adam's
+    /// steps are absolute: without it, a scene lit 10x brighter adapts 10x slower). Off gives
+    /// seed 002's absolute colours.
+    pub normalized_radiance: bool,
     pub lookup: Lookup,
 }
 
@@ -128,6 +133,7 @@ impl Default for CacheConfig {
             initial_opacity: 0.5,
             train: true,
             masked_targets: true,
+            normalized_radiance: true,
             lookup: Lookup::Raster,
         }
     }

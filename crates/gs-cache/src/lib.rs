@@ -68,8 +68,15 @@
 //! (masked out), rather than a zero target. Trained with zeros there (`masked_targets = false`),
 //! level `n` learns `P(reach x_n) Lambda_n`, which renders too dark by that probability: this is
 //! the darkening seed 002's Fig. 4 attributes to a missing `beta`, and the masks are our
-//! correction for it. (3) The cache for length 0 is never needed: camera rays that leave the
-//! volume see the lights and the environment exactly.
+//! correction for it. (3) Units. Adam's steps are absolute (about one learning rate per step,
+//! whatever the gradient's size), so seed 002's colour rate moves a cache by a fixed amount of
+//! radiance per frame: a scene whose level values are 10 adapts 10x slower than one whose
+//! values are 1, and its albedo start (values near 1) is far off. We draw each level as
+//! `s_n * cloud` with `s_n` the mean luminance of the level's first frame of samples, so the
+//! rates act relative to the scene's radiance and the albedo start is scaled to it
+//! (`normalized_radiance`, on by default; saved files hold absolute radiance). The estimator is
+//! unchanged: `s_n` is a constant of the parametrisation. (4) The cache for length 0 is never
+//! needed: camera rays that leave the volume see the lights and the environment exactly.
 
 pub mod cache;
 pub mod capi;

@@ -20,7 +20,10 @@ impl GsCache {
             source,
         })?;
         for (i, level) in self.levels().iter().enumerate() {
-            write_ply(&level_path(dir, i + 1), &level.cloud)?;
+            // The files hold absolute radiance, so that viewers show what the cache holds.
+            let mut cloud = level.cloud.clone();
+            crate::cache::scale_colors(&mut cloud, level.radiance_scale());
+            write_ply(&level_path(dir, i + 1), &cloud)?;
         }
         Ok(())
     }

@@ -75,17 +75,21 @@ pub struct CachedFrameStats {
     pub cancelled: bool,
 }
 
-/// One frame: draw the cache from `camera`, trace `settings.spp` paths per pixel reading it
-/// (accumulated into `film` when `accumulate`), then train it on the frame's samples.
+/// Frame `frame` of a sequence: draw the cache from `camera`, trace `settings.spp` paths per
+/// pixel reading it (accumulated into `film` when one is given), then train it on the frame's
+/// samples. Frame `f` draws sample indices `f * spp .. (f + 1) * spp`, so successive frames
+/// have independent noise (the cache must never be trained twice on the same random paths)
+/// and a film accumulated over frames is a progressive render.
 pub fn render_cached_frame(
     scene: &SceneMedia,
     camera: &Camera,
     settings: &RenderSettings,
-    film: &mut Film,
+    frame_index: u32,
+    film: Option<&mut Film>,
     cache: &mut GsCache,
-    accumulate: bool,
     cancel: &AtomicBool,
 ) -> Result<CachedFrameStats, gs_cache::CacheError> {
+    let first_sample = frame_index.saturating_mul(settings.spp);
     let termination = cache.config().termination;
     let levels = cache.levels().len();
     cache.begin_frame(camera);
@@ -93,11 +97,12 @@ pub fn render_cached_frame(
     let start = Instant::now();
     let nonfinite = AtomicU64::new(0);
     let mut scratch;
-    let film_ref: &mut Film = if accumulate {
-        film
-    } else {
-        scratch = Film::new(camera.width, camera.height);
-        &mut scratch
+    let film_ref: &mut Film = match film {
+        Some(film) => film,
+        None => {
+            scratch = Film::new(camera.width, camera.height);
+            &mut scratch
+        }
     };
     let frame = cache.frame().expect("begin_frame draws the frame");
     let tile_samples: Vec<TileSamples> = film_ref
@@ -119,7 +124,7 @@ pub fn render_cached_frame(
                 scene,
                 camera,
                 settings,
-                0..settings.spp,
+                first_sample..first_sample + settings.spp,
                 Some(&mut tc),
             );
             nonfinite.fetch_add(bad, Ordering::Relaxed);

@@ -8,9 +8,16 @@
 //! - `bench trace`: the ray tracer's estimators: rays per second, error at equal time, and the
 //!   multi-sample table.
 //!
+//! - `bench cache`: seed 002's Table 2 (per-frame path tracing, splat and optimisation times
+//!   along a camera orbit) on every volume, and quality at equal spp and equal time.
+//! - `bench stability`: the cache over a 1000-frame orbit on every volume, inspected for
+//!   non-finite values, exploding or straying Gaussians.
+//!
 //! Inputs that live in `../shared/data` are skipped, with a note, when it is absent.
 
+mod cache_bench;
 mod splat_bench;
+mod stability_bench;
 mod trace_bench;
 
 use anyhow::Result;
@@ -36,6 +43,10 @@ enum Sub {
     Splat(splat_bench::SplatArgs),
     /// The stochastic Gaussian ray tracer.
     Trace(trace_bench::TraceArgs),
+    /// The radiance cache: seed 002's Table 2 and quality at equal spp and time.
+    Cache(cache_bench::CacheBenchArgs),
+    /// The radiance cache over a long fly-through: no NaN, no exploding Gaussians.
+    Stability(stability_bench::StabilityArgs),
     /// Error of EXR images against a reference EXR: relMSE and PSNR.
     Compare {
         reference: PathBuf,
@@ -84,6 +95,8 @@ fn main() -> Result<()> {
     match cli.command {
         Some(Sub::Splat(a)) => splat_bench::run(&a),
         Some(Sub::Trace(a)) => trace_bench::run(&a),
+        Some(Sub::Cache(a)) => cache_bench::run(&a),
+        Some(Sub::Stability(a)) => stability_bench::run(&a),
         Some(Sub::Pt(a)) => run_pt(a),
         Some(Sub::Compare { reference, images }) => compare(&reference, &images),
         None => run_pt(cli.pt),

@@ -1,0 +1,393 @@
+//! `bench cache`: seed 002's Table 2 on this machine, and image quality at equal spp and at
+//! equal time. Every volume is rendered along a camera orbit (`warmup + frames` frames ending
+//! at the scene's own camera) by `uniform`, `nee`, and `nee` with the cache (raster and
+//! ray-traced lookups); per-frame times are averaged over the frames after the warm-up, and the
+//! last frame (1 spp, at the scene camera) is compared with a high-spp `nee` reference made once
+//! and kept on disk.
+
+use anyhow::{Context, Result};
+use glam::{Quat, Vec3};
+use gs_cache::{CacheConfig, GsCache, Lookup};
+use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
+use splat_raster::Camera;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+use volume_pt::output::{read_exr, write_exr};
+use volume_pt::{
+    Film, IntegratorKind, Scene, load_scene, render, render_cached_frame, sample_cache_points,
+};
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct CacheBenchArgs {
+    /// Scene files (default: every scene in data/scenes; those reading ../shared/data are
+    /// skipped with a note when it is absent).
+    pub scenes: Vec<PathBuf>,
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// Frames measured after the warm-up.
+    #[arg(long, default_value_t = 200)]
+    pub frames: u32,
+    #[arg(long, default_value_t = 40)]
+    pub warmup: u32,
+    /// Degrees the camera orbits (about its up axis through the volume's centre) over the run.
+    #[arg(long, default_value_t = 60.0)]
+    pub orbit_degrees: f32,
+    /// Cache points (first level).
+    #[arg(long, default_value_t = 100_000)]
+    pub points: usize,
+    /// Multiplies every learning rate of seed 002.
+    #[arg(long, default_value_t = 1.0)]
+    pub lr_scale: f32,
+    /// Samples per pixel of the `nee` reference.
+    #[arg(long, default_value_t = 256)]
+    pub reference_spp: u32,
+    /// Where references are kept between runs.
+    #[arg(long, default_value = "target/bench-cache")]
+    pub references: PathBuf,
+    /// Skip the ray-traced lookup.
+    #[arg(long)]
+    pub no_rt: bool,
+}
+
+/// The scenes measured by default: every volume the project renders.
+pub fn default_scenes() -> Vec<PathBuf> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes");
+    [
+        "default", "ironprot", "hydrogen", "headsq", "chest_ct", "embryo",
+    ]
+    .iter()
+    .map(|s| root.join(format!("{s}.toml")))
+    .collect()
+}
+
+/// Loads a scene at the benchmark's image size, or `None` (with a note) when it reads from an
+/// absent `../shared/data`.
+pub fn load_sized(path: &Path, width: u32, height: u32) -> Result<Option<(String, Scene)>> {
+    let mut scene = match load_scene(path) {
+        Ok(s) => s,
+        Err(e) if e.to_string().contains("shared/data") => {
+            eprintln!(
+                "note: skipping {}: {e} (../shared/data is absent)",
+                path.display()
+            );
+            return Ok(None);
+        }
+        Err(e) => return Err(e.into()),
+    };
+    scene.camera.width = width;
+    scene.camera.height = height;
+    let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+    Ok(Some((name, scene)))
+}
+
+/// Frame `f` of `total` on an orbit of `degrees` about the camera's up axis through `centre`,
+/// ending (f = total - 1) at `camera` itself.
+pub fn orbit(camera: &Camera, centre: Vec3, degrees: f32, f: u32, total: u32) -> Camera {
+    let t = if total > 1 {
+        1.0 - f as f32 / (total - 1) as f32
+    } else {
+        0.0
+    };
+    let up = -(camera.rotation * Vec3::Y);
+    let q = Quat::from_axis_angle(up.normalize(), (degrees * t).to_radians());
+    Camera {
+        position: centre + q * (camera.position - centre),
+        rotation: (q * camera.rotation).normalize(),
+        ..*camera
+    }
+}
+
+/// The cache settings of a run.
+pub fn cache_config(points: usize, lr_scale: f32, lookup: Lookup) -> CacheConfig {
+    let mut c = CacheConfig {
+        points,
+        lookup,
+        ..Default::default()
+    };
+    let lr = &mut c.learning_rates;
+    for v in [
+        &mut lr.position,
+        &mut lr.color,
+        &mut lr.rotation,
+        &mut lr.scale,
+        &mut lr.opacity,
+    ] {
+        *v *= lr_scale;
+    }
+    c
+}
+
+/// A cache for `scene`, and its initialisation time in seconds.
+pub fn new_cache(scene: &Scene, config: CacheConfig) -> Result<(GsCache, f64)> {
+    let start = Instant::now();
+    let (points, albedo) = sample_cache_points(&scene.media, config.points, scene.settings.seed);
+    let cache = GsCache::new(&points, &albedo, config)?;
+    Ok((cache, start.elapsed().as_secs_f64()))
+}
+
+/// A plain render: the image and the seconds it took.
+fn plain(
+    scene: &Scene,
+    cam: &Camera,
+    kind: IntegratorKind,
+    spp: u32,
+    seed: u64,
+) -> (Vec<Vec3>, f64) {
+    let mut settings = scene.settings;
+    settings.spp = spp;
+    settings.seed = seed;
+    settings.path.integrator = kind;
+    let mut film = Film::new(cam.width, cam.height);
+    let stats = render(
+        &scene.media,
+        cam,
+        &settings,
+        &mut film,
+        &AtomicBool::new(false),
+        &|_| {},
+    );
+    (film.mean(), stats.seconds)
+}
+
+/// FNV-1a of a file, so a reference is remade when its scene file changes.
+fn file_hash(path: &Path) -> Result<u64> {
+    let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
+    Ok(bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    }))
+}
+
+/// The high-spp `nee` reference at the scene camera, rendered once and kept on disk.
+fn reference(path: &Path, scene: &Scene, args: &CacheBenchArgs) -> Result<Vec<Vec3>> {
+    let cam = &scene.camera;
+    let name = path.file_stem().unwrap().to_string_lossy();
+    let file = args.references.join(format!(
+        "{name}_{}x{}_{}spp_{:016x}.exr",
+        cam.width,
+        cam.height,
+        args.reference_spp,
+        file_hash(path)?
+    ));
+    if file.exists() {
+        let (w, h, img) = read_exr(&file)?;
+        if (w, h) == (cam.width, cam.height) {
+            eprintln!("{name}: reference {}", file.display());
+            return Ok(img);
+        }
+    }
+    let (img, secs) = plain(
+        scene,
+        cam,
+        IntegratorKind::Nee,
+        args.reference_spp,
+        0x005e_ed0f_5eed,
+    );
+    std::fs::create_dir_all(&args.references)
+        .with_context(|| format!("{}: cannot create", args.references.display()))?;
+    write_exr(&file, cam.width, cam.height, &img)?;
+    eprintln!(
+        "{name}: rendered the reference ({} spp) in {secs:.1} s: {}",
+        args.reference_spp,
+        file.display()
+    );
+    Ok(img)
+}
+
+/// Mean per-frame times (ms) of a fly-through and its last frame.
+struct Run {
+    pt: f64,
+    st: f64,
+    ot: f64,
+    image: Vec<Vec3>,
+    nonfinite: u64,
+}
+
+impl Run {
+    fn total(&self) -> f64 {
+        self.pt + self.st + self.ot
+    }
+}
+
+fn fly_plain(scene: &Scene, kind: IntegratorKind, args: &CacheBenchArgs, centre: Vec3) -> Run {
+    let total = args.warmup + args.frames;
+    let (mut pt, mut image) = (0.0, Vec::new());
+    for f in 0..total {
+        let cam = orbit(&scene.camera, centre, args.orbit_degrees, f, total);
+        let (img, secs) = plain(scene, &cam, kind, 1, scene.settings.seed + 1 + f as u64);
+        if f >= args.warmup {
+            pt += secs;
+        }
+        image = img;
+    }
+    let n = args.frames.max(1) as f64 / 1e3;
+    Run {
+        pt: pt / n,
+        st: 0.0,
+        ot: 0.0,
+        image,
+        nonfinite: 0,
+    }
+}
+
+fn fly_cached(
+    scene: &Scene,
+    cache: &mut GsCache,
+    args: &CacheBenchArgs,
+    centre: Vec3,
+) -> Result<Run> {
+    let total = args.warmup + args.frames;
+    let (mut pt, mut st, mut ot, mut nonfinite) = (0.0, 0.0, 0.0, 0);
+    let mut settings = scene.settings;
+    settings.spp = 1;
+    settings.path.integrator = IntegratorKind::Nee;
+    let mut film = Film::new(scene.camera.width, scene.camera.height);
+    for f in 0..total {
+        let cam = orbit(&scene.camera, centre, args.orbit_degrees, f, total);
+        let last = f + 1 == total;
+        let s = render_cached_frame(
+            &scene.media,
+            &cam,
+            &settings,
+            f,
+            last.then_some(&mut film),
+            cache,
+            &AtomicBool::new(false),
+        )?;
+        nonfinite += s.nonfinite_samples;
+        if f >= args.warmup {
+            pt += s.trace_seconds;
+            st += s.lookup_seconds;
+            ot += s.train_seconds;
+        }
+    }
+    let n = args.frames.max(1) as f64 / 1e3;
+    Ok(Run {
+        pt: pt / n,
+        st: st / n,
+        ot: ot / n,
+        image: film.mean(),
+        nonfinite,
+    })
+}
+
+pub fn run(args: &CacheBenchArgs) -> Result<()> {
+    let scenes = if args.scenes.is_empty() {
+        default_scenes()
+    } else {
+        args.scenes.clone()
+    };
+    println!(
+        "threads {}, {}x{}, 1 spp per frame, {} frames after {} warm-up on a {}-degree orbit ending at the scene camera; cache N = {}, C = 0.5, learning rates x {}\n",
+        rayon::current_num_threads(),
+        args.width,
+        args.height,
+        args.frames,
+        args.warmup,
+        args.orbit_degrees,
+        args.points,
+        args.lr_scale
+    );
+    let mut table2 = vec![
+        "| volume | uniform PT | nee PT | nee + cache PT | ST (raster) | OT | (ST + OT) / PT | ST (rt) | OT (rt) | cache MB (+ AdamW moments) | init ms |".to_string(),
+        "|---|---|---|---|---|---|---|---|---|---|---|".to_string(),
+    ];
+    let mut quality = vec![
+        "| volume | method | spp | ms per frame | relMSE | PSNR (dB) | nee relMSE at equal time / this |".to_string(),
+        "|---|---|---|---|---|---|---|".to_string(),
+    ];
+    for path in &scenes {
+        let Some((name, scene)) = load_sized(path, args.width, args.height)? else {
+            continue;
+        };
+        let reference = reference(path, &scene, args)?;
+        let peak = hdr_peak(&reference);
+        let (lo, hi) = scene.media.medium.bounds();
+        let centre = 0.5 * (lo + hi);
+        let uniform = fly_plain(&scene, IntegratorKind::Uniform, args, centre);
+        let nee = fly_plain(&scene, IntegratorKind::Nee, args, centre);
+        let (mut cache, init) = new_cache(
+            &scene,
+            cache_config(args.points, args.lr_scale, Lookup::Raster),
+        )?;
+        let mb = cache.parameter_bytes() as f64 / 1e6;
+        let raster = fly_cached(&scene, &mut cache, args, centre)?;
+        let rt = if args.no_rt {
+            None
+        } else {
+            let (mut c, _) = new_cache(
+                &scene,
+                cache_config(args.points, args.lr_scale, Lookup::ray_traced()),
+            )?;
+            Some(fly_cached(&scene, &mut c, args, centre)?)
+        };
+        let fmt_opt = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
+        table2.push(format!(
+            "| {name} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2}x | {} | {} | {mb:.1} ({:.1}) | {:.0} |",
+            uniform.pt,
+            nee.pt,
+            raster.pt,
+            raster.st,
+            raster.ot,
+            (raster.st + raster.ot) / raster.pt,
+            fmt_opt(rt.as_ref().map(|r| r.st)),
+            fmt_opt(rt.as_ref().map(|r| r.ot)),
+            3.0 * mb,
+            init * 1e3
+        ));
+        // Equal time: nee with as many spp as fit in a cached frame's time.
+        let nee_at_time = |time_ms: f64| -> (u32, f64, Vec<Vec3>) {
+            let spp = ((time_ms / nee.pt).round() as u32).max(1);
+            let (img, secs) = plain(
+                &scene,
+                &scene.camera,
+                IntegratorKind::Nee,
+                spp,
+                scene.settings.seed + 7777,
+            );
+            (spp, secs * 1e3, img)
+        };
+        let row = |method: &str, spp: u32, ms: f64, img: &[Vec3], nee_equal: Option<f64>| {
+            let e = rel_mse(img, &reference);
+            format!(
+                "| {name} | {method} | {spp} | {ms:.1} | {e:.4} | {:.2} | {} |",
+                psnr(img, &reference, peak),
+                nee_equal.map_or(String::new(), |n| format!("{:.2}x", n / e))
+            )
+        };
+        quality.push(row("uniform", 1, uniform.pt, &uniform.image, None));
+        quality.push(row("nee", 1, nee.pt, &nee.image, None));
+        for (label, run) in [
+            ("nee + cache (raster)", Some(&raster)),
+            ("nee + cache (rt)", rt.as_ref()),
+        ] {
+            let Some(run) = run else { continue };
+            let (spp, ms, img) = nee_at_time(run.total());
+            let e_equal = rel_mse(&img, &reference);
+            quality.push(row(label, 1, run.total(), &run.image, Some(e_equal)));
+            quality.push(row(
+                &format!("nee at the time of {label}"),
+                spp,
+                ms,
+                &img,
+                None,
+            ));
+            if run.nonfinite > 0 {
+                eprintln!("{name}: {label}: {} non-finite samples", run.nonfinite);
+            }
+        }
+        eprintln!("{name}: done");
+    }
+    println!(
+        "Per-frame times in ms (seed 002 Table 2: PT path tracing, ST splatting, OT optimisation)\n"
+    );
+    println!("{}\n", table2.join("\n"));
+    println!(
+        "Quality of the last frame (1 spp unless stated) against the {}-spp nee reference; relMSE with epsilon 0.01 and the top 0.1% trimmed; PSNR on HDR with the reference's 99.9th percentile as peak\n",
+        args.reference_spp
+    );
+    println!("{}", quality.join("\n"));
+    Ok(())
+}

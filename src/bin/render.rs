@@ -307,16 +307,7 @@ fn render_with_cache(
         ..Default::default()
     };
     config.termination.coefficient = a.cache_c;
-    let lr = &mut config.learning_rates;
-    for v in [
-        &mut lr.position,
-        &mut lr.color,
-        &mut lr.rotation,
-        &mut lr.scale,
-        &mut lr.opacity,
-    ] {
-        *v *= a.cache_lr_scale;
-    }
+    config.learning_rates = config.learning_rates.scaled(a.cache_lr_scale);
     config.termination.early = !a.no_early;
     config.validate()?;
     let t0 = std::time::Instant::now();

@@ -156,6 +156,24 @@ fn panic_message(panic: &Box<dyn std::any::Any + Send>) -> String {
     format!("panic inside gs-cache: {text}")
 }
 
+/// Runs a constructor under [`guarded`]: the new handle, or NULL with the last error set.
+fn construct(
+    make: impl FnOnce() -> Result<GsCache, (GsCacheStatus, String)>,
+) -> *mut GsCacheHandle {
+    let mut handle = None;
+    let status = guarded(|| {
+        handle = Some(GsCacheHandle {
+            cache: make()?,
+            targets: None,
+        });
+        Ok(())
+    });
+    match (status, handle) {
+        (GsCacheStatus::Ok, Some(h)) => Box::into_raw(Box::new(h)),
+        _ => std::ptr::null_mut(),
+    }
+}
+
 fn invalid(message: impl Into<String>) -> (GsCacheStatus, String) {
     (GsCacheStatus::InvalidArgument, message.into())
 }
@@ -269,8 +287,7 @@ pub unsafe extern "C" fn gs_cache_new(
     count: usize,
     config: *const GsCacheConfig,
 ) -> *mut GsCacheHandle {
-    let mut handle = None;
-    let status = guarded(|| {
+    construct(|| {
         if positions.is_null() || albedo.is_null() || config.is_null() {
             return Err(null("positions, albedo or config"));
         }
@@ -287,17 +304,8 @@ pub unsafe extern "C" fn gs_cache_new(
         let albedo: Vec<Vec3> = a.chunks_exact(3).map(Vec3::from_slice).collect();
         let mut config = CacheConfig::from(config);
         config.points = count;
-        let cache = GsCache::new(&points, &albedo, config).map_err(|e| invalid(e.to_string()))?;
-        handle = Some(GsCacheHandle {
-            cache,
-            targets: None,
-        });
-        Ok(())
-    });
-    match (status, handle) {
-        (GsCacheStatus::Ok, Some(h)) => Box::into_raw(Box::new(h)),
-        _ => std::ptr::null_mut(),
-    }
+        GsCache::new(&points, &albedo, config).map_err(|e| invalid(e.to_string()))
+    })
 }
 
 /// A cache from the levels saved in directory `dir` (`length_1.ply`, ...) with `config`'s
@@ -310,26 +318,16 @@ pub unsafe extern "C" fn gs_cache_load(
     dir: *const c_char,
     config: *const GsCacheConfig,
 ) -> *mut GsCacheHandle {
-    let mut handle = None;
-    let status = guarded(|| {
+    construct(|| {
         if dir.is_null() || config.is_null() {
             return Err(null("dir or config"));
         }
         // SAFETY: non-NULL; the caller promises a NUL-terminated string and a config.
         let (dir, config) = unsafe { (CStr::from_ptr(dir), &*config) };
         let dir = dir.to_str().map_err(|_| invalid("dir is not UTF-8"))?;
-        let cache = GsCache::load(Path::new(dir), CacheConfig::from(config))
-            .map_err(|e| (GsCacheStatus::Io, e.to_string()))?;
-        handle = Some(GsCacheHandle {
-            cache,
-            targets: None,
-        });
-        Ok(())
-    });
-    match (status, handle) {
-        (GsCacheStatus::Ok, Some(h)) => Box::into_raw(Box::new(h)),
-        _ => std::ptr::null_mut(),
-    }
+        GsCache::load(Path::new(dir), CacheConfig::from(config))
+            .map_err(|e| (GsCacheStatus::Io, e.to_string()))
+    })
 }
 
 /// Frees a cache (NULL is ignored).

@@ -28,6 +28,19 @@ impl Default for LearningRates {
     }
 }
 
+impl LearningRates {
+    /// Every rate multiplied by `factor`.
+    pub fn scaled(self, factor: f32) -> Self {
+        Self {
+            position: self.position * factor,
+            color: self.color * factor,
+            rotation: self.rotation * factor,
+            scale: self.scale * factor,
+            opacity: self.opacity * factor,
+        }
+    }
+}
+
 /// How paths stop into the cache (seed 002 sections 3.3-3.4; see the crate docs for the
 /// estimator these settings define).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

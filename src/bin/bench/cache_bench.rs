@@ -102,22 +102,13 @@ pub fn orbit(camera: &Camera, centre: Vec3, degrees: f32, f: u32, total: u32) ->
 
 /// The cache settings of a run.
 pub fn cache_config(points: usize, lr_scale: f32, lookup: Lookup) -> CacheConfig {
-    let mut c = CacheConfig {
+    let defaults = CacheConfig::default();
+    CacheConfig {
         points,
         lookup,
-        ..Default::default()
-    };
-    let lr = &mut c.learning_rates;
-    for v in [
-        &mut lr.position,
-        &mut lr.color,
-        &mut lr.rotation,
-        &mut lr.scale,
-        &mut lr.opacity,
-    ] {
-        *v *= lr_scale;
+        learning_rates: defaults.learning_rates.scaled(lr_scale),
+        ..defaults
     }
-    c
 }
 
 /// A cache for `scene`, and its initialisation time in seconds.

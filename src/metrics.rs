@@ -2,6 +2,8 @@
 //!
 //! - relMSE: `mean over pixels and channels of (x - r)^2 / (r^2 + eps)` with `eps = 0.01`,
 //!   after dropping the largest 0.1% of per-pixel values (fireflies would otherwise decide it).
+//! - SMAPE: `mean over pixels and channels of |x - r| / (|x| + |r| + eps)` with `eps = 0.01`:
+//!   bounded by 1, so no single pixel decides it.
 //! - PSNR: `10 log10(peak^2 / MSE)` with the peak stated by the caller (for HDR images, the
 //!   reference's 99.9th percentile channel value is a fair choice; see [`hdr_peak`]).
 
@@ -37,6 +39,24 @@ pub fn rel_mse(image: &[Vec3], reference: &[Vec3]) -> f64 {
     m[..keep].iter().sum::<f64>() / keep.max(1) as f64
 }
 
+/// The epsilon of SMAPE's denominator.
+pub const SMAPE_EPSILON: f64 = 0.01;
+
+/// Symmetric mean absolute percentage error (see the module docs).
+pub fn smape(image: &[Vec3], reference: &[Vec3]) -> f64 {
+    assert_eq!(image.len(), reference.len(), "images differ in size");
+    let sum: f64 = image
+        .iter()
+        .zip(reference)
+        .map(|(x, r)| {
+            let (x, r) = (x.as_dvec3(), r.as_dvec3());
+            let e = (x - r).abs() / (x.abs() + r.abs() + glam::DVec3::splat(SMAPE_EPSILON));
+            e.x + e.y + e.z
+        })
+        .sum();
+    sum / (3 * image.len()).max(1) as f64
+}
+
 /// Mean squared error over pixels and channels.
 pub fn mse(image: &[Vec3], reference: &[Vec3]) -> f64 {
     assert_eq!(image.len(), reference.len(), "images differ in size");
@@ -69,6 +89,16 @@ pub fn psnr(image: &[Vec3], reference: &[Vec3], peak: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn smape_hand_computed() {
+        let r = vec![Vec3::splat(1.0), Vec3::splat(0.0)];
+        let x = vec![Vec3::splat(2.0), Vec3::splat(0.125)];
+        // 1 / (2 + 1 + 0.01) and 0.125 / (0.125 + 0 + 0.01), averaged.
+        let expected = 0.5 * (1.0 / 3.01 + 0.125 / 0.135);
+        assert!((smape(&x, &r) - expected).abs() < 1e-12);
+        assert_eq!(smape(&r, &r), 0.0);
+    }
 
     #[test]
     fn hand_computed() {

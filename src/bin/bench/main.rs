@@ -104,20 +104,21 @@ fn main() -> Result<()> {
 }
 
 fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
-    use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
+    use gscache_cli::metrics::{hdr_peak, psnr, rel_mse, smape};
     let (_, _, r) = volume_pt::output::read_exr(reference)?;
     let peak = hdr_peak(&r);
-    println!("| image | relMSE | PSNR (dB, peak {peak:.3}) |");
-    println!("|---|---|---|");
+    println!("| image | relMSE | SMAPE | PSNR (dB, peak {peak:.3}) |");
+    println!("|---|---|---|---|");
     for p in images {
         let (_, _, x) = volume_pt::output::read_exr(p)?;
         if x.len() != r.len() {
             anyhow::bail!("{}: size differs from the reference", p.display());
         }
         println!(
-            "| {} | {:.4e} | {:.2} |",
+            "| {} | {:.4e} | {:.4} | {:.2} |",
             p.display(),
             rel_mse(&x, &r),
+            smape(&x, &r),
             psnr(&x, &r, peak)
         );
     }

@@ -31,6 +31,18 @@ impl Level {
     pub fn radiance_scale(&self) -> f32 {
         self.radiance_scale.unwrap_or(1.0)
     }
+
+    /// Sets the radiance scale from the level's first samples. Absolute colours (a loaded
+    /// cloud) are divided by it; returns whether the cloud changed.
+    fn set_radiance_scale(&mut self, target: &[[f32; 3]], mask: &[bool]) -> bool {
+        let s = mean_luminance(target, mask);
+        self.radiance_scale = Some(s);
+        let rescaled = std::mem::replace(&mut self.absolute_colors, false);
+        if rescaled {
+            scale_colors(&mut self.cloud, 1.0 / s);
+        }
+        rescaled
+    }
 }
 
 /// Multiplies a degree-0 cloud's colours (`0.5 + C0 * dc`, before the clamp at 0) by `factor`.
@@ -307,7 +319,7 @@ impl GsCache {
                 {
                     let (target, mask) = targets.level_target(i, true);
                     if mask.iter().any(|&m| m) {
-                        level.radiance_scale = Some(mean_luminance(&target, &mask));
+                        level.set_radiance_scale(&target, &mask);
                     }
                 }
             }
@@ -322,15 +334,12 @@ impl GsCache {
                 continue;
             }
             let scale_before = level.radiance_scale();
-            if level.radiance_scale.is_none() && self.config.normalized_radiance {
-                let s = mean_luminance(&target, &mask);
-                level.radiance_scale = Some(s);
-                if level.absolute_colors {
-                    scale_colors(&mut level.cloud, 1.0 / s);
-                    // The drawn image no longer matches the cloud: draw it again below.
-                    frame.states[i] = None;
-                }
-                level.absolute_colors = false;
+            if level.radiance_scale.is_none()
+                && self.config.normalized_radiance
+                && level.set_radiance_scale(&target, &mask)
+            {
+                // The drawn image no longer matches the cloud: draw it again below.
+                frame.states[i] = None;
             }
             let scale = level.radiance_scale();
             // The lookup's forward pass is reused when it was the rasteriser's: the level has

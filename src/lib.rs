@@ -1,5 +1,13 @@
 //! The command-line programs' shared code.
 //!
-//! - [`metrics`]: image error against a reference (relMSE, MSE, PSNR).
+//! - [`metrics`]: image error against a reference (relMSE, SMAPE, PSNR, FLIP, bias across
+//!   seeds, efficiency).
+//! - [`orbit`]: the camera path of fly-throughs.
+//! - [`plot`]: charts and image grids (SVG, PNG) for reports.
+//! - [`experiment`]: the experiment runner: methods at budgets against a cached reference,
+//!   fly-throughs with scene edits, ablation sweeps, and their report.
 
+pub mod experiment;
 pub mod metrics;
+pub mod orbit;
+pub mod plot;

@@ -5,7 +5,16 @@
 //! - SMAPE: `mean over pixels and channels of |x - r| / (|x| + |r| + eps)` with `eps = 0.01`:
 //!   bounded by 1, so no single pixel decides it.
 //! - PSNR: `10 log10(peak^2 / MSE)` with the peak stated by the caller (for HDR images, the
-//!   reference's 99.9th percentile channel value is a fair choice; see [`hdr_peak`]).
+//!   reference's 99.9th percentile channel value is a fair choice; see [`hdr_peak`]). On
+//!   tone-mapped 8-bit images the peak is 255 ([`psnr_8bit`]).
+//! - Efficiency: `1 / (relMSE x seconds)`, so halving the error at equal time and halving the
+//!   time at equal error count the same.
+//! - Bias across seeds ([`SeedSpread`]): with `S` independent renders `x_s` of one pixel,
+//!   `(mean - r)^2 - var / S` is an unbiased estimate of the squared bias (the variance of the
+//!   mean is removed), reported relative like relMSE; and the image's mean brightness against the
+//!   reference's, with its standard error over seeds.
+//! - FLIP (feature `flip`): NVIDIA's perceptual difference of two tone-mapped images, mean over
+//!   pixels, through the `nv-flip` bindings of its C++ reference code.
 
 use glam::Vec3;
 
@@ -86,9 +95,163 @@ pub fn psnr(image: &[Vec3], reference: &[Vec3], peak: f64) -> f64 {
     10.0 * (peak * peak / mse(image, reference).max(1e-300)).log10()
 }
 
+/// PSNR in dB of two 8-bit images (tone-mapped), peak 255.
+pub fn psnr_8bit(image: &[u8], reference: &[u8]) -> f64 {
+    assert_eq!(image.len(), reference.len(), "images differ in size");
+    let sum: f64 = image
+        .iter()
+        .zip(reference)
+        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+        .sum();
+    let mse = sum / image.len().max(1) as f64;
+    10.0 * (255.0 * 255.0 / mse.max(1e-300)).log10()
+}
+
+/// `1 / (relMSE x seconds)`: higher is better.
+pub fn efficiency(rel_mse: f64, seconds: f64) -> f64 {
+    1.0 / (rel_mse * seconds).max(1e-300)
+}
+
+/// Mean FLIP error of two tone-mapped 8-bit sRGB images (`width x height x 3` bytes), at FLIP's
+/// default viewing distance (67 pixels per degree). `None` without the `flip` feature.
+pub fn flip(image: &[u8], reference: &[u8], width: u32, height: u32) -> Option<f64> {
+    assert_eq!(image.len(), reference.len(), "images differ in size");
+    #[cfg(feature = "flip")]
+    {
+        let r = nv_flip::FlipImageRgb8::with_data(width, height, reference);
+        let t = nv_flip::FlipImageRgb8::with_data(width, height, image);
+        let map = nv_flip::flip(r, t, nv_flip::DEFAULT_PIXELS_PER_DEGREE);
+        Some(nv_flip::FlipPool::from_image(&map).mean() as f64)
+    }
+    #[cfg(not(feature = "flip"))]
+    {
+        let _ = (width, height);
+        None
+    }
+}
+
+/// Per-pixel sums over seeds of one method at one budget: the bias estimates of the module docs.
+#[derive(Debug, Clone)]
+pub struct SeedSpread {
+    sum: Vec<glam::DVec3>,
+    sum_sq: Vec<glam::DVec3>,
+    /// Each seed's mean channel value (brightness).
+    means: Vec<f64>,
+}
+
+/// Bias of a method, estimated from its renders with different seeds.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct BiasEstimate {
+    pub seeds: usize,
+    /// Relative squared bias: `mean over pixels and channels of ((m - r)^2 - var/S) / (r^2 +
+    /// eps)`; comparable with relMSE (relMSE ~ this + the variance part). Can be slightly
+    /// negative from noise.
+    pub rel_bias_sq: f64,
+    /// Mean brightness over the reference's, minus 1 (mean over seeds).
+    pub brightness: f64,
+    /// Standard error of `brightness` over seeds.
+    pub brightness_se: f64,
+}
+
+impl SeedSpread {
+    pub fn new(pixels: usize) -> Self {
+        Self {
+            sum: vec![glam::DVec3::ZERO; pixels],
+            sum_sq: vec![glam::DVec3::ZERO; pixels],
+            means: Vec::new(),
+        }
+    }
+
+    /// Adds one seed's image.
+    pub fn add(&mut self, image: &[Vec3]) {
+        assert_eq!(image.len(), self.sum.len(), "images differ in size");
+        let mut total = 0.0;
+        for ((s, q), x) in self.sum.iter_mut().zip(&mut self.sum_sq).zip(image) {
+            let x = x.as_dvec3();
+            *s += x;
+            *q += x * x;
+            total += x.x + x.y + x.z;
+        }
+        self.means.push(total / (3 * image.len()).max(1) as f64);
+    }
+
+    /// The estimates against `reference`; `None` with fewer than 2 seeds.
+    pub fn estimate(&self, reference: &[Vec3]) -> Option<BiasEstimate> {
+        let n = self.means.len();
+        if n < 2 {
+            return None;
+        }
+        let nf = n as f64;
+        let eps = glam::DVec3::splat(REL_MSE_EPSILON);
+        let mut acc = 0.0;
+        let mut ref_total = 0.0;
+        for ((s, q), r) in self.sum.iter().zip(&self.sum_sq).zip(reference) {
+            let r = r.as_dvec3();
+            let m = *s / nf;
+            let var = ((*q - *s * m) / (nf - 1.0)).max(glam::DVec3::ZERO);
+            let e = ((m - r) * (m - r) - var / nf) / (r * r + eps);
+            acc += e.x + e.y + e.z;
+            ref_total += r.x + r.y + r.z;
+        }
+        let ref_mean = ref_total / (3 * reference.len()).max(1) as f64;
+        let ratios: Vec<f64> = self.means.iter().map(|m| m / ref_mean - 1.0).collect();
+        let mean = ratios.iter().sum::<f64>() / nf;
+        let var = ratios.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (nf - 1.0);
+        Some(BiasEstimate {
+            seeds: n,
+            rel_bias_sq: acc / (3 * reference.len()).max(1) as f64,
+            brightness: mean,
+            brightness_se: (var / nf).sqrt(),
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn psnr_8bit_and_efficiency_hand_computed() {
+        // One channel off by 5 in six: MSE = 25 / 6.
+        let r = [10u8, 20, 30, 40, 50, 60];
+        let x = [10u8, 25, 30, 40, 50, 60];
+        let expected = 10.0 * (255.0f64 * 255.0 * 6.0 / 25.0).log10();
+        assert!((psnr_8bit(&x, &r) - expected).abs() < 1e-9);
+        assert!((efficiency(0.25, 2.0) - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn seed_spread_hand_computed() {
+        // One pixel, reference 1 (grey); seeds 1.5 and 2.5: mean 2, sample variance 0.5.
+        // Squared bias estimate: (2 - 1)^2 - 0.5 / 2 = 0.75, over 1 + 0.01.
+        let r = [Vec3::ONE];
+        let mut s = SeedSpread::new(1);
+        assert!(s.estimate(&r).is_none());
+        s.add(&[Vec3::splat(1.5)]);
+        s.add(&[Vec3::splat(2.5)]);
+        let b = s.estimate(&r).unwrap();
+        assert_eq!(b.seeds, 2);
+        assert!((b.rel_bias_sq - 0.75 / 1.01).abs() < 1e-12, "{b:?}");
+        // Brightness ratios 0.5 and 1.5: mean 1.0, sd 0.7071, se 0.5.
+        assert!((b.brightness - 1.0).abs() < 1e-12 && (b.brightness_se - 0.5).abs() < 1e-12);
+        // An unbiased pair around the reference estimates a negative-or-zero squared bias.
+        let mut u = SeedSpread::new(1);
+        u.add(&[Vec3::splat(0.5)]);
+        u.add(&[Vec3::splat(1.5)]);
+        let b = u.estimate(&r).unwrap();
+        assert!((b.rel_bias_sq - (0.0 - 0.5 / 2.0) / 1.01).abs() < 1e-12);
+        assert!(b.brightness.abs() < 1e-12);
+    }
+
+    #[cfg(feature = "flip")]
+    #[test]
+    fn flip_is_zero_on_equal_images_and_positive_otherwise() {
+        let a = vec![128u8; 16 * 16 * 3];
+        let mut b = a.clone();
+        assert_eq!(flip(&a, &b, 16, 16), Some(0.0));
+        b.iter_mut().step_by(2).for_each(|v| *v = 255);
+        assert!(flip(&b, &a, 16, 16).unwrap() > 0.1);
+    }
 
     #[test]
     fn smape_hand_computed() {

@@ -215,6 +215,17 @@ impl TransferFunction {
         self.density_scale
     }
 
+    /// The same function with another density scale (an edit that makes the medium denser or
+    /// thinner without changing its colours).
+    pub fn with_density_scale(&self, density_scale: f32) -> Result<Self> {
+        Self::new(
+            self.window,
+            self.albedo.clone(),
+            self.opacity.clone(),
+            density_scale,
+        )
+    }
+
     #[inline]
     pub fn normalise(&self, v: f32) -> f32 {
         ((v - self.window.0) * self.inv_width).clamp(0.0, 1.0)

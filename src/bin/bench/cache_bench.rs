@@ -6,9 +6,10 @@
 //! and kept on disk.
 
 use anyhow::{Context, Result};
-use glam::{Quat, Vec3};
+use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
 use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
+pub use gscache_cli::orbit::orbit;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -81,23 +82,6 @@ pub fn load_sized(path: &Path, width: u32, height: u32) -> Result<Option<(String
     scene.camera.height = height;
     let name = path.file_stem().unwrap().to_string_lossy().into_owned();
     Ok(Some((name, scene)))
-}
-
-/// Frame `f` of `total` on an orbit of `degrees` about the camera's up axis through `centre`,
-/// ending (f = total - 1) at `camera` itself.
-pub fn orbit(camera: &Camera, centre: Vec3, degrees: f32, f: u32, total: u32) -> Camera {
-    let t = if total > 1 {
-        1.0 - f as f32 / (total - 1) as f32
-    } else {
-        0.0
-    };
-    let up = -(camera.rotation * Vec3::Y);
-    let q = Quat::from_axis_angle(up.normalize(), (degrees * t).to_radians());
-    Camera {
-        position: centre + q * (camera.position - centre),
-        rotation: (q * camera.rotation).normalize(),
-        ..*camera
-    }
 }
 
 /// The cache settings of a run.

@@ -1,0 +1,586 @@
+//! The experiment file (TOML): what to render, which methods, at which budgets, against which
+//! reference. Every key is documented in `docs/experiment-format.md`; relative paths are
+//! resolved against the experiment file's folder.
+
+use anyhow::{Context, Result, bail};
+use gs_cache::{CacheConfig, LearningRates, Lookup, Optimizer, TerminationConfig};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use stochastic_rt::Estimator;
+use volume_pt::IntegratorKind;
+
+/// The whole file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentFile {
+    /// Names the output folder and the report; default: the file's stem.
+    pub name: Option<String>,
+    /// The scene file.
+    pub scene: PathBuf,
+    /// Image size; default: the scene's.
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    /// Each (method, budget) is rendered once per seed: the spread gives the error bars and the
+    /// bias estimate. At least 3.
+    #[serde(default = "default_seeds")]
+    pub seeds: Vec<u64>,
+    /// Where results go; default `target/experiments/<name>` under the current folder.
+    pub output: Option<PathBuf>,
+    #[serde(default)]
+    pub reference: ReferenceDesc,
+    #[serde(default)]
+    pub budgets: Budgets,
+    /// The method the report's gains are measured against; default `nee` when there is one.
+    pub baseline: Option<String>,
+    #[serde(rename = "method")]
+    pub methods: Vec<MethodDesc>,
+    #[serde(default, rename = "flythrough")]
+    pub flythroughs: Vec<FlythroughDesc>,
+    #[serde(default, rename = "ablation")]
+    pub ablations: Vec<AblationDesc>,
+}
+
+fn default_seeds() -> Vec<u64> {
+    vec![1, 2, 3]
+}
+
+/// The high-spp NEE render every image is compared with.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReferenceDesc {
+    pub spp: u32,
+    /// Kept here between runs, named by a hash of everything that decides the image.
+    pub dir: PathBuf,
+}
+
+impl Default for ReferenceDesc {
+    fn default() -> Self {
+        Self {
+            spp: 1024,
+            dir: PathBuf::from("target/experiment-references"),
+        }
+    }
+}
+
+/// The budgets every method is measured at: samples per pixel, and wall-clock seconds per image.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Budgets {
+    pub spp: Vec<u32>,
+    pub seconds: Vec<f64>,
+}
+
+impl Default for Budgets {
+    fn default() -> Self {
+        Self {
+            spp: vec![1, 4, 16],
+            seconds: vec![],
+        }
+    }
+}
+
+/// One method: an integrator, optionally reading a cache.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MethodDesc {
+    pub name: String,
+    pub integrator: IntegratorKind,
+    pub cache: Option<CacheDesc>,
+}
+
+/// A cache's settings in the experiment file (the library's [`CacheConfig`] plus how it is
+/// warmed up before it is measured).
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CacheDesc {
+    /// `raster` (the paper's) or `rt` (stochastic ray tracing of the levels).
+    pub lookup: String,
+    /// Stochastic samples per BVH traversal of the `rt` lookup.
+    pub rt_samples: u32,
+    pub points: usize,
+    pub levels: usize,
+    /// Algorithm 1's C.
+    pub c: f32,
+    pub early: bool,
+    pub natural: bool,
+    /// `adamw` or `adam`.
+    pub optimizer: Optimizer,
+    /// Multiplies every learning rate of seed 002.
+    pub lr_scale: f32,
+    /// The scales' learning rate (0 in the paper; 0.0125 is the "-CO" ablation).
+    pub scale_lr: f32,
+    /// Eq. 2's cap on the initial sizes.
+    pub size_cap: bool,
+    pub masked_targets: bool,
+    pub normalized_radiance: bool,
+    pub train: bool,
+    /// Frames (1 spp each) trained along an orbit ending at the camera before measuring: the
+    /// cache a user has after moving to this view. Not counted in the image's time.
+    pub warmup: u32,
+    /// Degrees of that orbit.
+    pub warmup_orbit_degrees: f32,
+}
+
+impl Default for CacheDesc {
+    fn default() -> Self {
+        let c = CacheConfig::default();
+        Self {
+            lookup: "raster".into(),
+            rt_samples: 8,
+            points: c.points,
+            levels: c.levels,
+            c: c.termination.coefficient,
+            early: c.termination.early,
+            natural: c.termination.natural,
+            optimizer: c.optimizer,
+            lr_scale: 1.0,
+            scale_lr: c.learning_rates.scale,
+            size_cap: c.size_cap,
+            masked_targets: c.masked_targets,
+            normalized_radiance: c.normalized_radiance,
+            train: c.train,
+            warmup: 40,
+            warmup_orbit_degrees: 60.0,
+        }
+    }
+}
+
+impl CacheDesc {
+    /// The library configuration, checked.
+    pub fn config(&self) -> Result<CacheConfig> {
+        let d = CacheConfig::default();
+        let lookup = match self.lookup.as_str() {
+            "raster" => Lookup::Raster,
+            "rt" => Lookup::RayTrace {
+                estimator: Estimator::Stochastic {
+                    samples_per_traversal: self.rt_samples.max(1),
+                },
+                spp: 1,
+            },
+            other => bail!("cache lookup `{other}`: expected `raster` or `rt`"),
+        };
+        let config = CacheConfig {
+            levels: self.levels,
+            points: self.points,
+            termination: TerminationConfig {
+                coefficient: self.c,
+                early: self.early,
+                natural: self.natural,
+                ..d.termination
+            },
+            learning_rates: LearningRates {
+                scale: self.scale_lr,
+                ..d.learning_rates
+            }
+            .scaled(self.lr_scale),
+            optimizer: self.optimizer,
+            size_cap: self.size_cap,
+            masked_targets: self.masked_targets,
+            normalized_radiance: self.normalized_radiance,
+            train: self.train,
+            lookup,
+            ..d
+        };
+        config.validate()?;
+        Ok(config)
+    }
+}
+
+/// A camera path of `frames` frames after `warmup` frames, with scene edits on the way.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlythroughDesc {
+    pub name: String,
+    pub frames: u32,
+    #[serde(default)]
+    pub warmup: u32,
+    /// Degrees of orbit about the camera's up axis through the volume's centre over the whole
+    /// run, ending at the scene camera; 0 holds the camera still (for adaptation curves).
+    #[serde(default)]
+    pub orbit_degrees: f32,
+    /// Methods flown (names from `[[method]]`); default: all.
+    #[serde(default)]
+    pub methods: Vec<String>,
+    /// Every this many frames the frame's 1-spp image is compared with a reference (made once
+    /// per camera and scene state, kept on disk).
+    #[serde(default = "default_error_every")]
+    pub error_every: u32,
+    /// Samples per pixel of those references.
+    #[serde(default = "default_flythrough_reference_spp")]
+    pub reference_spp: u32,
+    #[serde(default, rename = "event")]
+    pub events: Vec<EventDesc>,
+}
+
+fn default_error_every() -> u32 {
+    10
+}
+
+fn default_flythrough_reference_spp() -> u32 {
+    256
+}
+
+/// A scene edit at a frame (counted from the first warm-up frame). A cache's learning-rate
+/// schedule restarts there, as an application would do on an edit.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct EventDesc {
+    pub frame: u32,
+    /// Moves every light by this offset (world units).
+    pub light_offset: Option<[f32; 3]>,
+    /// Multiplies every light's radiance.
+    pub light_scale: Option<f32>,
+    /// Multiplies the transfer function's extinction (a denser or thinner medium).
+    pub density_scale: Option<f32>,
+    /// Replaces the scene's medium, lights and phase function by another scene file's (any
+    /// transfer-function edit); the camera path is kept.
+    pub scene: Option<PathBuf>,
+}
+
+/// One parameter of a cache method swept over values; every value is measured like a method.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct AblationDesc {
+    pub name: String,
+    /// The `[[method]]` whose cache is varied.
+    pub method: String,
+    /// A key of the method's `cache` table.
+    pub parameter: String,
+    pub values: Vec<toml::Value>,
+    /// Budgets of the sweep; default: the experiment's.
+    pub budgets: Option<Budgets>,
+}
+
+/// A method ready to run.
+#[derive(Debug, Clone, Serialize)]
+pub struct Method {
+    pub name: String,
+    pub integrator: IntegratorKind,
+    pub cache: Option<CacheDesc>,
+}
+
+/// The parsed file with its paths resolved and every method checked.
+#[derive(Debug, Clone)]
+pub struct Experiment {
+    pub name: String,
+    pub file: PathBuf,
+    pub scene: PathBuf,
+    pub size: Option<(u32, u32)>,
+    pub seeds: Vec<u64>,
+    pub output: PathBuf,
+    pub reference: ReferenceDesc,
+    pub budgets: Budgets,
+    pub baseline: Option<String>,
+    pub methods: Vec<Method>,
+    pub flythroughs: Vec<FlythroughDesc>,
+    pub ablations: Vec<Ablation>,
+}
+
+/// An ablation with its variants built.
+#[derive(Debug, Clone)]
+pub struct Ablation {
+    pub name: String,
+    pub parameter: String,
+    pub budgets: Budgets,
+    /// (value as written, the method with that value).
+    pub variants: Vec<(String, Method)>,
+}
+
+/// Reads and checks an experiment file.
+pub fn load_experiment(path: &Path) -> Result<Experiment> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read the experiment file", path.display()))?;
+    let file: ExperimentFile = toml::from_str(&text)
+        .with_context(|| format!("{}: not a valid experiment file", path.display()))?;
+    build(path, file).with_context(|| format!("{}", path.display()))
+}
+
+fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
+    let base = path.parent().unwrap_or(Path::new("."));
+    let name = f.name.clone().unwrap_or_else(|| {
+        path.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "experiment".into())
+    });
+    if f.seeds.len() < 3 {
+        bail!(
+            "seeds = {:?}: expected at least 3 (the spread across seeds gives the error bars and the bias estimate)",
+            f.seeds
+        );
+    }
+    let mut seen = std::collections::HashSet::new();
+    for s in &f.seeds {
+        if !seen.insert(s) {
+            bail!("seed {s} is listed twice: each seed must be distinct");
+        }
+    }
+    check_budgets(&f.budgets, "[budgets]")?;
+    if f.reference.spp == 0 {
+        bail!("[reference] spp = 0: expected at least 1 (and far more than any budget)");
+    }
+    if f.methods.is_empty() {
+        bail!(
+            "no [[method]]: expected at least one (e.g. `name = \"nee\"`, `integrator = \"nee\"`)"
+        );
+    }
+    let mut methods = Vec::new();
+    for m in &f.methods {
+        if methods.iter().any(|x: &Method| x.name == m.name) {
+            bail!("method `{}` is defined twice", m.name);
+        }
+        methods.push(method(m.name.clone(), m.integrator, m.cache.clone())?);
+    }
+    let find = |name: &str, what: &str| -> Result<&Method> {
+        methods.iter().find(|m| m.name == name).with_context(|| {
+            format!(
+                "{what} names method `{name}`, which is not a [[method]] (known: {})",
+                methods
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })
+    };
+    let baseline = match &f.baseline {
+        Some(b) => Some(find(b, "baseline")?.name.clone()),
+        None => methods
+            .iter()
+            .find(|m| m.name == "nee")
+            .map(|m| m.name.clone()),
+    };
+    for fly in &f.flythroughs {
+        if fly.frames == 0 {
+            bail!("flythrough `{}`: frames = 0: expected at least 1", fly.name);
+        }
+        if fly.error_every == 0 || fly.reference_spp == 0 {
+            bail!(
+                "flythrough `{}`: error_every and reference_spp must be at least 1",
+                fly.name
+            );
+        }
+        for m in &fly.methods {
+            find(m, &format!("flythrough `{}`", fly.name))?;
+        }
+        for e in &fly.events {
+            check_event(e, &fly.name)?;
+        }
+    }
+    let mut flythroughs = f.flythroughs.clone();
+    for fly in &mut flythroughs {
+        for e in &mut fly.events {
+            if let Some(s) = &e.scene {
+                e.scene = Some(base.join(s));
+            }
+        }
+    }
+    let mut ablations = Vec::new();
+    for a in &f.ablations {
+        let m = find(&a.method, &format!("ablation `{}`", a.name))?;
+        let Some(cache) = &m.cache else {
+            bail!(
+                "ablation `{}` varies method `{}`, which has no cache",
+                a.name,
+                a.method
+            );
+        };
+        let budgets = a.budgets.clone().unwrap_or_else(|| f.budgets.clone());
+        check_budgets(&budgets, &format!("ablation `{}` budgets", a.name))?;
+        if a.values.is_empty() {
+            bail!("ablation `{}` has no values", a.name);
+        }
+        let mut variants = Vec::new();
+        for v in &a.values {
+            let varied = with_parameter(cache, &a.parameter, v)
+                .with_context(|| format!("ablation `{}`", a.name))?;
+            let label = value_label(v);
+            let name = format!("{} [{}={}]", m.name, a.parameter, label);
+            variants.push((label, method(name, m.integrator, Some(varied))?));
+        }
+        ablations.push(Ablation {
+            name: a.name.clone(),
+            parameter: a.parameter.clone(),
+            budgets,
+            variants,
+        });
+    }
+    let size = match (f.width, f.height) {
+        (Some(w), Some(h)) if w > 0 && h > 0 => Some((w, h)),
+        (None, None) => None,
+        _ => bail!("width and height: give both, each at least 1, or neither"),
+    };
+    Ok(Experiment {
+        output: f
+            .output
+            .map(|o| base.join(o))
+            .unwrap_or_else(|| PathBuf::from("target/experiments").join(&name)),
+        reference: f.reference,
+        name,
+        file: path.to_path_buf(),
+        scene: base.join(&f.scene),
+        size,
+        seeds: f.seeds,
+        budgets: f.budgets,
+        baseline,
+        methods,
+        flythroughs,
+        ablations,
+    })
+}
+
+fn method(name: String, integrator: IntegratorKind, cache: Option<CacheDesc>) -> Result<Method> {
+    if let Some(c) = &cache {
+        if integrator != IntegratorKind::Nee {
+            bail!(
+                "method `{name}`: a cache needs `integrator = \"nee\"` (seed 002 caches NEE paths)"
+            );
+        }
+        c.config()
+            .with_context(|| format!("method `{name}`: cache"))?;
+    }
+    Ok(Method {
+        name,
+        integrator,
+        cache,
+    })
+}
+
+fn check_budgets(b: &Budgets, what: &str) -> Result<()> {
+    if b.spp.is_empty() && b.seconds.is_empty() {
+        bail!("{what}: no budget: give `spp = [...]` and/or `seconds = [...]`");
+    }
+    if b.spp.contains(&0) {
+        bail!("{what}: spp = {:?}: every budget must be at least 1", b.spp);
+    }
+    if b.seconds.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
+        bail!(
+            "{what}: seconds = {:?}: every budget must be finite and > 0",
+            b.seconds
+        );
+    }
+    Ok(())
+}
+
+fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
+    let n = [
+        e.light_offset.is_some(),
+        e.light_scale.is_some(),
+        e.density_scale.is_some(),
+        e.scene.is_some(),
+    ]
+    .iter()
+    .filter(|&&b| b)
+    .count();
+    if n != 1 {
+        bail!(
+            "flythrough `{fly}`: the event at frame {} must have exactly one of light_offset, light_scale, density_scale, scene",
+            e.frame
+        );
+    }
+    for (what, v) in [
+        ("light_scale", e.light_scale),
+        ("density_scale", e.density_scale),
+    ] {
+        if let Some(v) = v
+            && !(v >= 0.0 && v.is_finite())
+        {
+            bail!(
+                "flythrough `{fly}`: event at frame {}: {what} = {v}: expected a finite value >= 0",
+                e.frame
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `cache` with one key replaced, through its TOML form so the key is checked by serde.
+fn with_parameter(cache: &CacheDesc, key: &str, value: &toml::Value) -> Result<CacheDesc> {
+    let mut table = toml::Table::try_from(cache).context("cache settings as TOML")?;
+    if !table.contains_key(key) {
+        bail!(
+            "parameter `{key}` is not a cache setting (known: {})",
+            table.keys().cloned().collect::<Vec<_>>().join(", ")
+        );
+    }
+    table.insert(key.to_string(), value.clone());
+    toml::Value::Table(table)
+        .try_into()
+        .with_context(|| format!("`{key} = {value}` is not a valid value for `{key}`"))
+}
+
+fn value_label(v: &toml::Value) -> String {
+    match v {
+        toml::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Experiment> {
+        let f: ExperimentFile = toml::from_str(text)?;
+        build(Path::new("x/e.toml"), f)
+    }
+
+    const METHODS: &str = r#"
+        scene = "s.toml"
+        [[method]]
+        name = "nee"
+        integrator = "nee"
+        [[method]]
+        name = "cache"
+        integrator = "nee"
+        cache = { points = 1000, c = 0.5 }
+    "#;
+
+    #[test]
+    fn sweeps_build_one_checked_variant_per_value() {
+        let e = parse(&format!(
+            "{METHODS}\n[[ablation]]\nname = \"size\"\nmethod = \"cache\"\nparameter = \"points\"\nvalues = [100, 2000]\n\
+             [[ablation]]\nname = \"opt\"\nmethod = \"cache\"\nparameter = \"optimizer\"\nvalues = [\"adamw\", \"adam\"]\n"
+        ))
+        .unwrap();
+        assert_eq!(e.scene, Path::new("x/s.toml"));
+        assert_eq!(e.baseline.as_deref(), Some("nee"));
+        let size = &e.ablations[0];
+        assert_eq!(size.variants.len(), 2);
+        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().points, 2000);
+        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().c, 0.5);
+        assert_eq!(size.variants[0].1.name, "cache [points=100]");
+        let opt = &e.ablations[1];
+        assert_eq!(
+            opt.variants[1].1.cache.as_ref().unwrap().optimizer,
+            Optimizer::Adam
+        );
+    }
+
+    #[test]
+    fn bad_files_name_their_fault() {
+        let err = |t: &str| format!("{:#}", parse(t).unwrap_err());
+        assert!(err(&format!("{METHODS}\nseeds = [1, 2]")).contains("at least 3"));
+        assert!(err(&format!("{METHODS}\n[budgets]\nspp = [0]")).contains("at least 1"));
+        let e = err(&format!(
+            "{METHODS}\n[[ablation]]\nname = \"a\"\nmethod = \"cache\"\nparameter = \"pionts\"\nvalues = [1]"
+        ));
+        assert!(e.contains("`pionts` is not a cache setting"), "{e}");
+        let e = err(&format!(
+            "{METHODS}\n[[ablation]]\nname = \"a\"\nmethod = \"cache\"\nparameter = \"points\"\nvalues = [\"many\"]"
+        ));
+        assert!(e.contains("not a valid value"), "{e}");
+        // Too few points for three levels is caught when the variant is built.
+        let e = err(&format!(
+            "{METHODS}\n[[ablation]]\nname = \"a\"\nmethod = \"cache\"\nparameter = \"points\"\nvalues = [5]"
+        ));
+        assert!(e.contains("too few"), "{e}");
+        let e = err(&format!(
+            "{METHODS}\n[[flythrough]]\nname = \"f\"\nframes = 3\nmethods = [\"nope\"]"
+        ));
+        assert!(e.contains("`nope`"), "{e}");
+        let e = err(&format!(
+            "{METHODS}\n[[flythrough]]\nname = \"f\"\nframes = 3\n[[flythrough.event]]\nframe = 1"
+        ));
+        assert!(e.contains("exactly one"), "{e}");
+    }
+}

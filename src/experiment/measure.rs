@@ -1,0 +1,212 @@
+//! Running one method progressively: 1-spp passes (or cached frames) accumulated into a film,
+//! with a snapshot each time a budget is reached. Budgets in spp and in seconds share one run,
+//! so a method's images at 1, 4 and 16 spp are the prefixes of one progressive render, as a
+//! user watching it would see them. Times are wall-clock around each pass.
+
+use super::config::Method;
+use crate::orbit::orbit;
+use anyhow::Result;
+use glam::Vec3;
+use gs_cache::{CacheConfig, GsCache};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+use volume_pt::{Film, Scene, render, render_cached_frame, sample_cache_points};
+
+/// A budget: samples per pixel, or wall-clock seconds per image.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", content = "value", rename_all = "lowercase")]
+pub enum Budget {
+    Spp(u32),
+    Seconds(f64),
+}
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Budget::Spp(s) => write!(f, "{s} spp"),
+            Budget::Seconds(s) => write!(f, "{s} s"),
+        }
+    }
+}
+
+/// The image a progressive run had when it reached a budget.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    pub budget: Budget,
+    /// Passes (samples per pixel) in the image.
+    pub spp: u32,
+    /// Wall-clock seconds of those passes (for a cache: tracing, lookup and training).
+    pub seconds: f64,
+    pub image: Vec<Vec3>,
+}
+
+/// What a cached run leaves besides its snapshots.
+#[derive(Debug, Clone, Default)]
+pub struct CacheRecord {
+    pub init_seconds: f64,
+    pub warmup_seconds: f64,
+    /// Per frame (warm-up, then measured): per level, the MSE before the step.
+    pub level_mse: Vec<Vec<Option<f64>>>,
+    /// Per measured frame: seconds of path tracing, lookup (splatting) and training.
+    pub frame_seconds: Vec<[f64; 3]>,
+    /// The levels as last drawn, at the scene camera.
+    pub level_images: Vec<Vec<Vec3>>,
+    pub parameter_bytes: usize,
+    pub nonfinite_samples: u64,
+}
+
+/// A distinct stream of random numbers for pass `pass` of seed `seed` (splitmix64 finaliser).
+pub fn pass_seed(seed: u64, pass: u64) -> u64 {
+    let mut z = seed
+        .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+        .wrapping_add(pass.wrapping_add(1).wrapping_mul(0xbf58_476d_1ce4_e5b9));
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Calls `pass(k, film)` for k = 0, 1, ... (each adds 1 spp to the film and returns its
+/// seconds) until every budget is reached, snapshotting the film at each. A time budget is
+/// reached by the first pass that ends at or past it (its image includes that pass).
+pub fn progressive(
+    budgets: &[Budget],
+    width: u32,
+    height: u32,
+    mut pass: impl FnMut(u32, &mut Film) -> Result<f64>,
+) -> Result<Vec<Snapshot>> {
+    let mut film = Film::new(width, height);
+    let mut pending: Vec<Budget> = budgets.to_vec();
+    let mut out = Vec::new();
+    let (mut k, mut seconds) = (0u32, 0.0);
+    while !pending.is_empty() {
+        seconds += pass(k, &mut film)?;
+        k += 1;
+        pending.retain(|b| {
+            let reached = match *b {
+                Budget::Spp(s) => k >= s,
+                Budget::Seconds(t) => seconds >= t,
+            };
+            if reached {
+                out.push(Snapshot {
+                    budget: *b,
+                    spp: k,
+                    seconds,
+                    image: film.mean(),
+                });
+            }
+            !reached
+        });
+    }
+    Ok(out)
+}
+
+/// A new cache for `scene`, its points found with `seed`, and the seconds it took.
+pub fn new_cache(scene: &Scene, config: CacheConfig, seed: u64) -> Result<(GsCache, f64)> {
+    let start = Instant::now();
+    let (points, albedo) = sample_cache_points(&scene.media, config.points, seed);
+    let cache = GsCache::new(&points, &albedo, config)?;
+    Ok((cache, start.elapsed().as_secs_f64()))
+}
+
+/// `method` at the scene camera with `seed`, snapshotted at every budget.
+pub fn run_method(
+    scene: &Scene,
+    method: &Method,
+    seed: u64,
+    budgets: &[Budget],
+    centre: Vec3,
+) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
+    let cam = scene.camera;
+    let mut settings = scene.settings;
+    settings.spp = 1;
+    settings.path.integrator = method.integrator;
+    let cancel = AtomicBool::new(false);
+    let Some(desc) = &method.cache else {
+        let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
+            let s = volume_pt::RenderSettings {
+                seed: pass_seed(seed, k as u64),
+                ..settings
+            };
+            let start = Instant::now();
+            render(&scene.media, &cam, &s, film, &cancel, &|_| {});
+            Ok(start.elapsed().as_secs_f64())
+        })?;
+        return Ok((snaps, None));
+    };
+    settings.seed = seed;
+    let (mut cache, init_seconds) = new_cache(scene, desc.config()?, seed)?;
+    let mut record = CacheRecord {
+        init_seconds,
+        parameter_bytes: cache.parameter_bytes(),
+        ..Default::default()
+    };
+    let start = Instant::now();
+    for f in 0..desc.warmup {
+        let view = orbit(&cam, centre, desc.warmup_orbit_degrees, f, desc.warmup + 1);
+        let s = render_cached_frame(&scene.media, &view, &settings, f, None, &mut cache, &cancel)?;
+        record.nonfinite_samples += s.nonfinite_samples;
+        record.level_mse.push(cache.report().mse.clone());
+    }
+    record.warmup_seconds = start.elapsed().as_secs_f64();
+    let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
+        let start = Instant::now();
+        let s = render_cached_frame(
+            &scene.media,
+            &cam,
+            &settings,
+            desc.warmup + k,
+            Some(film),
+            &mut cache,
+            &cancel,
+        )?;
+        let secs = start.elapsed().as_secs_f64();
+        record.nonfinite_samples += s.nonfinite_samples;
+        record.level_mse.push(cache.report().mse.clone());
+        record
+            .frame_seconds
+            .push([s.trace_seconds, s.lookup_seconds, s.train_seconds]);
+        Ok(secs)
+    })?;
+    if let Some(frame) = cache.frame() {
+        record.level_images = (0..frame.levels())
+            .map(|l| {
+                frame
+                    .image(l)
+                    .iter()
+                    .map(|&c| Vec3::from_array(c))
+                    .collect()
+            })
+            .collect();
+    }
+    Ok((snaps, Some(record)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn progressive_snapshots_every_budget_once_in_order_reached() {
+        let budgets = [Budget::Spp(3), Budget::Seconds(0.25), Budget::Spp(1)];
+        let snaps = progressive(&budgets, 1, 1, |_, _| Ok(0.1)).unwrap();
+        let got: Vec<(Budget, u32)> = snaps.iter().map(|s| (s.budget, s.spp)).collect();
+        // 0.25 s is first reached by the third pass (0.3 s).
+        assert_eq!(
+            got,
+            vec![
+                (Budget::Spp(1), 1),
+                (Budget::Spp(3), 3),
+                (Budget::Seconds(0.25), 3)
+            ]
+        );
+        assert!((snaps[2].seconds - 0.3).abs() < 1e-12);
+    }
+
+    #[test]
+    fn pass_seeds_differ() {
+        let a: std::collections::HashSet<u64> = (0..1000)
+            .flat_map(|p| [pass_seed(1, p), pass_seed(2, p)])
+            .collect();
+        assert_eq!(a.len(), 2000);
+    }
+}

@@ -1,0 +1,140 @@
+//! References: high-spp NEE renders, made once and kept on disk. A reference's file name is a
+//! hash of everything that decides its pixels (the scene file's bytes, the volume file's name
+//! and length, the scene state after edits, the camera, the size and the spp), so a changed
+//! input makes a new one and an unchanged one is reused. A JSON file beside each EXR says what
+//! it is.
+
+use anyhow::{Context, Result};
+use glam::Vec3;
+use splat_raster::Camera;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+use volume_pt::output::{read_exr, write_exr};
+use volume_pt::{Film, IntegratorKind, Scene, render};
+
+/// FNV-1a, 64 bits.
+pub fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
+    for &b in bytes {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+/// The FNV-1a offset basis: the hash of nothing.
+pub const FNV_START: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// A reference image and where it lives.
+#[derive(Debug, Clone)]
+pub struct Reference {
+    pub image: Vec<Vec3>,
+    pub file: PathBuf,
+    /// Found on disk rather than rendered by this run.
+    pub reused: bool,
+    /// Seconds it took to render (0 when reused).
+    pub seconds: f64,
+    pub spp: u32,
+}
+
+/// The seed of every reference: fixed, and far from the seeds experiments use.
+const REFERENCE_SEED: u64 = 0x005e_ed0f_5eed;
+
+/// The reference of `scene` seen from `camera` at `spp`, from `dir` or rendered into it.
+/// `scene_file` and `state` (a description of the edits applied to the scene) enter the key.
+pub fn reference(
+    dir: &Path,
+    scene_file: &Path,
+    state: &str,
+    scene: &Scene,
+    camera: &Camera,
+    spp: u32,
+) -> Result<Reference> {
+    let scene_bytes = std::fs::read(scene_file)
+        .with_context(|| format!("{}: cannot read the scene file", scene_file.display()))?;
+    let volume_len = std::fs::metadata(&scene.volume_path)
+        .map(|m| m.len())
+        .unwrap_or(0);
+    let mut h = fnv1a(&scene_bytes, FNV_START);
+    let key = format!(
+        "{}|{volume_len}|{state}|{camera:?}|{spp}|{:?}",
+        scene.volume_path.display(),
+        scene.settings.path
+    );
+    h = fnv1a(key.as_bytes(), h);
+    let stem = scene_file
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let file = dir.join(format!(
+        "{stem}_{}x{}_{spp}spp_{h:016x}.exr",
+        camera.width, camera.height
+    ));
+    if file.exists() {
+        let (w, h, image) = read_exr(&file)?;
+        if (w, h) == (camera.width, camera.height) {
+            return Ok(Reference {
+                image,
+                file,
+                reused: true,
+                seconds: 0.0,
+                spp,
+            });
+        }
+    }
+    let mut settings = scene.settings;
+    settings.spp = spp;
+    settings.seed = REFERENCE_SEED;
+    settings.path.integrator = IntegratorKind::Nee;
+    let mut film = Film::new(camera.width, camera.height);
+    let start = Instant::now();
+    render(
+        &scene.media,
+        camera,
+        &settings,
+        &mut film,
+        &AtomicBool::new(false),
+        &|_| {},
+    );
+    let seconds = start.elapsed().as_secs_f64();
+    let image = film.mean();
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    // Written under a temporary name and renamed, so an interrupted run leaves no half file
+    // that a later run would take for a reference.
+    let tmp = file.with_extension("exr.partial");
+    write_exr(&tmp, camera.width, camera.height, &image)?;
+    std::fs::rename(&tmp, &file).with_context(|| format!("{}: cannot rename", tmp.display()))?;
+    let about = serde_json::json!({
+        "scene_file": scene_file.display().to_string(),
+        "volume": scene.volume_path.display().to_string(),
+        "state": state,
+        "camera": format!("{camera:?}"),
+        "spp": spp,
+        "seed": REFERENCE_SEED,
+        "integrator": "nee",
+        "seconds": seconds,
+    });
+    std::fs::write(
+        file.with_extension("json"),
+        serde_json::to_string_pretty(&about)?,
+    )
+    .with_context(|| format!("{}: cannot write", file.display()))?;
+    Ok(Reference {
+        image,
+        file,
+        reused: false,
+        seconds,
+        spp,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fnv1a_matches_the_published_test_vectors() {
+        assert_eq!(fnv1a(b"", FNV_START), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a(b"a", FNV_START), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a(b"foobar", FNV_START), 0x8594_4171_f739_67e8);
+    }
+}

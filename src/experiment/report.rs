@@ -1,0 +1,345 @@
+//! Writing an experiment's results: `summary.csv`, `flythrough.csv`, `ablations.csv`,
+//! `results.json` (everything) and `report.md` (tables, the figures, and what they show).
+//! `runs.csv` is written while the experiment runs (see `run`).
+
+use super::figures::Figure;
+use super::measure::Budget;
+use super::run::{Results, SummaryRow, budget_fields, csv_text};
+use anyhow::{Context, Result};
+use std::fmt::Write as _;
+use std::path::Path;
+
+fn write(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+const SUMMARY_HEADER: &str = "method,budget_kind,budget,seeds,spp,seconds,rel_mse,rel_mse_sd,psnr_hdr,psnr_tonemapped,smape,flip,efficiency,efficiency_vs_baseline,gain_vs_baseline,rel_bias_sq,brightness_bias,brightness_bias_se";
+
+fn summary_csv(prefix: &str, s: &SummaryRow) -> String {
+    let (kind, value) = budget_fields(s.budget);
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
+    format!(
+        "{prefix}{},{kind},{value},{},{:.3},{:.6},{:.6e},{:.6e},{:.4},{:.4},{:.6},{},{:.6e},{},{},{},{},{}",
+        csv_text(&s.method),
+        s.seeds,
+        s.spp,
+        s.seconds,
+        s.rel_mse,
+        s.rel_mse_sd,
+        s.psnr_hdr,
+        s.psnr_tonemapped,
+        s.smape,
+        opt(s.flip),
+        s.efficiency,
+        opt(s.efficiency_vs_baseline),
+        opt(s.gain_vs_baseline),
+        opt(s.bias.map(|b| b.rel_bias_sq)),
+        opt(s.bias.map(|b| b.brightness)),
+        opt(s.bias.map(|b| b.brightness_se)),
+    )
+}
+
+/// Writes every file but `runs.csv`; `figures` are already written.
+pub fn write_reports(out: &Path, r: &Results, figures: &[Figure]) -> Result<()> {
+    let mut csv = format!("{SUMMARY_HEADER}\n");
+    for s in &r.summary {
+        csv.push_str(&summary_csv("", s));
+        csv.push('\n');
+    }
+    write(&out.join("summary.csv"), &csv)?;
+    if !r.flythroughs.is_empty() {
+        let mut csv = String::from(
+            "flythrough,method,frame,warmup,trace_ms,splat_ms,train_ms,total_ms,rel_mse,level_mse\n",
+        );
+        for f in &r.flythroughs {
+            let levels: Vec<String> = f
+                .level_mse
+                .iter()
+                .map(|m| m.map_or(String::new(), |v| format!("{v:.6e}")))
+                .collect();
+            writeln!(
+                csv,
+                "{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{}",
+                csv_text(&f.flythrough),
+                csv_text(&f.method),
+                f.frame,
+                f.warmup,
+                f.trace_ms,
+                f.splat_ms,
+                f.train_ms,
+                f.total_ms,
+                f.rel_mse.map_or(String::new(), |v| format!("{v:.6e}")),
+                levels.join(";")
+            )?;
+        }
+        write(&out.join("flythrough.csv"), &csv)?;
+    }
+    if !r.ablations.is_empty() {
+        let mut csv = format!("ablation,parameter,value,{SUMMARY_HEADER}\n");
+        for a in &r.ablations {
+            for (value, rows) in &a.rows {
+                for s in rows {
+                    let prefix = format!(
+                        "{},{},{},",
+                        csv_text(&a.name),
+                        csv_text(&a.parameter),
+                        csv_text(value)
+                    );
+                    csv.push_str(&summary_csv(&prefix, s));
+                    csv.push('\n');
+                }
+            }
+        }
+        write(&out.join("ablations.csv"), &csv)?;
+    }
+    write(&out.join("results.json"), &serde_json::to_string_pretty(r)?)?;
+    write(&out.join("report.md"), &markdown(r, figures))
+}
+
+fn sci(v: f64) -> String {
+    if v == 0.0 {
+        "0".into()
+    } else if (1e-3..1e3).contains(&v.abs()) {
+        format!("{v:.4}")
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+fn budget_label(b: Budget) -> String {
+    match b {
+        Budget::Spp(s) => format!("{s} spp"),
+        Budget::Seconds(s) => format!("{:.0} ms", s * 1e3),
+    }
+}
+
+const TABLE_HEAD: &str = "| method | budget | spp | ms | relMSE (sd) | PSNR HDR | PSNR tone-mapped | SMAPE | FLIP | efficiency | vs baseline: gain / efficiency | rel. bias² | brightness bias (se) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+
+fn table_row(s: &SummaryRow, label: &str) -> String {
+    let vs = match (s.gain_vs_baseline, s.efficiency_vs_baseline) {
+        (Some(g), Some(e)) => format!("{g:.2}x / {e:.2}x"),
+        _ => "-".into(),
+    };
+    let (bias, bright) = match s.bias {
+        Some(b) => (
+            sci(b.rel_bias_sq),
+            format!(
+                "{:+.2}% ({:.2}%)",
+                b.brightness * 100.0,
+                b.brightness_se * 100.0
+            ),
+        ),
+        None => ("-".into(), "-".into()),
+    };
+    format!(
+        "| {label} | {} | {:.1} | {:.1} | {} ({}) | {:.2} | {:.2} | {:.4} | {} | {} | {vs} | {bias} | {bright} |\n",
+        budget_label(s.budget),
+        s.spp,
+        s.seconds * 1e3,
+        sci(s.rel_mse),
+        sci(s.rel_mse_sd),
+        s.psnr_hdr,
+        s.psnr_tonemapped,
+        s.smape,
+        s.flip.map_or("-".into(), |f| format!("{f:.4}")),
+        sci(s.efficiency),
+    )
+}
+
+fn markdown(r: &Results, figures: &[Figure]) -> String {
+    let mut md = String::new();
+    let _ = writeln!(md, "# Experiment `{}`\n", r.name);
+    let _ = writeln!(
+        md,
+        "Scene `{}`, {}x{}, {} threads, seeds {:?}. Reference: {} spp NEE (`{}`, {}).\n",
+        r.scene.display(),
+        r.width,
+        r.height,
+        r.threads,
+        r.seeds,
+        r.reference.spp,
+        r.reference
+            .file
+            .file_name()
+            .map(|f| f.to_string_lossy())
+            .unwrap_or_default(),
+        if r.reference.reused {
+            "reused from disk".to_string()
+        } else {
+            format!("rendered in {:.1} s", r.reference.seconds)
+        }
+    );
+    let _ = writeln!(
+        md,
+        "Metrics: relMSE with epsilon 0.01 and the top 0.1% of pixels trimmed; PSNR on HDR with peak {:.4} (the reference's 99.9th percentile) and on the tone-mapped 8-bit images with peak 255; SMAPE with epsilon 0.01; FLIP on tone-mapped images (`--features flip`; `-` without it); efficiency 1 / (relMSE x seconds). Times are wall-clock per image; a cache's warm-up frames are not counted (see the cache table). The bias columns are estimated across the seeds: relative squared bias (mean minus reference, squared, less the variance of the mean, over reference² + 0.01) and the mean brightness against the reference's, with its standard error. Gains are the baseline's relMSE over the method's at the same budget{}.\n",
+        r.reference.hdr_peak,
+        r.baseline
+            .as_ref()
+            .map_or(String::new(), |b| format!(" (baseline `{b}`)"))
+    );
+    let _ = writeln!(md, "## Methods\n");
+    for m in &r.methods {
+        let cache = m.cache.as_ref().map_or(String::new(), |c| {
+            format!(
+                ": cache `{}`",
+                toml::to_string(c)
+                    .unwrap_or_default()
+                    .replace('\n', ", ")
+                    .trim_end_matches(", ")
+            )
+        });
+        let _ = writeln!(md, "- `{}`: {}{cache}", m.name, m.integrator);
+    }
+    let _ = writeln!(md, "\n## Results\n");
+    md.push_str(TABLE_HEAD);
+    for s in &r.summary {
+        md.push_str(&table_row(s, &s.method));
+    }
+    md.push('\n');
+    md.push_str(&findings(r));
+    if !r.caches.is_empty() {
+        let _ = writeln!(md, "\n## Caches (first seed)\n");
+        md.push_str("| method | init ms | warm-up frames | warm-up s | trace ms per frame | splat ms | train ms | (splat + train) / trace | MB |\n|---|---|---|---|---|---|---|---|---|\n");
+        for c in &r.caches {
+            let _ = writeln!(
+                md,
+                "| {} | {:.0} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2}x | {:.1} |",
+                c.method,
+                c.init_seconds * 1e3,
+                c.warmup_frames,
+                c.warmup_seconds,
+                c.trace_ms,
+                c.splat_ms,
+                c.train_ms,
+                (c.splat_ms + c.train_ms) / c.trace_ms.max(1e-9),
+                c.parameter_bytes as f64 / 1e6
+            );
+        }
+    }
+    for a in &r.ablations {
+        let _ = writeln!(md, "\n## Ablation `{}`: `{}`\n", a.name, a.parameter);
+        md.push_str(&TABLE_HEAD.replacen("| method |", &format!("| {} |", a.parameter), 1));
+        for (value, rows) in &a.rows {
+            for s in rows {
+                md.push_str(&table_row(s, value));
+            }
+        }
+    }
+    if !r.flythroughs.is_empty() {
+        let _ = writeln!(md, "\n## Fly-throughs (seed {})\n", r.seeds[0]);
+        md.push_str("| flythrough | method | frames | mean ms per frame | trace | splat | train | mean relMSE of evaluated frames |\n|---|---|---|---|---|---|---|---|\n");
+        let mut keys: Vec<(&str, &str)> = r
+            .flythroughs
+            .iter()
+            .map(|f| (f.flythrough.as_str(), f.method.as_str()))
+            .collect();
+        keys.dedup();
+        for (fly, m) in keys {
+            let fr: Vec<_> = r
+                .flythroughs
+                .iter()
+                .filter(|f| f.flythrough == fly && f.method == m && !f.warmup)
+                .collect();
+            let n = fr.len().max(1) as f64;
+            let mean = |v: &dyn Fn(&&super::flythrough::FrameRecord) -> f64| {
+                fr.iter().map(v).sum::<f64>() / n
+            };
+            let errs: Vec<f64> = fr.iter().filter_map(|f| f.rel_mse).collect();
+            let _ = writeln!(
+                md,
+                "| {fly} | {m} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                fr.len(),
+                mean(&|f| f.total_ms),
+                mean(&|f| f.trace_ms),
+                mean(&|f| f.splat_ms),
+                mean(&|f| f.train_ms),
+                if errs.is_empty() {
+                    "-".into()
+                } else {
+                    sci(errs.iter().sum::<f64>() / errs.len() as f64)
+                }
+            );
+        }
+        for (fly, frame, what) in &r.flythrough_events {
+            let _ = writeln!(md, "\nFly-through `{fly}`: at frame {frame}, {what}.");
+        }
+    }
+    let _ = writeln!(md, "\n## Figures\n");
+    for (caption, file) in figures {
+        let _ = writeln!(md, "{caption}:\n\n![{caption}]({file})\n");
+    }
+    let _ = writeln!(
+        md,
+        "Files: `runs.csv` (every run), `summary.csv`, `ablations.csv`, `flythrough.csv`, `results.json` (everything), `plots/` (PNG and SVG)."
+    );
+    md
+}
+
+/// Plain sentences: where each method beats the baseline at equal time and where it loses.
+fn findings(r: &Results) -> String {
+    let Some(base) = &r.baseline else {
+        return String::new();
+    };
+    let mut out = String::from("What this shows:\n\n");
+    for m in r.methods.iter().filter(|m| &m.name != base) {
+        let rows: Vec<&SummaryRow> = r.summary.iter().filter(|s| s.method == m.name).collect();
+        let timed: Vec<&&SummaryRow> = rows
+            .iter()
+            .filter(|s| matches!(s.budget, Budget::Seconds(_)))
+            .collect();
+        let describe = |rs: &[&&SummaryRow], what: &str| -> Option<String> {
+            let gains: Vec<f64> = rs.iter().filter_map(|s| s.gain_vs_baseline).collect();
+            if gains.is_empty() {
+                return None;
+            }
+            let lo = gains.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = gains.iter().cloned().fold(0.0, f64::max);
+            Some(format!("{what} {lo:.2}x to {hi:.2}x"))
+        };
+        let eff: Vec<&&SummaryRow> = rows.iter().collect();
+        let effs: Vec<f64> = eff
+            .iter()
+            .filter_map(|s| s.efficiency_vs_baseline)
+            .collect();
+        let mut parts = Vec::new();
+        if let Some(t) = describe(&timed, "lower relMSE at equal time:") {
+            parts.push(t);
+        }
+        if !effs.is_empty() {
+            let lo = effs.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = effs.iter().cloned().fold(0.0, f64::max);
+            parts.push(format!(
+                "efficiency {lo:.2}x to {hi:.2}x the baseline's over all budgets"
+            ));
+        }
+        let bias: Vec<String> = rows
+            .iter()
+            .filter_map(|s| {
+                s.bias
+                    .filter(|b| {
+                        (b.brightness.abs() > 3.0 * b.brightness_se) && b.brightness.abs() > 0.01
+                    })
+                    .map(|b| {
+                        format!(
+                            "{:+.1}% at {}",
+                            b.brightness * 100.0,
+                            budget_label(s.budget)
+                        )
+                    })
+            })
+            .collect();
+        if !bias.is_empty() {
+            parts.push(format!(
+                "brightness bias beyond 3 standard errors: {}",
+                bias.join(", ")
+            ));
+        }
+        let _ = writeln!(
+            out,
+            "- `{}` against `{base}`: {}.",
+            m.name,
+            parts.join("; ")
+        );
+    }
+    out
+}

@@ -1,0 +1,450 @@
+//! Running an experiment: the reference, every method at every budget for every seed, the
+//! fly-throughs and the ablation sweeps. Each run's row is appended to `runs.csv` as soon as it
+//! is measured, so an interrupted experiment keeps what it measured.
+
+use super::config::{Budgets, Experiment, Method};
+use super::flythrough::{FrameRecord, fly};
+use super::measure::{Budget, CacheRecord, Snapshot, run_method};
+use super::reference::reference;
+use crate::metrics::{
+    BiasEstimate, SeedSpread, efficiency, flip, hdr_peak, psnr, psnr_8bit, rel_mse, smape,
+};
+use anyhow::{Context, Result};
+use glam::Vec3;
+use serde::Serialize;
+use std::io::Write;
+use std::path::PathBuf;
+use volume_pt::Scene;
+use volume_pt::output::tone_map;
+
+/// One method at one budget with one seed.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunRow {
+    pub method: String,
+    pub budget: Budget,
+    pub seed: u64,
+    pub spp: u32,
+    /// Wall-clock seconds of the image (a cache's warm-up excluded; see `warmup_seconds`).
+    pub seconds: f64,
+    pub warmup_seconds: f64,
+    pub rel_mse: f64,
+    pub psnr_hdr: f64,
+    pub psnr_tonemapped: f64,
+    pub smape: f64,
+    pub flip: Option<f64>,
+    pub efficiency: f64,
+    pub nonfinite_samples: u64,
+}
+
+impl RunRow {
+    pub const CSV_HEADER: &'static str = "method,budget_kind,budget,seed,spp,seconds,warmup_seconds,rel_mse,psnr_hdr,psnr_tonemapped,smape,flip,efficiency,nonfinite_samples";
+
+    pub fn csv(&self) -> String {
+        let (kind, value) = budget_fields(self.budget);
+        format!(
+            "{},{kind},{value},{},{},{:.6},{:.6},{:.6e},{:.4},{:.4},{:.6},{},{:.6e},{}",
+            csv_text(&self.method),
+            self.seed,
+            self.spp,
+            self.seconds,
+            self.warmup_seconds,
+            self.rel_mse,
+            self.psnr_hdr,
+            self.psnr_tonemapped,
+            self.smape,
+            self.flip.map_or(String::new(), |f| format!("{f:.6}")),
+            self.efficiency,
+            self.nonfinite_samples
+        )
+    }
+}
+
+pub fn budget_fields(b: Budget) -> (&'static str, String) {
+    match b {
+        Budget::Spp(s) => ("spp", s.to_string()),
+        Budget::Seconds(s) => ("seconds", s.to_string()),
+    }
+}
+
+/// A string as a CSV field (quoted when it holds a comma or quote).
+pub fn csv_text(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// One method at one budget, over the seeds.
+#[derive(Debug, Clone, Serialize)]
+pub struct SummaryRow {
+    pub method: String,
+    pub budget: Budget,
+    pub seeds: usize,
+    pub spp: f64,
+    pub seconds: f64,
+    pub rel_mse: f64,
+    /// Standard deviation over seeds.
+    pub rel_mse_sd: f64,
+    pub psnr_hdr: f64,
+    pub psnr_tonemapped: f64,
+    pub smape: f64,
+    pub flip: Option<f64>,
+    /// `1 / (mean relMSE x mean seconds)`.
+    pub efficiency: f64,
+    /// This method's efficiency over the baseline's at the same budget.
+    pub efficiency_vs_baseline: Option<f64>,
+    /// The baseline's relMSE over this method's at the same budget (at a time budget: the gain
+    /// at equal time).
+    pub gain_vs_baseline: Option<f64>,
+    pub bias: Option<BiasEstimate>,
+}
+
+/// What a cached method's first seed left: its cost and its levels.
+#[derive(Debug, Clone, Serialize)]
+pub struct CacheSummary {
+    pub method: String,
+    pub init_seconds: f64,
+    pub warmup_seconds: f64,
+    pub warmup_frames: u32,
+    pub parameter_bytes: usize,
+    /// Mean per measured frame: path tracing, splatting (lookup), training, in ms.
+    pub trace_ms: f64,
+    pub splat_ms: f64,
+    pub train_ms: f64,
+    #[serde(skip)]
+    pub record: CacheRecord,
+}
+
+/// One ablation's results.
+#[derive(Debug, Clone, Serialize)]
+pub struct AblationResult {
+    pub name: String,
+    pub parameter: String,
+    /// (value, the variant's summary at each budget).
+    pub rows: Vec<(String, Vec<SummaryRow>)>,
+}
+
+/// The reference's facts, for the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReferenceInfo {
+    pub file: PathBuf,
+    pub spp: u32,
+    pub reused: bool,
+    pub seconds: f64,
+    /// The PSNR peak on HDR images: the reference's 99.9th percentile channel value.
+    pub hdr_peak: f64,
+}
+
+/// Everything an experiment measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct Results {
+    pub name: String,
+    pub scene: PathBuf,
+    pub width: u32,
+    pub height: u32,
+    pub threads: usize,
+    pub seeds: Vec<u64>,
+    pub baseline: Option<String>,
+    pub methods: Vec<Method>,
+    pub reference: ReferenceInfo,
+    pub runs: Vec<RunRow>,
+    pub summary: Vec<SummaryRow>,
+    pub caches: Vec<CacheSummary>,
+    pub flythroughs: Vec<FrameRecord>,
+    /// (flythrough, frame, what changed).
+    pub flythrough_events: Vec<(String, u32, String)>,
+    pub ablations: Vec<AblationResult>,
+    #[serde(skip)]
+    pub images: Images,
+}
+
+/// Images kept for the figures (first seed only).
+#[derive(Debug, Clone, Default)]
+pub struct Images {
+    pub reference: Vec<Vec3>,
+    /// (method, budget, image).
+    pub snapshots: Vec<(String, Budget, Vec<Vec3>)>,
+}
+
+/// What rendering a method at budgets gives.
+struct Evaluation {
+    runs: Vec<RunRow>,
+    summary: Vec<SummaryRow>,
+    cache: Option<CacheSummary>,
+    snapshots: Vec<Snapshot>,
+}
+
+/// The tone-mapped image of the report's figures and the tone-mapped metrics.
+fn ldr(img: &[Vec3], scene: &Scene) -> Vec<u8> {
+    tone_map(img, scene.output.exposure, scene.output.tonemap)
+}
+
+fn budgets_of(b: &Budgets) -> Vec<Budget> {
+    b.spp
+        .iter()
+        .map(|&s| Budget::Spp(s))
+        .chain(b.seconds.iter().map(|&s| Budget::Seconds(s)))
+        .collect()
+}
+
+struct Setup<'a> {
+    scene: &'a Scene,
+    reference: &'a [Vec3],
+    reference_ldr: Vec<u8>,
+    peak: f64,
+    seeds: &'a [u64],
+    centre: Vec3,
+    csv: std::fs::File,
+}
+
+fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evaluation> {
+    let (w, h) = (cx.scene.camera.width, cx.scene.camera.height);
+    let mut runs = Vec::new();
+    let mut spreads: Vec<SeedSpread> = budgets
+        .iter()
+        .map(|_| SeedSpread::new(cx.reference.len()))
+        .collect();
+    let mut cache = None;
+    let mut first_snapshots = Vec::new();
+    for (si, &seed) in cx.seeds.iter().enumerate() {
+        let (snaps, record) = run_method(cx.scene, method, seed, budgets, cx.centre)?;
+        let warmup_seconds = record.as_ref().map_or(0.0, |r| r.warmup_seconds);
+        let nonfinite = record.as_ref().map_or(0, |r| r.nonfinite_samples);
+        for snap in &snaps {
+            let img = &snap.image;
+            let e = rel_mse(img, cx.reference);
+            let tm = ldr(img, cx.scene);
+            let row = RunRow {
+                method: method.name.clone(),
+                budget: snap.budget,
+                seed,
+                spp: snap.spp,
+                seconds: snap.seconds,
+                warmup_seconds,
+                rel_mse: e,
+                psnr_hdr: psnr(img, cx.reference, cx.peak),
+                psnr_tonemapped: psnr_8bit(&tm, &cx.reference_ldr),
+                smape: smape(img, cx.reference),
+                flip: flip(&tm, &cx.reference_ldr, w, h),
+                efficiency: efficiency(e, snap.seconds),
+                nonfinite_samples: nonfinite,
+            };
+            writeln!(cx.csv, "{}", row.csv()).context("runs.csv")?;
+            let i = budgets.iter().position(|b| *b == snap.budget).unwrap_or(0);
+            spreads[i].add(img);
+            runs.push(row);
+        }
+        if si == 0 {
+            if let (Some(desc), Some(r)) = (&method.cache, record) {
+                let n = r.frame_seconds.len().max(1) as f64;
+                let mean = |k: usize| r.frame_seconds.iter().map(|s| s[k]).sum::<f64>() / n * 1e3;
+                cache = Some(CacheSummary {
+                    method: method.name.clone(),
+                    init_seconds: r.init_seconds,
+                    warmup_seconds: r.warmup_seconds,
+                    warmup_frames: desc.warmup,
+                    parameter_bytes: r.parameter_bytes,
+                    trace_ms: mean(0),
+                    splat_ms: mean(1),
+                    train_ms: mean(2),
+                    record: r,
+                });
+            }
+            first_snapshots = snaps;
+        }
+    }
+    cx.csv.flush().ok();
+    let summary = budgets
+        .iter()
+        .zip(&spreads)
+        .map(|(b, spread)| summarise(&method.name, *b, &runs, spread, cx.reference))
+        .collect();
+    Ok(Evaluation {
+        runs,
+        summary,
+        cache,
+        snapshots: first_snapshots,
+    })
+}
+
+fn summarise(
+    method: &str,
+    budget: Budget,
+    runs: &[RunRow],
+    spread: &SeedSpread,
+    reference: &[Vec3],
+) -> SummaryRow {
+    let rows: Vec<&RunRow> = runs.iter().filter(|r| r.budget == budget).collect();
+    let n = rows.len().max(1) as f64;
+    let mean = |f: &dyn Fn(&RunRow) -> f64| rows.iter().map(|r| f(r)).sum::<f64>() / n;
+    let e = mean(&|r| r.rel_mse);
+    let sd =
+        (rows.iter().map(|r| (r.rel_mse - e).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
+    let seconds = mean(&|r| r.seconds);
+    let flips: Vec<f64> = rows.iter().filter_map(|r| r.flip).collect();
+    SummaryRow {
+        method: method.to_string(),
+        budget,
+        seeds: rows.len(),
+        spp: mean(&|r| r.spp as f64),
+        seconds,
+        rel_mse: e,
+        rel_mse_sd: sd,
+        psnr_hdr: mean(&|r| r.psnr_hdr),
+        psnr_tonemapped: mean(&|r| r.psnr_tonemapped),
+        smape: mean(&|r| r.smape),
+        flip: (!flips.is_empty()).then(|| flips.iter().sum::<f64>() / flips.len() as f64),
+        efficiency: efficiency(e, seconds),
+        efficiency_vs_baseline: None,
+        gain_vs_baseline: None,
+        bias: spread.estimate(reference),
+    }
+}
+
+/// Fills the comparisons with the baseline's rows at the same budgets.
+fn compare_with(rows: &mut [SummaryRow], baseline: &[SummaryRow]) {
+    for r in rows {
+        if let Some(b) = baseline.iter().find(|b| b.budget == r.budget) {
+            r.efficiency_vs_baseline = Some(r.efficiency / b.efficiency);
+            r.gain_vs_baseline = Some(b.rel_mse / r.rel_mse);
+        }
+    }
+}
+
+/// Runs the experiment; `progress` receives one line per step.
+pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
+    let mut scene = volume_pt::load_scene(&exp.scene)?;
+    if let Some((w, h)) = exp.size {
+        scene.camera.width = w;
+        scene.camera.height = h;
+    }
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    std::fs::create_dir_all(&exp.output)
+        .with_context(|| format!("{}: cannot create the output folder", exp.output.display()))?;
+    let r = reference(
+        &exp.reference.dir,
+        &exp.scene,
+        "",
+        &scene,
+        &scene.camera,
+        exp.reference.spp,
+    )?;
+    progress(&if r.reused {
+        format!("reference: reused {}", r.file.display())
+    } else {
+        format!(
+            "reference: rendered {} ({} spp, {:.1} s)",
+            r.file.display(),
+            r.spp,
+            r.seconds
+        )
+    });
+    let peak = hdr_peak(&r.image);
+    let (lo, hi) = scene.media.medium.bounds();
+    let csv_path = exp.output.join("runs.csv");
+    let mut csv = std::fs::File::create(&csv_path)
+        .with_context(|| format!("{}: cannot write", csv_path.display()))?;
+    writeln!(csv, "{}", RunRow::CSV_HEADER)?;
+    let mut cx = Setup {
+        scene: &scene,
+        reference: &r.image,
+        reference_ldr: ldr(&r.image, &scene),
+        peak,
+        seeds: &exp.seeds,
+        centre: 0.5 * (lo + hi),
+        csv,
+    };
+    let budgets = budgets_of(&exp.budgets);
+    let mut results = Results {
+        name: exp.name.clone(),
+        scene: exp.scene.clone(),
+        width: w,
+        height: h,
+        threads: rayon::current_num_threads(),
+        seeds: exp.seeds.clone(),
+        baseline: exp.baseline.clone(),
+        methods: exp.methods.clone(),
+        reference: ReferenceInfo {
+            file: r.file.clone(),
+            spp: r.spp,
+            reused: r.reused,
+            seconds: r.seconds,
+            hdr_peak: peak,
+        },
+        runs: Vec::new(),
+        summary: Vec::new(),
+        caches: Vec::new(),
+        flythroughs: Vec::new(),
+        flythrough_events: Vec::new(),
+        ablations: Vec::new(),
+        images: Images {
+            reference: r.image.clone(),
+            snapshots: Vec::new(),
+        },
+    };
+    for m in &exp.methods {
+        let ev = evaluate(&mut cx, m, &budgets)?;
+        progress(&format!("{}: {} runs", m.name, ev.runs.len()));
+        results.runs.extend(ev.runs);
+        results.summary.extend(ev.summary);
+        results.caches.extend(ev.cache);
+        results.images.snapshots.extend(
+            ev.snapshots
+                .into_iter()
+                .map(|s| (m.name.clone(), s.budget, s.image)),
+        );
+    }
+    let base_rows: Vec<SummaryRow> = match &exp.baseline {
+        Some(b) => results
+            .summary
+            .iter()
+            .filter(|r| &r.method == b)
+            .cloned()
+            .collect(),
+        None => Vec::new(),
+    };
+    compare_with(&mut results.summary, &base_rows);
+    for fl in &exp.flythroughs {
+        let methods: Vec<&Method> = exp
+            .methods
+            .iter()
+            .filter(|m| fl.methods.is_empty() || fl.methods.contains(&m.name))
+            .collect();
+        let seed = exp.seeds[0];
+        for e in &fl.events {
+            let mut probe = scene.clone();
+            let what = super::flythrough::apply_event(&mut probe, e)?;
+            results
+                .flythrough_events
+                .push((fl.name.clone(), e.frame, what));
+        }
+        results.flythroughs.extend(fly(
+            &scene,
+            &exp.scene,
+            fl,
+            &methods,
+            seed,
+            &exp.reference.dir,
+            progress,
+        )?);
+    }
+    for a in &exp.ablations {
+        let budgets = budgets_of(&a.budgets);
+        let mut rows = Vec::new();
+        for (value, m) in &a.variants {
+            let ev = evaluate(&mut cx, m, &budgets)?;
+            progress(&format!("ablation `{}`: {}", a.name, m.name));
+            let mut summary = ev.summary;
+            compare_with(&mut summary, &base_rows);
+            results.runs.extend(ev.runs);
+            rows.push((value.clone(), summary));
+        }
+        results.ablations.push(AblationResult {
+            name: a.name.clone(),
+            parameter: a.parameter.clone(),
+            rows,
+        });
+    }
+    Ok(results)
+}

@@ -1,0 +1,183 @@
+//! The experiment runner end to end on a tiny experiment (bundled neghip, 48x27): every file
+//! is written, every number is finite, the reference is reused by a second run, and bad files
+//! are refused with a message naming the fault.
+
+use std::path::{Path, PathBuf};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("gscache-exp-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn tiny_experiment(dir: &Path) -> PathBuf {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml");
+    let text = format!(
+        r#"
+name = "tiny"
+scene = "{}"
+width = 48
+height = 27
+seeds = [1, 2, 3]
+output = "out"
+[reference]
+spp = 64
+dir = "{}"
+[budgets]
+spp = [1, 8]
+seconds = [0.02]
+[[method]]
+name = "nee"
+integrator = "nee"
+[[method]]
+name = "cache raster"
+integrator = "nee"
+cache = {{ points = 2000, warmup = 4 }}
+[[flythrough]]
+name = "light moves"
+frames = 8
+warmup = 2
+error_every = 3
+reference_spp = 16
+[[flythrough.event]]
+frame = 5
+light_offset = [0.3, 0.0, 0.0]
+[[ablation]]
+name = "C"
+method = "cache raster"
+parameter = "c"
+values = [0.0, 1.0]
+budgets = {{ spp = [2] }}
+"#,
+        scene.display(),
+        dir.join("refs").display()
+    );
+    let path = dir.join("tiny.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn tiny_experiment_writes_everything_and_reuses_its_reference() {
+    let dir = scratch("tiny");
+    let file = tiny_experiment(&dir);
+    let quiet = |_: &str| {};
+    let first = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let out = dir.join("out");
+    for f in [
+        "runs.csv",
+        "summary.csv",
+        "ablations.csv",
+        "flythrough.csv",
+        "results.json",
+        "report.md",
+        "plots/error_vs_time.png",
+        "plots/error_vs_time.svg",
+        "plots/images_0.png",
+        "plots/images_1.png",
+        "plots/cache_levels.png",
+        "plots/loss_0.png",
+        "plots/flythrough_0_time.png",
+        "plots/flythrough_0_error.png",
+        "plots/ablation_0.png",
+    ] {
+        let p = out.join(f);
+        assert!(
+            std::fs::metadata(&p).map(|m| m.len() > 0).unwrap_or(false),
+            "{} missing or empty",
+            p.display()
+        );
+    }
+    assert!(!first.reference.reused);
+    // 2 methods x 3 budgets x 3 seeds, plus 2 ablation values x 1 budget x 3 seeds.
+    let runs = std::fs::read_to_string(out.join("runs.csv")).unwrap();
+    assert_eq!(runs.lines().count(), 1 + 18 + 6, "{runs}");
+    assert_eq!(first.runs.len(), 18 + 6);
+    for r in &first.runs {
+        assert!(
+            r.rel_mse.is_finite() && r.psnr_hdr.is_finite() && r.smape.is_finite(),
+            "{r:?}"
+        );
+        assert!(r.seconds > 0.0 && r.efficiency.is_finite() && r.nonfinite_samples == 0);
+    }
+    for s in &first.summary {
+        let b = s.bias.expect("3 seeds give a bias estimate");
+        assert!(
+            b.rel_bias_sq.is_finite() && b.brightness.is_finite(),
+            "{s:?}"
+        );
+    }
+    // NEE's error falls with samples: 8 spp against 1 spp (variance ~1/spp; the means over 3
+    // seeds are far apart at this size).
+    let nee = |spp| {
+        first
+            .summary
+            .iter()
+            .find(|s| {
+                s.method == "nee" && s.budget == gscache_cli::experiment::measure::Budget::Spp(spp)
+            })
+            .unwrap()
+            .rel_mse
+    };
+    assert!(nee(8) < 0.5 * nee(1), "{} vs {}", nee(8), nee(1));
+    // The fly-through evaluated frames before and after the light moved.
+    let evaluated: Vec<u32> = first
+        .flythroughs
+        .iter()
+        .filter(|f| f.method == "cache raster" && f.rel_mse.is_some())
+        .map(|f| f.frame)
+        .collect();
+    assert!(evaluated.contains(&0) && evaluated.contains(&5) && evaluated.contains(&9));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    assert_eq!(json["summary"].as_array().unwrap().len(), 6);
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("## Ablation `C`") && report.contains("plots/error_vs_time.png"));
+
+    let reference = first.reference.file.clone();
+    let modified = std::fs::metadata(&reference).unwrap().modified().unwrap();
+    let second = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    assert!(second.reference.reused);
+    assert_eq!(second.reference.file, reference);
+    assert_eq!(
+        std::fs::metadata(&reference).unwrap().modified().unwrap(),
+        modified
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_experiment_files_are_refused_with_the_fault_named() {
+    let dir = scratch("bad");
+    let file = tiny_experiment(&dir);
+    let text = std::fs::read_to_string(&file).unwrap();
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        text.replace("parameter = \"c\"", "parameter = \"cc\""),
+    )
+    .unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_experiment"))
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("bad.toml") && err.contains("`cc` is not a cache setting"),
+        "{err}"
+    );
+    let missing = dir.join("missing.toml");
+    std::fs::write(&missing, text.replace("default.toml", "nowhere.toml")).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_experiment"))
+        .arg(&missing)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("nowhere.toml"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -174,8 +174,11 @@ where
         .configure_mesh()
         .x_desc(&c.x_label)
         .y_desc(&c.y_label)
-        .x_labels(if lx { 30 } else { 10 })
-        .y_labels(if ly { 30 } else { 10 })
+        // Many candidate ticks over several decades (only powers of ten get labels), few
+        // otherwise; no minor grid (it dominated the PNGs' size and said nothing).
+        .x_labels(if lx && sx > 1.5 { 30 } else { 8 })
+        .y_labels(if ly && sy > 1.5 { 30 } else { 8 })
+        .light_line_style(TRANSPARENT)
         .x_label_formatter(&|v| tick(*v, lx, sx))
         .y_label_formatter(&|v| tick(*v, ly, sy))
         .label_style(("sans-serif", 13))

@@ -8,16 +8,14 @@
 use anyhow::{Context, Result};
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
+use gscache_cli::experiment::reference::{FNV_START, fnv1a};
 use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
 pub use gscache_cli::orbit::orbit;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use std::time::Instant;
 use volume_pt::output::{read_exr, write_exr};
-use volume_pt::{
-    Film, IntegratorKind, Scene, load_scene, render, render_cached_frame, sample_cache_points,
-};
+use volume_pt::{Film, IntegratorKind, Scene, load_scene, render, render_cached_frame};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct CacheBenchArgs {
@@ -95,12 +93,9 @@ pub fn cache_config(points: usize, lr_scale: f32, lookup: Lookup) -> CacheConfig
     }
 }
 
-/// A cache for `scene`, and its initialisation time in seconds.
+/// A cache for `scene` (points found with the scene's seed), and its initialisation seconds.
 pub fn new_cache(scene: &Scene, config: CacheConfig) -> Result<(GsCache, f64)> {
-    let start = Instant::now();
-    let (points, albedo) = sample_cache_points(&scene.media, config.points, scene.settings.seed);
-    let cache = GsCache::new(&points, &albedo, config)?;
-    Ok((cache, start.elapsed().as_secs_f64()))
+    gscache_cli::experiment::measure::new_cache(scene, config, scene.settings.seed)
 }
 
 /// A plain render: the image and the seconds it took.
@@ -130,9 +125,7 @@ fn plain(
 /// FNV-1a of a file, so a reference is remade when its scene file changes.
 fn file_hash(path: &Path) -> Result<u64> {
     let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
-    Ok(bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    }))
+    Ok(fnv1a(&bytes, FNV_START))
 }
 
 /// The high-spp `nee` reference at the scene camera, rendered once and kept on disk.

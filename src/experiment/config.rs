@@ -559,7 +559,7 @@ mod tests {
     #[test]
     fn bad_files_name_their_fault() {
         let err = |t: &str| format!("{:#}", parse(t).unwrap_err());
-        assert!(err(&format!("{METHODS}\nseeds = [1, 2]")).contains("at least 3"));
+        assert!(err(&format!("seeds = [1, 2]\n{METHODS}")).contains("at least 3"));
         assert!(err(&format!("{METHODS}\n[budgets]\nspp = [0]")).contains("at least 1"));
         let e = err(&format!(
             "{METHODS}\n[[ablation]]\nname = \"a\"\nmethod = \"cache\"\nparameter = \"pionts\"\nvalues = [1]"

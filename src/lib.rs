@@ -2,12 +2,12 @@
 //!
 //! - [`metrics`]: image error against a reference (relMSE, SMAPE, PSNR, FLIP, bias across
 //!   seeds, efficiency).
-//! - [`orbit`]: the camera path of fly-throughs.
+//! - [`camera_path`]: the camera paths of fly-throughs (an orbit, or key frames).
 //! - [`plot`]: charts and image grids (SVG, PNG) for reports.
 //! - [`experiment`]: the experiment runner: methods at budgets against a cached reference,
 //!   fly-throughs with scene edits, ablation sweeps, and their report.
 
+pub mod camera_path;
 pub mod experiment;
 pub mod metrics;
-pub mod orbit;
 pub mod plot;

@@ -43,6 +43,20 @@ reference_spp = 16
 [[flythrough.event]]
 frame = 5
 light_offset = [0.3, 0.0, 0.0]
+[[flythrough]]
+name = "path"
+frames = 3
+methods = ["nee"]
+error_every = 1
+reference_spp = 16
+[[flythrough.key]]
+frame = 0
+eye = [60.0, 45.0, 95.0]
+target = [0.0, 0.0, 0.0]
+[[flythrough.key]]
+frame = 2
+eye = [-60.0, 45.0, 95.0]
+target = [0.0, 5.0, 0.0]
 [[ablation]]
 name = "C"
 method = "cache raster"
@@ -80,7 +94,9 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         "plots/loss_0.png",
         "plots/flythrough_0_time.png",
         "plots/flythrough_0_error.png",
+        "plots/flythrough_1_time.png",
         "plots/ablation_0.png",
+        "plots/ablation_0_time.png",
     ] {
         let p = out.join(f);
         assert!(
@@ -129,6 +145,17 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         .map(|f| f.frame)
         .collect();
     assert!(evaluated.contains(&0) && evaluated.contains(&5) && evaluated.contains(&9));
+    // The key-framed path: every frame evaluated against its own view's reference.
+    let path: Vec<_> = first
+        .flythroughs
+        .iter()
+        .filter(|f| f.flythrough == "path")
+        .collect();
+    assert_eq!(path.len(), 3);
+    assert!(
+        path.iter()
+            .all(|f| f.method == "nee" && f.rel_mse.is_some_and(|e| e.is_finite() && e > 0.0))
+    );
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(json["summary"].as_array().unwrap().len(), 6);

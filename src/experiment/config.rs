@@ -2,6 +2,7 @@
 //! reference. Every key is documented in `docs/experiment-format.md`; relative paths are
 //! resolved against the experiment file's folder.
 
+use crate::camera_path::{Keyframe, check_keyframes};
 use anyhow::{Context, Result, bail};
 use gs_cache::{CacheConfig, LearningRates, Lookup, Optimizer, TerminationConfig};
 use serde::{Deserialize, Serialize};
@@ -198,6 +199,9 @@ pub struct FlythroughDesc {
     /// run, ending at the scene camera; 0 holds the camera still (for adaptation curves).
     #[serde(default)]
     pub orbit_degrees: f32,
+    /// A key-framed path instead of the orbit (frames counted from the first warm-up frame).
+    #[serde(default, rename = "key")]
+    pub keys: Vec<Keyframe>,
     /// Methods flown (names from `[[method]]`); default: all.
     #[serde(default)]
     pub methods: Vec<String>,
@@ -364,6 +368,15 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         }
         for e in &fly.events {
             check_event(e, &fly.name)?;
+        }
+        if !fly.keys.is_empty() {
+            check_keyframes(&fly.keys).with_context(|| format!("flythrough `{}`", fly.name))?;
+            if fly.orbit_degrees != 0.0 {
+                bail!(
+                    "flythrough `{}`: both orbit_degrees and [[flythrough.key]]: expected one camera path",
+                    fly.name
+                );
+            }
         }
     }
     let mut flythroughs = f.flythroughs.clone();
@@ -582,5 +595,16 @@ mod tests {
             "{METHODS}\n[[flythrough]]\nname = \"f\"\nframes = 3\n[[flythrough.event]]\nframe = 1"
         ));
         assert!(e.contains("exactly one"), "{e}");
+        let key = |frame: u32| {
+            format!(
+                "[[flythrough.key]]\nframe = {frame}\neye = [0.0, 0.0, 9.0]\ntarget = [0.0, 0.0, 0.0]\n"
+            )
+        };
+        let fly = "[[flythrough]]\nname = \"f\"\nframes = 3\n";
+        let e = err(&format!("{METHODS}\n{fly}{}{}", key(2), key(1)));
+        assert!(e.contains("increasing order"), "{e}");
+        let e = err(&format!("{METHODS}\n{fly}orbit_degrees = 30.0\n{}", key(0)));
+        assert!(e.contains("one camera path"), "{e}");
+        assert!(parse(&format!("{METHODS}\n{fly}{}{}", key(0), key(2))).is_ok());
     }
 }

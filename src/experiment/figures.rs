@@ -3,7 +3,7 @@
 //! wrote (relative to the output folder) with a caption, for the report.
 
 use super::measure::Budget;
-use super::run::Results;
+use super::run::{Results, SummaryRow};
 use crate::metrics::rel_mse_map;
 use crate::plot::{Chart, Rgb8, Series, false_colour, tone_mapped, write_chart, write_image_grid};
 use anyhow::Result;
@@ -36,23 +36,7 @@ fn error_against_time(dir: &Path, r: &Results) -> Result<Figure> {
     let mut series = Vec::new();
     for m in &r.methods {
         let rows: Vec<_> = r.summary.iter().filter(|s| s.method == m.name).collect();
-        let mut points: Vec<(f64, f64)> = rows.iter().map(|s| (s.seconds, s.rel_mse)).collect();
-        points.sort_by(|a, b| a.0.total_cmp(&b.0));
-        series.push(Series {
-            name: m.name.clone(),
-            points,
-            bars: rows
-                .iter()
-                .map(|s| {
-                    (
-                        s.seconds,
-                        s.rel_mse - s.rel_mse_sd,
-                        s.rel_mse + s.rel_mse_sd,
-                    )
-                })
-                .collect(),
-            markers: true,
-        });
+        series.push(time_series(&m.name, &rows));
     }
     let chart = Chart {
         title: format!(
@@ -72,6 +56,27 @@ fn error_against_time(dir: &Path, r: &Results) -> Result<Figure> {
         "relMSE against wall-clock time, every budget, mean over seeds".into(),
         file("error_vs_time"),
     ))
+}
+
+/// A method's relMSE against seconds over its budgets, with 1-sd bars.
+fn time_series(name: &str, rows: &[&SummaryRow]) -> Series {
+    let mut points: Vec<(f64, f64)> = rows.iter().map(|s| (s.seconds, s.rel_mse)).collect();
+    points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Series {
+        name: name.to_string(),
+        points,
+        bars: rows
+            .iter()
+            .map(|s| {
+                (
+                    s.seconds,
+                    s.rel_mse - s.rel_mse_sd,
+                    s.rel_mse + s.rel_mse_sd,
+                )
+            })
+            .collect(),
+        markers: true,
+    }
 }
 
 /// One grid per chosen budget: the reference, then each method's image and relMSE map.
@@ -316,6 +321,34 @@ fn flythrough_curves(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
 fn ablation_charts(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
     let mut figs = Vec::new();
     for (i, a) in r.ablations.iter().enumerate() {
+        // Speed against error for every value, beside the baseline measured in the same run.
+        let mut series: Vec<Series> = a
+            .rows
+            .iter()
+            .map(|(v, rows)| {
+                let rows: Vec<&SummaryRow> = rows.iter().collect();
+                time_series(&format!("{}={v}", a.parameter), &rows)
+            })
+            .collect();
+        if let Some(base) = &r.baseline {
+            let rows: Vec<&SummaryRow> = r.summary.iter().filter(|s| &s.method == base).collect();
+            series.push(time_series(&format!("{base} (baseline)"), &rows));
+        }
+        let chart = Chart {
+            title: format!("ablation `{}`: relMSE against time", a.name),
+            x_label: "seconds per image".into(),
+            y_label: "relMSE".into(),
+            log_x: true,
+            log_y: true,
+            series,
+            marks: vec![],
+        };
+        let name = format!("ablation_{i}_time");
+        write_chart(&dir.join(&name), &chart)?;
+        figs.push((
+            format!("Ablation `{}`: relMSE against time per value", a.name),
+            file(&name),
+        ));
         let numeric: Option<Vec<f64>> = a.rows.iter().map(|(v, _)| v.parse::<f64>().ok()).collect();
         let Some(xs) = numeric else { continue };
         let budgets: Vec<Budget> = a
@@ -353,7 +386,10 @@ fn ablation_charts(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
         };
         let name = format!("ablation_{i}");
         write_chart(&dir.join(&name), &chart)?;
-        figs.push((format!("Ablation `{}`", a.name), file(&name)));
+        figs.push((
+            format!("Ablation `{}`: relMSE against {}", a.name, a.parameter),
+            file(&name),
+        ));
     }
     Ok(figs)
 }

@@ -1,5 +1,5 @@
-//! Fly-throughs: F frames (after W warm-up frames) of 1 spp each along an orbit or with a still
-//! camera, with scene edits at given frames. Every frame's time is recorded (tracing, splatting,
+//! Fly-throughs: F frames (after W warm-up frames) of 1 spp each along an orbit, a key-framed
+//! path or with a still camera, with scene edits at given frames. Every frame's time is recorded (tracing, splatting,
 //! training); every `error_every` frames, and on the frames around an edit, the frame's own
 //! image is compared with a reference of that view and scene state. With a still camera and an
 //! edit this is the adaptation curve: how many frames the cache takes to learn the new scene.
@@ -7,8 +7,8 @@
 use super::config::{EventDesc, FlythroughDesc, Method};
 use super::measure::{new_cache, pass_seed};
 use super::reference::reference;
+use crate::camera_path::{keyframed, orbit};
 use crate::metrics::rel_mse;
-use crate::orbit::orbit;
 use anyhow::{Context, Result};
 use glam::Vec3;
 use std::path::Path;
@@ -98,7 +98,12 @@ pub fn fly(
                     c.reset_schedule();
                 }
             }
-            let cam = orbit(&scene.camera, centre, fly.orbit_degrees, f, total);
+            let cam = if fly.keys.is_empty() {
+                orbit(&scene.camera, centre, fly.orbit_degrees, f, total)
+            } else {
+                keyframed(&scene.camera, &fly.keys, f)
+                    .with_context(|| format!("flythrough `{}`", fly.name))?
+            };
             let mut film = Film::new(cam.width, cam.height);
             let start = Instant::now();
             let (mut trace, mut splat, mut train, mut level_mse) = (0.0, 0.0, 0.0, Vec::new());

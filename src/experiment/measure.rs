@@ -4,7 +4,7 @@
 //! user watching it would see them. Times are wall-clock around each pass.
 
 use super::config::Method;
-use crate::orbit::orbit;
+use crate::camera_path::orbit;
 use anyhow::Result;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache};

@@ -224,6 +224,7 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
                 md.push_str(&table_row(s, value));
             }
         }
+        md.push_str(&ablation_findings(a));
     }
     if !r.flythroughs.is_empty() {
         let _ = writeln!(md, "\n## Fly-throughs (seed {})\n", r.seeds[0]);
@@ -275,6 +276,50 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     md
 }
 
+/// Per budget, the sweep's best value and how far ahead of the next it is, in standard errors
+/// of the difference of the means over seeds.
+fn ablation_findings(a: &super::run::AblationResult) -> String {
+    let budgets: Vec<Budget> = a
+        .rows
+        .first()
+        .map(|(_, rows)| rows.iter().map(|s| s.budget).collect())
+        .unwrap_or_default();
+    let mut out = String::new();
+    for b in budgets {
+        let mut ranked: Vec<(&str, &SummaryRow)> = a
+            .rows
+            .iter()
+            .filter_map(|(v, rows)| Some((v.as_str(), rows.iter().find(|s| s.budget == b)?)))
+            .collect();
+        ranked.sort_by(|x, y| x.1.rel_mse.total_cmp(&y.1.rel_mse));
+        let Some((best, first)) = ranked.first() else {
+            continue;
+        };
+        let _ = write!(
+            out,
+            "\n- At {}: lowest relMSE with `{}={best}` ({:.4})",
+            budget_label(b),
+            a.parameter,
+            first.rel_mse
+        );
+        if let Some((next, second)) = ranked.get(1) {
+            let se = |s: &SummaryRow| s.rel_mse_sd / (s.seeds.max(1) as f64).sqrt();
+            let z = (second.rel_mse - first.rel_mse) / se(first).hypot(se(second));
+            let apart = if z.is_finite() {
+                format!("{z:.1} standard errors apart")
+            } else {
+                "no spread across seeds".into()
+            };
+            let _ = write!(out, ", then `{next}` ({:.4}; {apart})", second.rel_mse);
+        }
+        out.push('.');
+    }
+    if !out.is_empty() {
+        out.push('\n');
+    }
+    out
+}
+
 /// Plain sentences: where each method beats the baseline at equal time and where it loses.
 fn findings(r: &Results) -> String {
     let Some(base) = &r.baseline else {
@@ -287,29 +332,37 @@ fn findings(r: &Results) -> String {
             .iter()
             .filter(|s| matches!(s.budget, Budget::Seconds(_)))
             .collect();
-        let describe = |rs: &[&&SummaryRow], what: &str| -> Option<String> {
-            let gains: Vec<f64> = rs.iter().filter_map(|s| s.gain_vs_baseline).collect();
-            if gains.is_empty() {
-                return None;
-            }
-            let lo = gains.iter().cloned().fold(f64::INFINITY, f64::min);
-            let hi = gains.iter().cloned().fold(0.0, f64::max);
-            Some(format!("{what} {lo:.2}x to {hi:.2}x"))
-        };
-        let eff: Vec<&&SummaryRow> = rows.iter().collect();
-        let effs: Vec<f64> = eff
+        let mut parts = Vec::new();
+        // Per time budget, in words that cannot be misread: lower or higher, and by how much.
+        let at_equal_time: Vec<String> = timed
+            .iter()
+            .filter_map(|s| {
+                let g = s.gain_vs_baseline?;
+                let at = budget_label(s.budget);
+                Some(if g >= 1.0 {
+                    format!("{g:.2}x lower at {at}")
+                } else {
+                    format!("{:.2}x higher at {at}", 1.0 / g)
+                })
+            })
+            .collect();
+        if !at_equal_time.is_empty() {
+            parts.push(format!("relMSE at equal time {}", at_equal_time.join(", ")));
+        }
+        let effs: Vec<f64> = rows
             .iter()
             .filter_map(|s| s.efficiency_vs_baseline)
             .collect();
-        let mut parts = Vec::new();
-        if let Some(t) = describe(&timed, "lower relMSE at equal time:") {
-            parts.push(t);
-        }
         if !effs.is_empty() {
             let lo = effs.iter().cloned().fold(f64::INFINITY, f64::min);
             let hi = effs.iter().cloned().fold(0.0, f64::max);
+            let range = if hi - lo < 0.005 {
+                format!("{lo:.2}x")
+            } else {
+                format!("{lo:.2}x to {hi:.2}x")
+            };
             parts.push(format!(
-                "efficiency {lo:.2}x to {hi:.2}x the baseline's over all budgets"
+                "efficiency (1 / (relMSE x time)) {range} the baseline's over all budgets"
             ));
         }
         let bias: Vec<String> = rows

@@ -8,9 +8,9 @@
 use anyhow::{Context, Result};
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
+pub use gscache_cli::camera_path::orbit;
 use gscache_cli::experiment::reference::{FNV_START, fnv1a};
 use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
-pub use gscache_cli::orbit::orbit;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;

@@ -101,18 +101,22 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
-/// A tick label: on a log axis the drawn value is an exponent, and an axis spanning more than
-/// a decade and a half labels only the powers of ten (other ticks stay as minor marks).
+/// A tick label. On a log axis the drawn value is an exponent: an axis spanning more than a
+/// decade and a half labels only the powers of ten, one spanning half a decade or more only
+/// the 1-2-5 values (0.02, 0.05, 0.1, ...); other ticks stay as unlabelled marks.
 fn tick(v: f64, log: bool, span: f64) -> String {
-    if log && span > 1.5 && (v - v.round()).abs() > 1e-6 {
-        return String::new();
-    }
-    if log && (v - v.round()).abs() < 1e-6 {
-        let e = v.round() as i32;
-        return match e {
-            0..=3 => format!("{}", 10i32.pow(e as u32)),
-            -3..=-1 => format!("{:.*}", (-e) as usize, 10f64.powi(e)),
-            _ => format!("1e{e}"),
+    if log && span >= LOG_LABELS_125 {
+        let x = 10f64.powf(v);
+        let e = x.log10().floor();
+        let mantissa = x / 10f64.powf(e);
+        let allowed: &[f64] = if span > LOG_LABELS_DECADES {
+            &[1.0, 10.0]
+        } else {
+            &[1.0, 2.0, 5.0, 10.0]
+        };
+        return match allowed.iter().find(|&&m| (mantissa / m - 1.0).abs() < 0.01) {
+            Some(&m) => short_number(m * 10f64.powf(e)),
+            None => String::new(),
         };
     }
     let x = if log { 10f64.powf(v) } else { v };
@@ -130,6 +134,21 @@ fn tick(v: f64, log: bool, span: f64) -> String {
             .into()
     } else {
         format!("{x:.4}").trim_end_matches('0').into()
+    }
+}
+
+/// Log axes spanning at least this many decades get 1-2-5 labels only.
+const LOG_LABELS_125: f64 = 0.5;
+/// Log axes spanning more than this many decades get powers of ten only.
+const LOG_LABELS_DECADES: f64 = 1.5;
+
+/// A round value (one significant digit) as written on an axis: `0.02`, `500`, `1e5`.
+fn short_number(x: f64) -> String {
+    let e = x.abs().log10().round() as i32;
+    if (-3..4).contains(&e) {
+        format!("{x:.*}", (-e).max(0) as usize)
+    } else {
+        format!("{x:.0e}")
     }
 }
 
@@ -174,10 +193,10 @@ where
         .configure_mesh()
         .x_desc(&c.x_label)
         .y_desc(&c.y_label)
-        // Many candidate ticks over several decades (only powers of ten get labels), few
-        // otherwise; no minor grid (it dominated the PNGs' size and said nothing).
-        .x_labels(if lx && sx > 1.5 { 30 } else { 8 })
-        .y_labels(if ly && sy > 1.5 { 30 } else { 8 })
+        // Many candidate ticks on a log axis of half a decade or more (only round values get
+        // labels), few otherwise; no minor grid (it dominated the PNGs' size and said nothing).
+        .x_labels(if lx && sx >= LOG_LABELS_125 { 40 } else { 8 })
+        .y_labels(if ly && sy >= LOG_LABELS_125 { 40 } else { 8 })
         .light_line_style(TRANSPARENT)
         .x_label_formatter(&|v| tick(*v, lx, sx))
         .y_label_formatter(&|v| tick(*v, ly, sy))
@@ -344,6 +363,13 @@ mod tests {
         // Over several decades only powers of ten are labelled.
         assert_eq!(tick(-1.5, true, 3.0), "");
         assert_eq!(tick(-1.0, true, 3.0), "0.1");
+        // Over one decade, the 1-2-5 values.
+        assert_eq!(tick(0.02f64.log10(), true, 1.0), "0.02");
+        assert_eq!(tick(500f64.log10(), true, 1.0), "500");
+        assert_eq!(tick(0.03f64.log10(), true, 1.0), "");
+        assert_eq!(tick(0.02f64.log10(), true, 3.0), "");
+        // Within half a decade every tick is labelled.
+        assert_eq!(tick(0.03f64.log10(), true, 0.3), "0.03");
         assert_eq!(axis(0.0, true), None);
         assert_eq!(axis(f64::NAN, false), None);
     }

@@ -310,7 +310,11 @@ fn ablation_findings(a: &super::run::AblationResult) -> String {
             } else {
                 "no spread across seeds".into()
             };
-            let _ = write!(out, ", then `{next}` ({:.4}; {apart})", second.rel_mse);
+            let _ = write!(
+                out,
+                ", then `{}={next}` ({:.4}; {apart})",
+                a.parameter, second.rel_mse
+            );
         }
         out.push('.');
     }

@@ -101,18 +101,41 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
-/// A tick label. On a log axis the drawn value is an exponent: an axis spanning more than a
-/// decade and a half labels only the powers of ten, one spanning half a decade or more only
-/// the 1-2-5 values (0.02, 0.05, 0.1, ...); other ticks stay as unlabelled marks.
-fn tick(v: f64, log: bool, span: f64) -> String {
-    if log && span >= LOG_LABELS_125 {
-        let x = 10f64.powf(v);
-        let e = x.log10().floor();
-        let mantissa = x / 10f64.powf(e);
-        let allowed: &[f64] = if span > LOG_LABELS_DECADES {
-            &[1.0, 10.0]
+/// Which ticks of an axis get labels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Labels {
+    /// Every tick (a linear axis, or a log axis under half a decade).
+    All,
+    /// The 1-2-5 values: 0.02, 0.05, 0.1, ... (a log axis of half a decade or more).
+    OneTwoFive,
+    /// The powers of ten (a log axis holding three or more of them).
+    Decades,
+}
+
+impl Labels {
+    /// The labels for an axis drawing `lo..hi` (exponents when `log`).
+    fn for_axis(log: bool, (lo, hi): (f64, f64)) -> Self {
+        let powers_of_ten = (hi.floor() - lo.ceil() + 1.0).max(0.0);
+        if !log || hi - lo < 0.5 {
+            Labels::All
+        } else if powers_of_ten >= 3.0 {
+            Labels::Decades
         } else {
-            &[1.0, 2.0, 5.0, 10.0]
+            Labels::OneTwoFive
+        }
+    }
+}
+
+/// A tick label; on a log axis `v` is an exponent, and only the ticks `labels` names are
+/// labelled (the others stay as unlabelled marks).
+fn tick(v: f64, log: bool, labels: Labels) -> String {
+    if log && labels != Labels::All {
+        let x = 10f64.powf(v);
+        let e = (x.log10() + 1e-9).floor();
+        let mantissa = x / 10f64.powf(e);
+        let allowed: &[f64] = match labels {
+            Labels::Decades => &[1.0, 10.0],
+            _ => &[1.0, 2.0, 5.0, 10.0],
         };
         return match allowed.iter().find(|&&m| (mantissa / m - 1.0).abs() < 0.01) {
             Some(&m) => short_number(m * 10f64.powf(e)),
@@ -137,14 +160,9 @@ fn tick(v: f64, log: bool, span: f64) -> String {
     }
 }
 
-/// Log axes spanning at least this many decades get 1-2-5 labels only.
-const LOG_LABELS_125: f64 = 0.5;
-/// Log axes spanning more than this many decades get powers of ten only.
-const LOG_LABELS_DECADES: f64 = 1.5;
-
 /// A round value (one significant digit) as written on an axis: `0.02`, `500`, `1e5`.
 fn short_number(x: f64) -> String {
-    let e = x.abs().log10().round() as i32;
+    let e = (x.abs().log10() + 1e-9).floor() as i32;
     if (-3..4).contains(&e) {
         format!("{x:.*}", (-e).max(0) as usize)
     } else {
@@ -188,18 +206,18 @@ where
         .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
         .map_err(err)?;
     let (lx, ly) = (c.log_x, c.log_y);
-    let (sx, sy) = (xr.1 - xr.0, yr.1 - yr.0);
+    let (label_x, label_y) = (Labels::for_axis(lx, xr), Labels::for_axis(ly, yr));
     chart
         .configure_mesh()
         .x_desc(&c.x_label)
         .y_desc(&c.y_label)
         // Many candidate ticks on a log axis of half a decade or more (only round values get
         // labels), few otherwise; no minor grid (it dominated the PNGs' size and said nothing).
-        .x_labels(if lx && sx >= LOG_LABELS_125 { 40 } else { 8 })
-        .y_labels(if ly && sy >= LOG_LABELS_125 { 40 } else { 8 })
+        .x_labels(if label_x == Labels::All { 8 } else { 40 })
+        .y_labels(if label_y == Labels::All { 8 } else { 40 })
         .light_line_style(TRANSPARENT)
-        .x_label_formatter(&|v| tick(*v, lx, sx))
-        .y_label_formatter(&|v| tick(*v, ly, sy))
+        .x_label_formatter(&|v| tick(*v, lx, label_x))
+        .y_label_formatter(&|v| tick(*v, ly, label_y))
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(err)?;
@@ -355,21 +373,23 @@ mod tests {
 
     #[test]
     fn ticks_read_as_numbers() {
-        assert_eq!(tick(-2.0, true, 1.0), "0.01");
-        assert_eq!(tick(0.0, true, 1.0), "1");
-        assert_eq!(tick(2.0, true, 1.0), "100");
-        assert_eq!(tick(1.5, false, 1.0), "1.5");
-        assert_eq!(tick(5.0, true, 1.0), "1e5");
-        // Over several decades only powers of ten are labelled.
-        assert_eq!(tick(-1.5, true, 3.0), "");
-        assert_eq!(tick(-1.0, true, 3.0), "0.1");
-        // Over one decade, the 1-2-5 values.
-        assert_eq!(tick(0.02f64.log10(), true, 1.0), "0.02");
-        assert_eq!(tick(500f64.log10(), true, 1.0), "500");
-        assert_eq!(tick(0.03f64.log10(), true, 1.0), "");
-        assert_eq!(tick(0.02f64.log10(), true, 3.0), "");
-        // Within half a decade every tick is labelled.
-        assert_eq!(tick(0.03f64.log10(), true, 0.3), "0.03");
+        use Labels::*;
+        assert_eq!(tick(-2.0, true, OneTwoFive), "0.01");
+        assert_eq!(tick(0.0, true, OneTwoFive), "1");
+        assert_eq!(tick(2.0, true, Decades), "100");
+        assert_eq!(tick(1.5, false, All), "1.5");
+        assert_eq!(tick(5.0, true, Decades), "1e5");
+        assert_eq!(tick(0.02f64.log10(), true, OneTwoFive), "0.02");
+        assert_eq!(tick(0.05f64.log10(), true, OneTwoFive), "0.05");
+        assert_eq!(tick(500f64.log10(), true, OneTwoFive), "500");
+        assert_eq!(tick(0.03f64.log10(), true, OneTwoFive), "");
+        assert_eq!(tick(0.02f64.log10(), true, Decades), "");
+        assert_eq!(tick(0.03f64.log10(), true, All), "0.03");
+        // Three powers of ten or more: decades; half a decade to that: 1-2-5; less: all.
+        assert_eq!(Labels::for_axis(true, (-3.1, -0.9)), Decades);
+        assert_eq!(Labels::for_axis(true, (-1.8, -0.3)), OneTwoFive);
+        assert_eq!(Labels::for_axis(true, (-1.4, -1.1)), All);
+        assert_eq!(Labels::for_axis(false, (0.0, 100.0)), All);
         assert_eq!(axis(0.0, true), None);
         assert_eq!(axis(f64::NAN, false), None);
     }

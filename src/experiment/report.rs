@@ -324,6 +324,31 @@ fn ablation_findings(a: &super::run::AblationResult) -> String {
     out
 }
 
+/// An unbiased estimator's relMSE falls with samples. When it rises by half or more from one
+/// spp budget to a larger one, rare bright samples (fireflies) are at work: at low spp they
+/// land in the trimmed top 0.1% of pixels, at high spp they are too many to trim, so the
+/// low-spp relMSE understates the error. Says so, or `None`.
+fn rising_error(rows: &[&SummaryRow]) -> Option<String> {
+    let mut by_spp: Vec<&&SummaryRow> = rows
+        .iter()
+        .filter(|s| matches!(s.budget, Budget::Spp(_)))
+        .collect();
+    by_spp.sort_by(|a, b| a.spp.total_cmp(&b.spp));
+    by_spp.windows(2).find_map(|w| {
+        (w[1].rel_mse > 1.5 * w[0].rel_mse).then(|| {
+            format!(
+                "its relMSE rises from {:.4} at {} to {:.4} at {}: rare bright samples (fireflies) \
+                 fall in the trimmed top 0.1% at low spp and not at high spp, so its low-spp \
+                 relMSE understates its error",
+                w[0].rel_mse,
+                budget_label(w[0].budget),
+                w[1].rel_mse,
+                budget_label(w[1].budget)
+            )
+        })
+    })
+}
+
 /// Plain sentences: where each method beats the baseline at equal time and where it loses.
 fn findings(r: &Results) -> String {
     let Some(base) = &r.baseline else {
@@ -391,6 +416,9 @@ fn findings(r: &Results) -> String {
                 bias.join(", ")
             ));
         }
+        if let Some(warning) = rising_error(&rows) {
+            parts.push(warning);
+        }
         let _ = writeln!(
             out,
             "- `{}` against `{base}`: {}.",
@@ -399,4 +427,43 @@ fn findings(r: &Results) -> String {
         );
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(spp: u32, rel_mse: f64) -> SummaryRow {
+        SummaryRow {
+            method: "m".into(),
+            budget: Budget::Spp(spp),
+            seeds: 3,
+            spp: spp as f64,
+            seconds: 0.01 * spp as f64,
+            rel_mse,
+            rel_mse_sd: 0.0,
+            psnr_hdr: 0.0,
+            psnr_tonemapped: 0.0,
+            smape: 0.0,
+            flip: None,
+            efficiency: 1.0,
+            efficiency_vs_baseline: None,
+            gain_vs_baseline: None,
+            bias: None,
+        }
+    }
+
+    #[test]
+    fn a_relmse_rising_with_samples_is_flagged() {
+        // Listed out of order on purpose: the check sorts by spp.
+        let (a, b, c) = (row(16, 2.1), row(1, 0.09), row(4, 0.08));
+        let w = rising_error(&[&a, &b, &c]).expect("0.08 at 4 spp to 2.1 at 16 spp is flagged");
+        assert!(
+            w.contains("0.0800 at 4 spp") && w.contains("2.1000 at 16 spp"),
+            "{w}"
+        );
+        // Falling, or a rise under half, is not.
+        let (a, b, c) = (row(1, 0.18), row(4, 0.05), row(16, 0.07));
+        assert_eq!(rising_error(&[&a, &b, &c]), None);
+    }
 }

@@ -38,24 +38,36 @@ fn error_against_time(dir: &Path, r: &Results) -> Result<Figure> {
         let rows: Vec<_> = r.summary.iter().filter(|s| s.method == m.name).collect();
         series.push(time_series(&m.name, &rows));
     }
-    let chart = Chart {
-        title: format!(
-            "{}: relMSE against time ({} seeds, bars: 1 sd)",
-            r.name,
-            r.seeds.len()
-        ),
+    let title = format!(
+        "{}: relMSE against time ({} seeds, bars: 1 sd)",
+        r.name,
+        r.seeds.len()
+    );
+    save(
+        dir,
+        "error_vs_time",
+        "relMSE against wall-clock time, every budget, mean over seeds".into(),
+        &time_chart(title, series),
+    )
+}
+
+/// relMSE against seconds per image on log-log axes.
+fn time_chart(title: String, series: Vec<Series>) -> Chart {
+    Chart {
+        title,
         x_label: "seconds per image".into(),
         y_label: "relMSE".into(),
         log_x: true,
         log_y: true,
         series,
         marks: vec![],
-    };
-    write_chart(&dir.join("error_vs_time"), &chart)?;
-    Ok((
-        "relMSE against wall-clock time, every budget, mean over seeds".into(),
-        file("error_vs_time"),
-    ))
+    }
+}
+
+/// Writes `chart` as `plots/<name>.{png,svg}` and returns it as a report figure.
+fn save(dir: &Path, name: &str, caption: String, chart: &Chart) -> Result<Figure> {
+    write_chart(&dir.join(name), chart)?;
+    Ok((caption, file(name)))
 }
 
 /// A method's relMSE against seconds over its budgets, with 1-sd bars.
@@ -334,21 +346,15 @@ fn ablation_charts(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             let rows: Vec<&SummaryRow> = r.summary.iter().filter(|s| &s.method == base).collect();
             series.push(time_series(&format!("{base} (baseline)"), &rows));
         }
-        let chart = Chart {
-            title: format!("ablation `{}`: relMSE against time", a.name),
-            x_label: "seconds per image".into(),
-            y_label: "relMSE".into(),
-            log_x: true,
-            log_y: true,
-            series,
-            marks: vec![],
-        };
-        let name = format!("ablation_{i}_time");
-        write_chart(&dir.join(&name), &chart)?;
-        figs.push((
+        figs.push(save(
+            dir,
+            &format!("ablation_{i}_time"),
             format!("Ablation `{}`: relMSE against time per value", a.name),
-            file(&name),
-        ));
+            &time_chart(
+                format!("ablation `{}`: relMSE against time", a.name),
+                series,
+            ),
+        )?);
         let numeric: Option<Vec<f64>> = a.rows.iter().map(|(v, _)| v.parse::<f64>().ok()).collect();
         let Some(xs) = numeric else { continue };
         let budgets: Vec<Budget> = a
@@ -384,12 +390,12 @@ fn ablation_charts(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             series,
             marks: vec![],
         };
-        let name = format!("ablation_{i}");
-        write_chart(&dir.join(&name), &chart)?;
-        figs.push((
+        figs.push(save(
+            dir,
+            &format!("ablation_{i}"),
             format!("Ablation `{}`: relMSE against {}", a.name, a.parameter),
-            file(&name),
-        ));
+            &chart,
+        )?);
     }
     Ok(figs)
 }

@@ -220,15 +220,15 @@ fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             marks: vec![(c.warmup_frames as f64, "measured from here".into())],
             ..Default::default()
         };
-        let name = format!("loss_{i}");
-        write_chart(&dir.join(&name), &chart)?;
-        figs.push((
+        figs.push(save(
+            dir,
+            &format!("loss_{i}"),
             format!(
                 "{}: per-level loss over the warm-up and measured frames",
                 c.method
             ),
-            file(&name),
-        ));
+            &chart,
+        )?);
     }
     Ok(figs)
 }
@@ -297,12 +297,12 @@ fn flythrough_curves(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             marks: marks.clone(),
             ..Default::default()
         };
-        let name = format!("flythrough_{i}_time");
-        write_chart(&dir.join(&name), &t)?;
-        figs.push((
+        figs.push(save(
+            dir,
+            &format!("flythrough_{i}_time"),
             format!("Fly-through `{fly}`: per-frame times (trace, splat, train)"),
-            file(&name),
-        ));
+            &t,
+        )?);
         let err = Chart {
             title: format!("flythrough `{fly}`: relMSE of each frame (1 spp)"),
             x_label: "frame".into(),
@@ -320,12 +320,12 @@ fn flythrough_curves(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             marks,
             ..Default::default()
         };
-        let name = format!("flythrough_{i}_error");
-        write_chart(&dir.join(&name), &err)?;
-        figs.push((
+        figs.push(save(
+            dir,
+            &format!("flythrough_{i}_error"),
             format!("Fly-through `{fly}`: error of each frame against its reference"),
-            file(&name),
-        ));
+            &err,
+        )?);
     }
     Ok(figs)
 }

@@ -8,6 +8,8 @@
 //! - [`io`]: 3DGS PLY (read, write) and `.splat` (read).
 //! - [`project`]: EWA projection of one Gaussian, and its exact adjoint.
 //! - [`raster`]: tiles, depth order, front-to-back compositing, and the backward pass.
+//! - [`simd`]: the per-tile kernels across pixels in SIMD lanes, and the choice of lane width.
+//! - [`lanes`]: fixed-width f32 lanes and a vector `exp` with a tested error bound.
 //! - [`sh`]: spherical harmonics (degree 0-3) and their gradients.
 //! - [`train`]: one training step (render, loss, backward, AdamW).
 //! - [`stochastic`]: sorting-free stochastic splatting (seed 004 section 1).
@@ -21,6 +23,7 @@ pub mod adamw;
 pub mod camera;
 pub mod cloud;
 pub mod io;
+pub mod lanes;
 pub mod loss;
 pub mod project;
 pub mod random;
@@ -28,6 +31,7 @@ pub mod raster;
 pub mod real;
 pub mod reference;
 pub mod sh;
+pub mod simd;
 pub mod stochastic;
 pub mod train;
 
@@ -35,3 +39,4 @@ pub use camera::{Camera, CameraError};
 pub use cloud::{CloudGradients, ColorModel, GaussianCloud};
 pub use project::LowPass;
 pub use raster::{PixelGrads, RasterConfig, RenderOutput, backward, render};
+pub use simd::Kernel;

@@ -14,7 +14,9 @@ use crate::camera::Camera;
 use crate::cloud::{CloudGradients, GaussianCloud};
 use crate::project::*;
 use crate::real::Real;
+use crate::simd::{Isa, Kernel};
 use rayon::prelude::*;
+use std::any::Any;
 
 /// Side of a tile in pixels.
 pub const TILE: u32 = 16;
@@ -28,6 +30,8 @@ pub struct RasterConfig {
     pub background: [f32; 3],
     /// Also output the accumulated depth `sum_i z_i alpha_i T_i`.
     pub depth: bool,
+    /// The per-pixel kernel (f32 only: the f64 path is always scalar).
+    pub kernel: Kernel,
 }
 
 impl Default for RasterConfig {
@@ -37,6 +41,7 @@ impl Default for RasterConfig {
             near: 0.01,
             background: [0.0; 3],
             depth: false,
+            kernel: Kernel::Auto,
         }
     }
 }
@@ -68,10 +73,16 @@ pub struct ForwardState<F: Real> {
     final_t: Vec<F>,
     tiles_x: u32,
     tiles_y: u32,
+    /// The settings of the forward pass, with the kernel that ran (never `Auto`): the backward
+    /// pass must divide out the very alphas the forward pass multiplied in.
     config: RasterConfig,
 }
 
 impl<F: Real> ForwardState<F> {
+    /// The per-pixel kernel that composited the frame.
+    pub fn kernel(&self) -> Kernel {
+        self.config.kernel
+    }
     /// Number of (tile, splat) pairs.
     pub fn entry_count(&self) -> usize {
         self.entries.len()
@@ -250,6 +261,128 @@ pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, F, F)> 
     Some((alpha, gauss, dx, dy))
 }
 
+/// A tile's output: colour (background not yet added), transmittance, depth, and the number of
+/// entries of its list each pixel processed (the last contributor + 1), in tile-local order.
+pub(crate) struct TileOut<F> {
+    pub color: [[F; 3]; TILE_PIXELS],
+    pub t: [F; TILE_PIXELS],
+    pub depth: [F; TILE_PIXELS],
+    pub n: [u32; TILE_PIXELS],
+}
+
+impl<F: Real> TileOut<F> {
+    fn new() -> Self {
+        Self {
+            color: [[F::zero(); 3]; TILE_PIXELS],
+            t: [F::one(); TILE_PIXELS],
+            depth: [F::zero(); TILE_PIXELS],
+            n: [0; TILE_PIXELS],
+        }
+    }
+}
+
+/// Pixels per tile.
+pub(crate) const TILE_PIXELS: usize = (TILE * TILE) as usize;
+
+/// The per-pixel inputs of the backward pass for one tile, in tile-local order; pixels outside
+/// the image have no contributors.
+pub(crate) struct TilePixels<F> {
+    pub origin: [u32; 2],
+    pub contributors: [u32; TILE_PIXELS],
+    pub dl_dc: [[F; 3]; TILE_PIXELS],
+    /// With respect to the accumulated depth; all zero unless `depth`.
+    pub dl_dd: [F; TILE_PIXELS],
+    /// d/d alpha_i of the terms that depend on T_final: background and T itself.
+    pub bg_dot: [F; TILE_PIXELS],
+    pub t_final: [F; TILE_PIXELS],
+    /// Whether the loss has a depth term.
+    pub depth: bool,
+}
+
+/// The kernel that runs for float type `F`: lanes only exist for f32.
+fn resolved_kernel<F: Real>(asked: Kernel) -> Kernel {
+    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() {
+        asked.resolve()
+    } else {
+        Kernel::Scalar
+    }
+}
+
+/// `x` as its f32 instance, when `F` is f32 (generic code hands f32 data to the lane kernels
+/// without `unsafe`).
+fn as_f32<T: Any, U: Any>(x: &T) -> Option<&U> {
+    (x as &dyn Any).downcast_ref()
+}
+
+fn as_f32_mut<T: Any, U: Any>(x: &mut T) -> Option<&mut U> {
+    (x as &mut dyn Any).downcast_mut()
+}
+
+/// Front-to-back compositing of one tile, one pixel at a time: the reference kernel.
+///
+/// Splat-major: each splat visits only the tile pixels inside its rectangle, in depth order, so
+/// every pixel still sees its splats front to back with the same arithmetic as a per-pixel loop.
+fn forward_tile_scalar<F: Real>(
+    splats: &[Splat<F>],
+    origin: [u32; 2],
+    size: [u32; 2],
+    want_depth: bool,
+    out: &mut TileOut<F>,
+) {
+    let ([x0, y0], [w, h]) = (origin, size);
+    let t_min = F::c(T_MIN);
+    let mut done = [false; TILE_PIXELS];
+    let mut active = 0usize;
+    for j in 0..TILE {
+        for i in 0..TILE {
+            if x0 + i >= w || y0 + j >= h {
+                done[(j * TILE + i) as usize] = true;
+            } else {
+                active += 1;
+            }
+        }
+    }
+    // Pixel-centre coordinates of the tile's columns and rows, converted once.
+    let cx: [F; TILE as usize] = std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
+    let cy: [F; TILE as usize] = std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
+    for (k, s) in splats.iter().enumerate() {
+        if active == 0 {
+            break;
+        }
+        let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
+        let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+        for y in ay..=by {
+            let py = cy[(y - y0) as usize];
+            for x in ax..=bx {
+                let p = ((y - y0) * TILE + (x - x0)) as usize;
+                if done[p] {
+                    continue;
+                }
+                let Some((alpha, _, _, _)) = splat_alpha(s, cx[(x - x0) as usize], py) else {
+                    continue;
+                };
+                let t = out.t[p];
+                let next_t = t * (F::one() - alpha);
+                if next_t < t_min {
+                    done[p] = true;
+                    active -= 1;
+                    continue;
+                }
+                let wgt = alpha * t;
+                let c = &mut out.color[p];
+                for ch in 0..3 {
+                    c[ch] = c[ch] + wgt * s.color[ch];
+                }
+                if want_depth {
+                    out.depth[p] = out.depth[p] + wgt * s.depth;
+                }
+                out.t[p] = next_t;
+                out.n[p] = k as u32 + 1;
+            }
+        }
+    }
+}
+
 /// Renders the cloud; returns the images and the state the backward pass needs.
 pub fn render<F: Real>(
     cloud: &GaussianCloud<F>,
@@ -263,93 +396,34 @@ pub fn render<F: Real>(
     let (splats, ids) = project_all(cloud, &cam, config);
     let bins = bin(splats, ids, tiles_x, tiles_y, true);
     let bg = config.background.map(|v| F::c(v as f64));
-    let t_min = F::c(T_MIN);
-    let tile_px = (TILE * TILE) as usize;
+    let tile_px = TILE_PIXELS;
     let n_tiles = (tiles_x * tiles_y) as usize;
 
-    struct TileOut<F> {
-        color: Vec<[F; 3]>,
-        t: Vec<F>,
-        depth: Vec<F>,
-        n: Vec<u32>,
-    }
+    let kernel = resolved_kernel::<F>(config.kernel);
+    let isa = Isa::of(kernel);
     let outs: Vec<TileOut<F>> = (0..n_tiles)
         .into_par_iter()
         .map(|ti| {
             let (a, b) = bins.tile_ranges[ti];
             let list = &bins.entries[a as usize..b as usize];
             let local: Vec<Splat<F>> = list.iter().map(|&i| bins.splats[i as usize]).collect();
-            let tx = ti as u32 % tiles_x;
-            let ty = ti as u32 / tiles_x;
-            let mut out = TileOut {
-                color: vec![[F::zero(); 3]; tile_px],
-                t: vec![F::one(); tile_px],
-                depth: vec![F::zero(); tile_px],
-                n: vec![0; tile_px],
-            };
-            // Splat-major: each splat visits only the tile pixels inside its rectangle, in depth
-            // order, so every pixel still sees its splats front to back with the same arithmetic
-            // as a per-pixel loop.
-            let (x0, y0) = (tx * TILE, ty * TILE);
-            let mut done = vec![false; tile_px];
-            let mut active = 0usize;
-            for j in 0..TILE {
-                for i in 0..TILE {
-                    if x0 + i >= w || y0 + j >= h {
-                        done[(j * TILE + i) as usize] = true;
-                    } else {
-                        active += 1;
-                    }
+            let origin = [(ti as u32 % tiles_x) * TILE, (ti as u32 / tiles_x) * TILE];
+            let mut out = TileOut::new();
+            match (
+                isa,
+                as_f32::<_, Vec<Splat<f32>>>(&local),
+                as_f32_mut(&mut out),
+            ) {
+                (Some(isa), Some(local), Some(out)) => {
+                    isa.forward_tile(local, origin, [w, h], config.depth, out)
                 }
-            }
-            let mut col = vec![[F::zero(); 3]; tile_px];
-            // Pixel-centre coordinates of the tile's columns and rows, converted once.
-            let cx: [F; TILE as usize] =
-                std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
-            let cy: [F; TILE as usize] =
-                std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
-            let want_depth = config.depth;
-            for (k, s) in local.iter().enumerate() {
-                if active == 0 {
-                    break;
-                }
-                let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
-                let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
-                for y in ay..=by {
-                    let py = cy[(y - y0) as usize];
-                    for x in ax..=bx {
-                        let p = ((y - y0) * TILE + (x - x0)) as usize;
-                        if done[p] {
-                            continue;
-                        }
-                        let Some((alpha, _, _, _)) = splat_alpha(s, cx[(x - x0) as usize], py)
-                        else {
-                            continue;
-                        };
-                        let t = out.t[p];
-                        let next_t = t * (F::one() - alpha);
-                        if next_t < t_min {
-                            done[p] = true;
-                            active -= 1;
-                            continue;
-                        }
-                        let wgt = alpha * t;
-                        let c = &mut col[p];
-                        for ch in 0..3 {
-                            c[ch] = c[ch] + wgt * s.color[ch];
-                        }
-                        if want_depth {
-                            out.depth[p] = out.depth[p] + wgt * s.depth;
-                        }
-                        out.t[p] = next_t;
-                        out.n[p] = k as u32 + 1;
-                    }
-                }
+                _ => forward_tile_scalar(&local, origin, [w, h], config.depth, &mut out),
             }
             for p in 0..tile_px {
-                let t = out.t[p];
-                let c = col[p];
-                out.color[p] = [c[0] + t * bg[0], c[1] + t * bg[1], c[2] + t * bg[2]];
+                let (t, c) = (out.t[p], &mut out.color[p]);
+                for ch in 0..3 {
+                    c[ch] = c[ch] + t * bg[ch];
+                }
             }
             out
         })
@@ -386,7 +460,7 @@ pub fn render<F: Real>(
         final_t,
         tiles_x,
         tiles_y,
-        config: *config,
+        config: RasterConfig { kernel, ..*config },
     };
     (
         RenderOutput {
@@ -420,10 +494,10 @@ pub fn backward<F: Real>(
     let cam = CameraTerms::<F>::new(camera);
     let (w, h) = (camera.width, camera.height);
     let bg = state.config.background.map(|v| F::c(v as f64));
-    let tile_px = (TILE * TILE) as usize;
     let n_tiles = (state.tiles_x * state.tiles_y) as usize;
     let zero = F::zero();
 
+    let isa = Isa::of(state.config.kernel);
     // One record per entry, tile by tile.
     let records: Vec<Vec<SplatGrad<F>>> = (0..n_tiles)
         .into_par_iter()
@@ -435,120 +509,39 @@ pub fn backward<F: Real>(
                 return rec;
             }
             let local: Vec<Splat<F>> = list.iter().map(|&i| state.splats[i as usize]).collect();
-            let tx = ti as u32 % state.tiles_x;
-            let ty = ti as u32 / state.tiles_x;
-            let (x0, y0) = (tx * TILE, ty * TILE);
-            // Per-pixel state of the back-to-front walk.
-            #[derive(Clone, Copy)]
-            struct Px<F> {
-                n: u32,
-                dl_dc: [F; 3],
-                dl_dd: F,
-                bg_dot: F,
-                t_final: F,
-                t: F,
-                accum: [F; 3],
-                accum_d: F,
-                last_alpha: F,
-                last_color: [F; 3],
-                last_depth: F,
-            }
-            let mut px = vec![
-                Px {
-                    n: 0,
-                    dl_dc: [zero; 3],
-                    dl_dd: zero,
-                    bg_dot: zero,
-                    t_final: zero,
-                    t: zero,
-                    accum: [zero; 3],
-                    accum_d: zero,
-                    last_alpha: zero,
-                    last_color: [zero; 3],
-                    last_depth: zero,
-                };
-                tile_px
+            let origin = [
+                (ti as u32 % state.tiles_x) * TILE,
+                (ti as u32 / state.tiles_x) * TILE,
             ];
-            for j in 0..TILE {
-                for i in 0..TILE {
-                    let (x, y) = (x0 + i, y0 + j);
-                    if x >= w || y >= h {
-                        continue;
-                    }
-                    let p = (j * TILE + i) as usize;
-                    let q = (y * w + x) as usize;
-                    let dl_dc = grads.color[q];
-                    let dl_dt = grads.transmittance.map_or(zero, |g| g[q]);
-                    let t_final = state.final_t[ti * tile_px + p];
-                    px[p] = Px {
-                        n: state.n_contrib[ti * tile_px + p],
-                        dl_dc,
-                        dl_dd: grads.depth.map_or(zero, |g| g[q]),
-                        // d/d alpha_i of the terms that depend on T_final: background and T itself.
-                        bg_dot: dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt,
-                        t_final,
-                        t: t_final,
-                        ..px[p]
-                    };
-                }
+            let mut input = TilePixels {
+                origin,
+                contributors: [0; TILE_PIXELS],
+                dl_dc: [[zero; 3]; TILE_PIXELS],
+                dl_dd: [zero; TILE_PIXELS],
+                bg_dot: [zero; TILE_PIXELS],
+                t_final: [zero; TILE_PIXELS],
+                depth: grads.depth.is_some(),
+            };
+            for (x, y, p) in tile_pixels(ti, state.tiles_x, w, h) {
+                let q = (y * w + x) as usize;
+                let dl_dc = grads.color[q];
+                let dl_dt = grads.transmittance.map_or(zero, |g| g[q]);
+                input.contributors[p] = state.n_contrib[ti * TILE_PIXELS + p];
+                input.dl_dc[p] = dl_dc;
+                input.dl_dd[p] = grads.depth.map_or(zero, |g| g[q]);
+                input.bg_dot[p] = dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt;
+                input.t_final[p] = state.final_t[ti * TILE_PIXELS + p];
             }
-            let cx: [F; TILE as usize] =
-                std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
-            let cy: [F; TILE as usize] =
-                std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
-            for k in (0..local.len()).rev() {
-                let s = &local[k];
-                let r = &mut rec[k];
-                let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
-                let (bx, by) = (
-                    s.rect[2].min(x0 + TILE - 1).min(w - 1),
-                    s.rect[3].min(y0 + TILE - 1).min(h - 1),
-                );
-                for y in ay..=by {
-                    let py = cy[(y - y0) as usize];
-                    for x in ax..=bx {
-                        let st = &mut px[((y - y0) * TILE + (x - x0)) as usize];
-                        if k as u32 >= st.n {
-                            continue;
-                        }
-                        let Some((alpha, gauss, dx, dy)) =
-                            splat_alpha(s, cx[(x - x0) as usize], py)
-                        else {
-                            continue;
-                        };
-                        st.t = st.t / (F::one() - alpha);
-                        let wgt = alpha * st.t;
-                        for ch in 0..3 {
-                            r.color[ch] = r.color[ch] + wgt * st.dl_dc[ch];
-                        }
-                        r.depth = r.depth + wgt * st.dl_dd;
-                        let mut dl_dalpha = zero;
-                        for ch in 0..3 {
-                            st.accum[ch] = st.last_alpha * st.last_color[ch]
-                                + (F::one() - st.last_alpha) * st.accum[ch];
-                            dl_dalpha = dl_dalpha + (s.color[ch] - st.accum[ch]) * st.dl_dc[ch];
-                        }
-                        st.accum_d =
-                            st.last_alpha * st.last_depth + (F::one() - st.last_alpha) * st.accum_d;
-                        dl_dalpha = dl_dalpha + (s.depth - st.accum_d) * st.dl_dd;
-                        dl_dalpha = dl_dalpha * st.t;
-                        st.last_alpha = alpha;
-                        st.last_color = s.color;
-                        st.last_depth = s.depth;
-                        dl_dalpha = dl_dalpha - st.t_final / (F::one() - alpha) * st.bg_dot;
-                        // alpha = min(0.99, opacity * G): no gradient through the cap.
-                        if s.opacity * gauss > F::c(ALPHA_MAX) {
-                            continue;
-                        }
-                        r.opacity = r.opacity + gauss * dl_dalpha;
-                        let dl_dpower = alpha * dl_dalpha;
-                        r.xy[0] = r.xy[0] + dl_dpower * (s.conic[0] * dx + s.conic[1] * dy);
-                        r.xy[1] = r.xy[1] + dl_dpower * (s.conic[1] * dx + s.conic[2] * dy);
-                        r.conic[0] = r.conic[0] - F::c(0.5) * dx * dx * dl_dpower;
-                        r.conic[1] = r.conic[1] - dx * dy * dl_dpower;
-                        r.conic[2] = r.conic[2] - F::c(0.5) * dy * dy * dl_dpower;
-                    }
+            match (
+                isa,
+                as_f32::<_, Vec<Splat<f32>>>(&local),
+                as_f32(&input),
+                as_f32_mut::<_, Vec<SplatGrad<f32>>>(&mut rec),
+            ) {
+                (Some(isa), Some(local), Some(input), Some(rec)) => {
+                    isa.backward_tile(local, input, rec)
                 }
+                _ => backward_tile_scalar(&local, &input, &mut rec),
             }
             rec
         })
@@ -612,6 +605,89 @@ pub fn backward<F: Real>(
     }
     sanitize(&mut out);
     out
+}
+
+/// Back-to-front gradients of one tile, one pixel at a time: the reference kernel. One record
+/// per splat of the tile's list.
+fn backward_tile_scalar<F: Real>(
+    splats: &[Splat<F>],
+    input: &TilePixels<F>,
+    records: &mut [SplatGrad<F>],
+) {
+    let zero = F::zero();
+    let [x0, y0] = input.origin;
+    // Per-pixel state of the back-to-front walk.
+    #[derive(Clone, Copy)]
+    struct Px<F> {
+        t: F,
+        accum: [F; 3],
+        accum_d: F,
+        last_alpha: F,
+        last_color: [F; 3],
+        last_depth: F,
+    }
+    let mut px: [Px<F>; TILE_PIXELS] = std::array::from_fn(|p| Px {
+        t: input.t_final[p],
+        accum: [zero; 3],
+        accum_d: zero,
+        last_alpha: zero,
+        last_color: [zero; 3],
+        last_depth: zero,
+    });
+    let cx: [F; TILE as usize] = std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
+    let cy: [F; TILE as usize] = std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
+    for k in (0..splats.len()).rev() {
+        let s = &splats[k];
+        let r = &mut records[k];
+        let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
+        let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+        for y in ay..=by {
+            let py = cy[(y - y0) as usize];
+            for x in ax..=bx {
+                let p = ((y - y0) * TILE + (x - x0)) as usize;
+                // Pixels outside the image have no contributors.
+                if k as u32 >= input.contributors[p] {
+                    continue;
+                }
+                let Some((alpha, gauss, dx, dy)) = splat_alpha(s, cx[(x - x0) as usize], py) else {
+                    continue;
+                };
+                let st = &mut px[p];
+                let (dl_dc, dl_dd) = (input.dl_dc[p], input.dl_dd[p]);
+                st.t = st.t / (F::one() - alpha);
+                let wgt = alpha * st.t;
+                for ch in 0..3 {
+                    r.color[ch] = r.color[ch] + wgt * dl_dc[ch];
+                }
+                r.depth = r.depth + wgt * dl_dd;
+                let mut dl_dalpha = zero;
+                for ch in 0..3 {
+                    st.accum[ch] = st.last_alpha * st.last_color[ch]
+                        + (F::one() - st.last_alpha) * st.accum[ch];
+                    dl_dalpha = dl_dalpha + (s.color[ch] - st.accum[ch]) * dl_dc[ch];
+                }
+                st.accum_d =
+                    st.last_alpha * st.last_depth + (F::one() - st.last_alpha) * st.accum_d;
+                dl_dalpha = dl_dalpha + (s.depth - st.accum_d) * dl_dd;
+                dl_dalpha = dl_dalpha * st.t;
+                st.last_alpha = alpha;
+                st.last_color = s.color;
+                st.last_depth = s.depth;
+                dl_dalpha = dl_dalpha - input.t_final[p] / (F::one() - alpha) * input.bg_dot[p];
+                // alpha = min(0.99, opacity * G): no gradient through the cap.
+                if s.opacity * gauss > F::c(ALPHA_MAX) {
+                    continue;
+                }
+                r.opacity = r.opacity + gauss * dl_dalpha;
+                let dl_dpower = alpha * dl_dalpha;
+                r.xy[0] = r.xy[0] + dl_dpower * (s.conic[0] * dx + s.conic[1] * dy);
+                r.xy[1] = r.xy[1] + dl_dpower * (s.conic[1] * dx + s.conic[2] * dy);
+                r.conic[0] = r.conic[0] - F::c(0.5) * dx * dx * dl_dpower;
+                r.conic[1] = r.conic[1] - dx * dy * dl_dpower;
+                r.conic[2] = r.conic[2] - F::c(0.5) * dy * dy * dl_dpower;
+            }
+        }
+    }
 }
 
 /// Replaces non-finite gradient values by 0: a NaN never reaches a parameter.

@@ -6,7 +6,7 @@ use splat_raster::adamw::{AdamW, AdamWConfig};
 use splat_raster::io::read_cloud;
 use splat_raster::random::{hash32, unit_f32};
 use splat_raster::raster::backward;
-use splat_raster::{Camera, ColorModel, GaussianCloud, PixelGrads, RasterConfig, render};
+use splat_raster::{Camera, ColorModel, GaussianCloud, Kernel, PixelGrads, RasterConfig, render};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -18,6 +18,22 @@ pub struct SplatArgs {
     /// Largest synthetic cloud.
     #[arg(long, default_value_t = 1_000_000)]
     max_gaussians: usize,
+    /// Skip the scalar reference kernel (it is 3-5x slower).
+    #[arg(long)]
+    no_scalar: bool,
+}
+
+/// The kernels measured side by side, widest first.
+fn kernels(with_scalar: bool) -> Vec<Kernel> {
+    let mut k = vec![];
+    if Kernel::Lanes8.available() {
+        k.push(Kernel::Lanes8);
+    }
+    k.push(Kernel::Lanes4);
+    if with_scalar {
+        k.push(Kernel::Scalar);
+    }
+    k
 }
 
 /// Gaussians spread through the default scene's volume where its transfer function is opaque,
@@ -63,41 +79,51 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// Forward ms, backward ms and evaluations per kernel: each repetition runs every kernel in turn
+/// (A B A B), so a slow spell of this shared machine touches them alike.
 fn measure(
     cloud: &GaussianCloud<f32>,
     cam: &Camera,
     reps: usize,
     threads: usize,
-) -> (f64, f64, u64) {
+    kernels: &[Kernel],
+) -> Vec<(f64, f64, u64)> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .unwrap();
     pool.install(|| {
-        let cfg = RasterConfig::default();
         let up = vec![[1.0f32, 0.5, 0.25]; (cam.width * cam.height) as usize];
-        let (mut f, mut b) = (Vec::new(), Vec::new());
-        let mut evals = 0;
+        let mut times = vec![(Vec::new(), Vec::new(), 0); kernels.len()];
         for _ in 0..reps {
-            let t0 = Instant::now();
-            let (_, state) = render(cloud, cam, &cfg);
-            f.push(t0.elapsed().as_secs_f64());
-            evals = state.evaluations();
-            let t1 = Instant::now();
-            let g = backward(
-                cloud,
-                cam,
-                &state,
-                PixelGrads {
-                    color: &up,
-                    transmittance: None,
-                    depth: None,
-                },
-            );
-            b.push(t1.elapsed().as_secs_f64());
-            std::hint::black_box(g);
+            for (kernel, (f, b, evals)) in kernels.iter().zip(times.iter_mut()) {
+                let cfg = RasterConfig {
+                    kernel: *kernel,
+                    ..Default::default()
+                };
+                let t0 = Instant::now();
+                let (_, state) = render(cloud, cam, &cfg);
+                f.push(t0.elapsed().as_secs_f64());
+                *evals = state.evaluations();
+                let t1 = Instant::now();
+                let g = backward(
+                    cloud,
+                    cam,
+                    &state,
+                    PixelGrads {
+                        color: &up,
+                        transmittance: None,
+                        depth: None,
+                    },
+                );
+                b.push(t1.elapsed().as_secs_f64());
+                std::hint::black_box(g);
+            }
         }
-        (median(f), median(b), evals)
+        times
+            .into_iter()
+            .map(|(f, b, e)| (median(f), median(b), e))
+            .collect()
     })
 }
 
@@ -106,10 +132,11 @@ pub fn run(a: &SplatArgs) -> Result<()> {
         "1280x720, median of {} runs; evaluations = splat-pixel pairs in each splat's rectangle within its tiles (the forward pass's work)\n",
         a.reps
     );
+    let kernels = kernels(!a.no_scalar);
     println!(
-        "| cloud | Gaussians | threads | forward ms | backward ms | backward / forward | M evaluations / s / core (forward) |"
+        "| cloud | Gaussians | threads | kernel | forward ms | backward ms | backward / forward | M evaluations / s / core (forward) | forward speed-up over scalar |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut clouds: Vec<(String, GaussianCloud<f32>, Camera)> = Vec::new();
     for n in [10_000, 100_000, 300_000, 1_000_000] {
         if n > a.max_gaussians {
@@ -138,15 +165,19 @@ pub fn run(a: &SplatArgs) -> Result<()> {
     }
     for (name, cloud, cam) in &clouds {
         for threads in [1, 2] {
-            let (f, b, evals) = measure(cloud, cam, a.reps, threads);
-            println!(
-                "| {name} | {} | {threads} | {:.1} | {:.1} | {:.2} | {:.1} |",
-                cloud.len(),
-                f * 1e3,
-                b * 1e3,
-                b / f,
-                evals as f64 / f / threads as f64 / 1e6
-            );
+            let rows = measure(cloud, cam, a.reps, threads, &kernels);
+            let scalar = kernels.iter().position(|k| *k == Kernel::Scalar);
+            for (kernel, &(f, b, evals)) in kernels.iter().zip(&rows) {
+                let speedup = scalar.map_or("-".to_string(), |s| format!("{:.2}x", rows[s].0 / f));
+                println!(
+                    "| {name} | {} | {threads} | {kernel:?} | {:.1} | {:.1} | {:.2} | {:.1} | {speedup} |",
+                    cloud.len(),
+                    f * 1e3,
+                    b * 1e3,
+                    b / f,
+                    evals as f64 / f / threads as f64 / 1e6
+                );
+            }
         }
     }
     // AdamW step over 300k Gaussians (14 floats each, RGB colour).

@@ -1,0 +1,681 @@
+//! f32 SIMD lanes for the per-pixel kernels, and a vector `exp` with a stated error bound.
+//!
+//! [`Lanes`] is the small set of operations the kernels need. It has three implementations:
+//! - [`Avx2`]: 8 lanes with AVX2 and FMA (x86-64);
+//! - [`Sse2`]: 4 lanes with SSE2, which every x86-64 CPU has;
+//! - [`Portable`]: 4 lanes as a plain array, for every other target (LLVM vectorises it to NEON
+//!   on aarch64), and a third witness in the tests.
+//!
+//! Soundness of the intrinsics: an [`Avx2`] value can only be made from an [`Avx2Token`], and a
+//! token only by [`Avx2Token::detect`] after `is_x86_feature_detected!` found AVX2 and FMA. Every
+//! operation takes existing values, so whenever one runs, a token was made before it on this
+//! CPU. SSE2 is part of the x86-64 baseline, so its intrinsics are always available there.
+//!
+//! Lanes that a kernel masks out may hold any value (NaN included); every operation here is
+//! defined for every input, so they cannot fault, and masks keep them out of the results.
+
+use std::ops::{Add, BitAnd, BitOr, Div, Mul, Sub};
+
+/// The operations of one SIMD width. Masks are lanes whose bits are all ones (true) or all zeros.
+pub trait Lanes:
+    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self>
+{
+    /// A lane condition.
+    type Mask: Copy + BitAnd<Output = Self::Mask> + BitOr<Output = Self::Mask>;
+    /// What proves the CPU runs these lanes.
+    type Token: Copy;
+    /// Lanes per vector.
+    const N: usize;
+    /// Whether `mul_add` rounds once (an FMA instruction).
+    const FUSED: bool;
+
+    fn splat(token: Self::Token, x: f32) -> Self;
+    /// The first `N` values of `x`.
+    fn load(token: Self::Token, x: &[f32]) -> Self;
+    /// Writes the lanes to the first `N` values of `out`.
+    fn store(self, out: &mut [f32]);
+    /// Lanes holding the bits of the first `N` integers of `x`.
+    fn load_bits(token: Self::Token, x: &[u32]) -> Self;
+    /// Writes the lanes' bits to the first `N` values of `out`.
+    fn store_bits(self, out: &mut [u32]);
+    /// `self * b + c` (one rounding when `FUSED`).
+    fn mul_add(self, b: Self, c: Self) -> Self;
+    /// The smaller of each pair; `b` when either is NaN.
+    fn min(self, b: Self) -> Self;
+    /// The larger of each pair; `b` when either is NaN.
+    fn max(self, b: Self) -> Self;
+    fn lt(self, b: Self) -> Self::Mask;
+    fn le(self, b: Self) -> Self::Mask;
+    fn gt(self, b: Self) -> Self::Mask;
+    fn ge(self, b: Self) -> Self::Mask;
+    /// Lanes where the bits of `self` are below those of `b`, both read as i32.
+    fn bits_lt(self, b: Self) -> Self::Mask;
+    /// `a` where `m` holds, else `b`.
+    fn select(m: Self::Mask, a: Self, b: Self) -> Self;
+    /// `a` where `m` holds, else 0.
+    fn keep(m: Self::Mask, a: Self) -> Self;
+    /// `m` and not `n`.
+    fn and_not(m: Self::Mask, n: Self::Mask) -> Self::Mask;
+    fn any(m: Self::Mask) -> bool;
+    fn count(m: Self::Mask) -> u32;
+    /// All lanes false.
+    fn no_lanes(token: Self::Token) -> Self::Mask;
+    /// Lane `i` is `f(i)`.
+    fn mask_from_fn(token: Self::Token, f: impl Fn(usize) -> bool) -> Self::Mask;
+    /// The float whose bits are `(bits(self) - k) << 23`, lane by lane (integer wrap-around).
+    fn exponent_bits(self, k: u32) -> Self;
+
+    /// The lanes' sum, added in a fixed order, so it is the same on every run.
+    #[inline(always)]
+    fn reduce_sum(self) -> f32 {
+        let mut v = [0.0f32; 16];
+        self.store(&mut v);
+        let mut width = Self::N;
+        while width > 1 {
+            width /= 2;
+            for i in 0..width {
+                v[i] += v[i + width];
+            }
+        }
+        v[0]
+    }
+}
+
+/// Lowest input of [`exp`]: its result is then a normal f32 (no subnormal scale).
+pub const EXP_MIN: f32 = -87.0;
+/// Highest input of [`exp`]: its result is then finite.
+pub const EXP_MAX: f32 = 88.0;
+/// Bound on [`exp`]'s relative error against the exact value on `[EXP_MIN, EXP_MAX]`, with and
+/// without FMA (2.5 units in the last place of 1.0). The truncation of the degree-7 Taylor series
+/// on `|r| <= ln 2 / 2` is below `1.42 r^8 / 8! < 7.3e-9`; the rest is the rounding of the
+/// reduction and of Horner's steps. The tests check it against f64 on a dense sweep.
+pub const EXP_MAX_REL_ERROR: f32 = 3.0e-7;
+
+/// `e^x` per lane, inputs clamped to `[EXP_MIN, EXP_MAX]` (a NaN lane gives some finite value:
+/// callers mask such lanes out).
+///
+/// Cody-Waite: `x = n ln 2 + r` with `n = round(x / ln 2)` and `|r| <= ln 2 / 2`; `e^r` by its
+/// Taylor series to degree 7; `2^n` built in the exponent bits. `n` is rounded by adding
+/// `1.5 * 2^23`, which leaves it in the low mantissa bits of the sum.
+#[inline(always)]
+pub fn exp<L: Lanes>(token: L::Token, x: L) -> L {
+    const ROUND: f32 = 12_582_912.0; // 1.5 * 2^23
+    const LOG2_E: f32 = std::f32::consts::LOG2_E;
+    // ln 2 split so that n * LN2_HI is exact for |n| < 2^15.
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    let s = |v: f32| L::splat(token, v);
+    let x = x.max(s(EXP_MIN)).min(s(EXP_MAX));
+    let shifted = x.mul_add(s(LOG2_E), s(ROUND));
+    let n = shifted - s(ROUND);
+    let r = n.mul_add(s(-LN2_HI), x);
+    let r = n.mul_add(s(-LN2_LO), r);
+    let mut p = s(1.0 / 5040.0);
+    for c in [
+        1.0 / 720.0,
+        1.0 / 120.0,
+        1.0 / 24.0,
+        1.0 / 6.0,
+        0.5,
+        1.0,
+        1.0,
+    ] {
+        p = p.mul_add(r, s(c));
+    }
+    // The low bits of `shifted` hold n + 0x400000; 2^n has the biased exponent n + 127.
+    p * shifted.exponent_bits(ROUND.to_bits() - 127)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Portable: a plain array.
+
+/// 4 lanes as a plain array: every target runs it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(16))]
+pub struct Portable(pub [f32; 4]);
+
+#[inline(always)]
+fn zip4<T: Copy, U: Copy + Default>(a: [T; 4], b: [T; 4], f: impl Fn(T, T) -> U) -> [U; 4] {
+    let mut r = [U::default(); 4];
+    for i in 0..4 {
+        r[i] = f(a[i], b[i]);
+    }
+    r
+}
+
+#[inline(always)]
+fn cond(c: bool) -> u32 {
+    if c { u32::MAX } else { 0 }
+}
+
+macro_rules! portable_op {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl $tr for Portable {
+            type Output = Self;
+            #[inline(always)]
+            fn $f(self, b: Self) -> Self {
+                Self(zip4(self.0, b.0, |x, y| x $op y))
+            }
+        }
+    };
+}
+portable_op!(Add, add, +);
+portable_op!(Sub, sub, -);
+portable_op!(Mul, mul, *);
+portable_op!(Div, div, /);
+
+/// A [`Portable`] lane condition.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PortableMask(pub [u32; 4]);
+
+impl BitAnd for PortableMask {
+    type Output = Self;
+    #[inline(always)]
+    fn bitand(self, b: Self) -> Self {
+        Self(zip4(self.0, b.0, |x, y| x & y))
+    }
+}
+
+impl BitOr for PortableMask {
+    type Output = Self;
+    #[inline(always)]
+    fn bitor(self, b: Self) -> Self {
+        Self(zip4(self.0, b.0, |x, y| x | y))
+    }
+}
+
+impl Lanes for Portable {
+    type Mask = PortableMask;
+    type Token = ();
+    const N: usize = 4;
+    const FUSED: bool = cfg!(target_arch = "aarch64");
+
+    #[inline(always)]
+    fn splat(_: (), x: f32) -> Self {
+        Self([x; 4])
+    }
+    #[inline(always)]
+    fn load(_: (), x: &[f32]) -> Self {
+        Self([x[0], x[1], x[2], x[3]])
+    }
+    #[inline(always)]
+    fn store(self, out: &mut [f32]) {
+        out[..4].copy_from_slice(&self.0);
+    }
+    #[inline(always)]
+    fn load_bits(_: (), x: &[u32]) -> Self {
+        Self([x[0], x[1], x[2], x[3]].map(f32::from_bits))
+    }
+    #[inline(always)]
+    fn store_bits(self, out: &mut [u32]) {
+        out[..4].copy_from_slice(&self.0.map(f32::to_bits));
+    }
+    #[inline(always)]
+    fn mul_add(self, b: Self, c: Self) -> Self {
+        let mut r = [0.0; 4];
+        for i in 0..4 {
+            r[i] = if Self::FUSED {
+                self.0[i].mul_add(b.0[i], c.0[i])
+            } else {
+                self.0[i] * b.0[i] + c.0[i]
+            };
+        }
+        Self(r)
+    }
+    #[inline(always)]
+    fn min(self, b: Self) -> Self {
+        Self(zip4(self.0, b.0, |x, y| if x < y { x } else { y }))
+    }
+    #[inline(always)]
+    fn max(self, b: Self) -> Self {
+        Self(zip4(self.0, b.0, |x, y| if x > y { x } else { y }))
+    }
+    #[inline(always)]
+    fn lt(self, b: Self) -> PortableMask {
+        PortableMask(zip4(self.0, b.0, |x, y| cond(x < y)))
+    }
+    #[inline(always)]
+    fn le(self, b: Self) -> PortableMask {
+        PortableMask(zip4(self.0, b.0, |x, y| cond(x <= y)))
+    }
+    #[inline(always)]
+    fn gt(self, b: Self) -> PortableMask {
+        PortableMask(zip4(self.0, b.0, |x, y| cond(x > y)))
+    }
+    #[inline(always)]
+    fn ge(self, b: Self) -> PortableMask {
+        PortableMask(zip4(self.0, b.0, |x, y| cond(x >= y)))
+    }
+    #[inline(always)]
+    fn bits_lt(self, b: Self) -> PortableMask {
+        PortableMask(zip4(self.0, b.0, |x, y| {
+            cond((x.to_bits() as i32) < (y.to_bits() as i32))
+        }))
+    }
+    #[inline(always)]
+    fn select(m: PortableMask, a: Self, b: Self) -> Self {
+        Self(std::array::from_fn(|i| {
+            f32::from_bits((a.0[i].to_bits() & m.0[i]) | (b.0[i].to_bits() & !m.0[i]))
+        }))
+    }
+    #[inline(always)]
+    fn keep(m: PortableMask, a: Self) -> Self {
+        Self(std::array::from_fn(|i| {
+            f32::from_bits(a.0[i].to_bits() & m.0[i])
+        }))
+    }
+    #[inline(always)]
+    fn and_not(m: PortableMask, n: PortableMask) -> PortableMask {
+        PortableMask(zip4(m.0, n.0, |x, y| x & !y))
+    }
+    #[inline(always)]
+    fn any(m: PortableMask) -> bool {
+        (m.0[0] | m.0[1] | m.0[2] | m.0[3]) != 0
+    }
+    #[inline(always)]
+    fn count(m: PortableMask) -> u32 {
+        m.0.iter().map(|x| x & 1).sum()
+    }
+    #[inline(always)]
+    fn no_lanes(_: ()) -> PortableMask {
+        PortableMask([0; 4])
+    }
+    #[inline(always)]
+    fn mask_from_fn(_: (), f: impl Fn(usize) -> bool) -> PortableMask {
+        PortableMask(std::array::from_fn(|i| cond(f(i))))
+    }
+    #[inline(always)]
+    fn exponent_bits(self, k: u32) -> Self {
+        Self(
+            self.0
+                .map(|x| f32::from_bits(x.to_bits().wrapping_sub(k) << 23)),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// x86-64: SSE2 (baseline) and AVX2 + FMA.
+
+#[cfg(target_arch = "x86_64")]
+pub use x86::{Avx2, Avx2Mask, Avx2Token, Sse2, Sse2Mask};
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::Lanes;
+    use std::arch::x86_64::*;
+    use std::ops::{Add, BitAnd, BitOr, Div, Mul, Sub};
+
+    /// 4 lanes with SSE2 (every x86-64 CPU).
+    #[derive(Clone, Copy, Debug)]
+    pub struct Sse2(__m128);
+    /// An [`Sse2`] lane condition.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Sse2Mask(__m128);
+
+    /// Proof that this CPU has AVX2 and FMA: only [`Avx2Token::detect`] makes one.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx2Token(());
+
+    impl Avx2Token {
+        /// A token when this CPU has AVX2 and FMA.
+        pub fn detect() -> Option<Self> {
+            (is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
+                .then_some(Avx2Token(()))
+        }
+    }
+
+    /// 8 lanes with AVX2 and FMA; only made from an [`Avx2Token`].
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx2(__m256);
+    /// An [`Avx2`] lane condition.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx2Mask(__m256);
+
+    // SAFETY (every `unsafe` block in this module): the SSE2 intrinsics need only SSE2, which the
+    // x86-64 baseline guarantees. The AVX/AVX2/FMA intrinsics run only where an `Avx2` or
+    // `Avx2Mask` value exists, and those are made only by functions that take an `Avx2Token`
+    // (or from other such values), which `Avx2Token::detect` creates only after detecting AVX2
+    // and FMA. Loads and stores index slices with bounds checks first (`x[..N]`), so they read
+    // and write only inside them; the unaligned forms (`loadu`/`storeu`) need no alignment.
+
+    macro_rules! binop {
+        ($ty:ident, $tr:ident, $f:ident, $intr:ident) => {
+            impl $tr for $ty {
+                type Output = Self;
+                #[inline(always)]
+                fn $f(self, b: Self) -> Self {
+                    Self(unsafe { $intr(self.0, b.0) })
+                }
+            }
+        };
+    }
+    binop!(Sse2, Add, add, _mm_add_ps);
+    binop!(Sse2, Sub, sub, _mm_sub_ps);
+    binop!(Sse2, Mul, mul, _mm_mul_ps);
+    binop!(Sse2, Div, div, _mm_div_ps);
+    binop!(Sse2Mask, BitAnd, bitand, _mm_and_ps);
+    binop!(Sse2Mask, BitOr, bitor, _mm_or_ps);
+    binop!(Avx2, Add, add, _mm256_add_ps);
+    binop!(Avx2, Sub, sub, _mm256_sub_ps);
+    binop!(Avx2, Mul, mul, _mm256_mul_ps);
+    binop!(Avx2, Div, div, _mm256_div_ps);
+    binop!(Avx2Mask, BitAnd, bitand, _mm256_and_ps);
+    binop!(Avx2Mask, BitOr, bitor, _mm256_or_ps);
+
+    impl Lanes for Sse2 {
+        type Mask = Sse2Mask;
+        type Token = ();
+        const N: usize = 4;
+        const FUSED: bool = false;
+
+        #[inline(always)]
+        fn splat(_: (), x: f32) -> Self {
+            Self(unsafe { _mm_set1_ps(x) })
+        }
+        #[inline(always)]
+        fn load(_: (), x: &[f32]) -> Self {
+            let x = &x[..4];
+            Self(unsafe { _mm_loadu_ps(x.as_ptr()) })
+        }
+        #[inline(always)]
+        fn store(self, out: &mut [f32]) {
+            let out = &mut out[..4];
+            unsafe { _mm_storeu_ps(out.as_mut_ptr(), self.0) }
+        }
+        #[inline(always)]
+        fn load_bits(_: (), x: &[u32]) -> Self {
+            let x = &x[..4];
+            Self(unsafe { _mm_castsi128_ps(_mm_loadu_si128(x.as_ptr().cast())) })
+        }
+        #[inline(always)]
+        fn store_bits(self, out: &mut [u32]) {
+            let out = &mut out[..4];
+            unsafe { _mm_storeu_si128(out.as_mut_ptr().cast(), _mm_castps_si128(self.0)) }
+        }
+        #[inline(always)]
+        fn mul_add(self, b: Self, c: Self) -> Self {
+            self * b + c
+        }
+        #[inline(always)]
+        fn min(self, b: Self) -> Self {
+            Self(unsafe { _mm_min_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn max(self, b: Self) -> Self {
+            Self(unsafe { _mm_max_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn lt(self, b: Self) -> Sse2Mask {
+            Sse2Mask(unsafe { _mm_cmplt_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn le(self, b: Self) -> Sse2Mask {
+            Sse2Mask(unsafe { _mm_cmple_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn gt(self, b: Self) -> Sse2Mask {
+            Sse2Mask(unsafe { _mm_cmpgt_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn ge(self, b: Self) -> Sse2Mask {
+            Sse2Mask(unsafe { _mm_cmpge_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn bits_lt(self, b: Self) -> Sse2Mask {
+            Sse2Mask(unsafe {
+                _mm_castsi128_ps(_mm_cmplt_epi32(
+                    _mm_castps_si128(self.0),
+                    _mm_castps_si128(b.0),
+                ))
+            })
+        }
+        #[inline(always)]
+        fn select(m: Sse2Mask, a: Self, b: Self) -> Self {
+            Self(unsafe { _mm_or_ps(_mm_and_ps(m.0, a.0), _mm_andnot_ps(m.0, b.0)) })
+        }
+        #[inline(always)]
+        fn keep(m: Sse2Mask, a: Self) -> Self {
+            Self(unsafe { _mm_and_ps(m.0, a.0) })
+        }
+        #[inline(always)]
+        fn and_not(m: Sse2Mask, n: Sse2Mask) -> Sse2Mask {
+            Sse2Mask(unsafe { _mm_andnot_ps(n.0, m.0) })
+        }
+        #[inline(always)]
+        fn any(m: Sse2Mask) -> bool {
+            unsafe { _mm_movemask_ps(m.0) != 0 }
+        }
+        #[inline(always)]
+        fn count(m: Sse2Mask) -> u32 {
+            unsafe { _mm_movemask_ps(m.0) }.count_ones()
+        }
+        #[inline(always)]
+        fn no_lanes(_: ()) -> Sse2Mask {
+            Sse2Mask(unsafe { _mm_setzero_ps() })
+        }
+        #[inline(always)]
+        fn mask_from_fn(_: (), f: impl Fn(usize) -> bool) -> Sse2Mask {
+            let bits: [u32; 4] = std::array::from_fn(|i| if f(i) { u32::MAX } else { 0 });
+            Sse2Mask(Self::load_bits((), &bits).0)
+        }
+        #[inline(always)]
+        fn exponent_bits(self, k: u32) -> Self {
+            Self(unsafe {
+                let i = _mm_sub_epi32(_mm_castps_si128(self.0), _mm_set1_epi32(k as i32));
+                _mm_castsi128_ps(_mm_slli_epi32::<23>(i))
+            })
+        }
+    }
+
+    impl Lanes for Avx2 {
+        type Mask = Avx2Mask;
+        type Token = Avx2Token;
+        const N: usize = 8;
+        const FUSED: bool = true;
+
+        #[inline(always)]
+        fn splat(_: Avx2Token, x: f32) -> Self {
+            Self(unsafe { _mm256_set1_ps(x) })
+        }
+        #[inline(always)]
+        fn load(_: Avx2Token, x: &[f32]) -> Self {
+            let x = &x[..8];
+            Self(unsafe { _mm256_loadu_ps(x.as_ptr()) })
+        }
+        #[inline(always)]
+        fn store(self, out: &mut [f32]) {
+            let out = &mut out[..8];
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), self.0) }
+        }
+        #[inline(always)]
+        fn load_bits(_: Avx2Token, x: &[u32]) -> Self {
+            let x = &x[..8];
+            Self(unsafe { _mm256_castsi256_ps(_mm256_loadu_si256(x.as_ptr().cast())) })
+        }
+        #[inline(always)]
+        fn store_bits(self, out: &mut [u32]) {
+            let out = &mut out[..8];
+            unsafe { _mm256_storeu_si256(out.as_mut_ptr().cast(), _mm256_castps_si256(self.0)) }
+        }
+        #[inline(always)]
+        fn mul_add(self, b: Self, c: Self) -> Self {
+            Self(unsafe { _mm256_fmadd_ps(self.0, b.0, c.0) })
+        }
+        #[inline(always)]
+        fn min(self, b: Self) -> Self {
+            Self(unsafe { _mm256_min_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn max(self, b: Self) -> Self {
+            Self(unsafe { _mm256_max_ps(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn lt(self, b: Self) -> Avx2Mask {
+            Avx2Mask(unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn le(self, b: Self) -> Avx2Mask {
+            Avx2Mask(unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn gt(self, b: Self) -> Avx2Mask {
+            Avx2Mask(unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn ge(self, b: Self) -> Avx2Mask {
+            Avx2Mask(unsafe { _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, b.0) })
+        }
+        #[inline(always)]
+        fn bits_lt(self, b: Self) -> Avx2Mask {
+            Avx2Mask(unsafe {
+                _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                    _mm256_castps_si256(b.0),
+                    _mm256_castps_si256(self.0),
+                ))
+            })
+        }
+        #[inline(always)]
+        fn select(m: Avx2Mask, a: Self, b: Self) -> Self {
+            Self(unsafe { _mm256_blendv_ps(b.0, a.0, m.0) })
+        }
+        #[inline(always)]
+        fn keep(m: Avx2Mask, a: Self) -> Self {
+            Self(unsafe { _mm256_and_ps(m.0, a.0) })
+        }
+        #[inline(always)]
+        fn and_not(m: Avx2Mask, n: Avx2Mask) -> Avx2Mask {
+            Avx2Mask(unsafe { _mm256_andnot_ps(n.0, m.0) })
+        }
+        #[inline(always)]
+        fn any(m: Avx2Mask) -> bool {
+            unsafe { _mm256_movemask_ps(m.0) != 0 }
+        }
+        #[inline(always)]
+        fn count(m: Avx2Mask) -> u32 {
+            unsafe { _mm256_movemask_ps(m.0) }.count_ones()
+        }
+        #[inline(always)]
+        fn no_lanes(_: Avx2Token) -> Avx2Mask {
+            Avx2Mask(unsafe { _mm256_setzero_ps() })
+        }
+        #[inline(always)]
+        fn mask_from_fn(t: Avx2Token, f: impl Fn(usize) -> bool) -> Avx2Mask {
+            let bits: [u32; 8] = std::array::from_fn(|i| if f(i) { u32::MAX } else { 0 });
+            Avx2Mask(Self::load_bits(t, &bits).0)
+        }
+        #[inline(always)]
+        fn exponent_bits(self, k: u32) -> Self {
+            Self(unsafe {
+                let i = _mm256_sub_epi32(_mm256_castps_si256(self.0), _mm256_set1_epi32(k as i32));
+                _mm256_castsi256_ps(_mm256_slli_epi32::<23>(i))
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The worst relative error of `exp` against f64 over `steps` points of `[lo, hi]`.
+    fn worst<L: Lanes>(token: L::Token, lo: f32, hi: f32, steps: usize) -> (f64, f32) {
+        let mut worst = (0.0, 0.0);
+        let mut xs = [0.0f32; 16];
+        let mut es = [0.0f32; 16];
+        for k in 0..steps / L::N {
+            for (i, x) in xs.iter_mut().enumerate().take(L::N) {
+                *x = lo + (hi - lo) * ((L::N * k + i) as f32 / steps as f32);
+            }
+            exp(token, L::load(token, &xs)).store(&mut es);
+            for i in 0..L::N {
+                let want = (xs[i] as f64).exp();
+                let r = ((es[i] as f64 - want) / want).abs();
+                // Written so that a NaN result counts as the worst.
+                if !(r <= worst.0) {
+                    worst = (r, xs[i]);
+                }
+            }
+        }
+        worst
+    }
+
+    fn check_exp<L: Lanes>(token: L::Token, name: &str) {
+        // The whole domain, and densely the range the alpha test uses (ln(1/255) to 0).
+        for (lo, hi, steps) in [(EXP_MIN, EXP_MAX, 2_000_000), (-5.6, 0.0, 2_000_000)] {
+            let (err, at) = worst::<L>(token, lo, hi, steps);
+            assert!(
+                err <= EXP_MAX_REL_ERROR as f64,
+                "{name}: relative error {err:e} at x = {at} on [{lo}, {hi}]"
+            );
+        }
+        // NaN and out-of-range inputs come out finite; 0 is exact.
+        let mut out = [0.0f32; 16];
+        let mut inputs = [0.0f32; 16];
+        inputs[..4].copy_from_slice(&[0.0, f32::NAN, -1e30, 1e30]);
+        exp(token, L::load(token, &inputs)).store(&mut out);
+        assert_eq!(out[0], 1.0, "{name}");
+        assert!(out[..4].iter().all(|v| v.is_finite()), "{name}: {out:?}");
+    }
+
+    fn check_masks<L: Lanes>(token: L::Token, name: &str) {
+        let a: Vec<f32> = (0..16).map(|i| i as f32).collect();
+        let b: Vec<f32> = (0..16)
+            .map(|i| (L::N - 1 - i.min(L::N - 1)) as f32)
+            .collect();
+        let (va, vb) = (L::load(token, &a), L::load(token, &b));
+        let m = va.lt(vb);
+        assert_eq!(L::count(m), (L::N / 2) as u32, "{name}");
+        let mut out = [0.0f32; 16];
+        L::select(m, va, vb).store(&mut out);
+        for i in 0..L::N {
+            assert_eq!(out[i], a[i].min(b[i]), "{name} lane {i}");
+        }
+        L::keep(m, va).store(&mut out);
+        for i in 0..L::N {
+            assert_eq!(
+                out[i],
+                if a[i] < b[i] { a[i] } else { 0.0 },
+                "{name} lane {i}"
+            );
+        }
+        assert!(!L::any(L::and_not(m, m)) && L::any(m) && !L::any(L::no_lanes(token)));
+        // NaN fails every comparison.
+        let n = L::splat(token, f32::NAN);
+        assert!(!L::any(n.lt(va) | n.ge(va) | n.le(va) | n.gt(va)), "{name}");
+        let ints: Vec<u32> = (0..16).collect();
+        let idx = L::load_bits(token, &ints);
+        assert_eq!(
+            L::count(idx.bits_lt(L::load_bits(token, &[2; 16]))),
+            2,
+            "{name}"
+        );
+        let sum: f32 = a[..L::N].iter().sum();
+        assert_eq!(va.reduce_sum(), sum, "{name}");
+        let m = L::mask_from_fn(token, |i| i == 1);
+        assert_eq!(L::count(m), 1, "{name}");
+    }
+
+    #[test]
+    fn portable_lanes() {
+        check_exp::<Portable>((), "portable");
+        check_masks::<Portable>((), "portable");
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sse2_lanes() {
+        check_exp::<Sse2>((), "sse2");
+        check_masks::<Sse2>((), "sse2");
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_lanes() {
+        let Some(token) = Avx2Token::detect() else {
+            eprintln!("note: this CPU has no AVX2 + FMA; the 8-lane check is skipped");
+            return;
+        };
+        check_exp::<Avx2>(token, "avx2");
+        check_masks::<Avx2>(token, "avx2");
+    }
+}

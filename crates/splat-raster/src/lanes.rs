@@ -65,6 +65,14 @@ pub trait Lanes:
     /// The float whose bits are `(bits(self) - k) << 23`, lane by lane (integer wrap-around).
     fn exponent_bits(self, k: u32) -> Self;
 
+    /// Each vector's lane sum, in a fixed order (so the same on every run): the per-splat
+    /// gradient sums of a tile, eight at a time. The vector widths override it with shuffles
+    /// that reduce all eight at once.
+    #[inline(always)]
+    fn reduce8(v: [Self; 8]) -> [f32; 8] {
+        v.map(Self::reduce_sum)
+    }
+
     /// The lanes' sum, added in a fixed order, so it is the same on every run.
     #[inline(always)]
     fn reduce_sum(self) -> f32 {
@@ -459,6 +467,25 @@ mod x86 {
             Sse2Mask(Self::load_bits((), &bits).0)
         }
         #[inline(always)]
+        fn reduce8(v: [Self; 8]) -> [f32; 8] {
+            // Two 4x4 transposes (columns become vectors), then three adds each.
+            let quad = |a: __m128, b: __m128, c: __m128, d: __m128| unsafe {
+                let ab_lo = _mm_unpacklo_ps(a, b); // a0 b0 a1 b1
+                let ab_hi = _mm_unpackhi_ps(a, b); // a2 b2 a3 b3
+                let cd_lo = _mm_unpacklo_ps(c, d);
+                let cd_hi = _mm_unpackhi_ps(c, d);
+                let col0 = _mm_movelh_ps(ab_lo, cd_lo); // a0 b0 c0 d0
+                let col1 = _mm_movehl_ps(cd_lo, ab_lo); // a1 b1 c1 d1
+                let col2 = _mm_movelh_ps(ab_hi, cd_hi);
+                let col3 = _mm_movehl_ps(cd_hi, ab_hi);
+                _mm_add_ps(_mm_add_ps(col0, col1), _mm_add_ps(col2, col3))
+            };
+            let mut out = [0.0f32; 8];
+            Self(quad(v[0].0, v[1].0, v[2].0, v[3].0)).store(&mut out[..4]);
+            Self(quad(v[4].0, v[5].0, v[6].0, v[7].0)).store(&mut out[4..]);
+            out
+        }
+        #[inline(always)]
         fn exponent_bits(self, k: u32) -> Self {
             Self(unsafe {
                 let i = _mm_sub_epi32(_mm_castps_si128(self.0), _mm_set1_epi32(k as i32));
@@ -564,6 +591,24 @@ mod x86 {
             Avx2Mask(Self::load_bits(t, &bits).0)
         }
         #[inline(always)]
+        fn reduce8(v: [Self; 8]) -> [f32; 8] {
+            // Pairwise horizontal adds within each 128-bit half, then the halves added.
+            let mut out = [0.0f32; 8];
+            unsafe {
+                let h01 = _mm256_hadd_ps(v[0].0, v[1].0);
+                let h23 = _mm256_hadd_ps(v[2].0, v[3].0);
+                let h45 = _mm256_hadd_ps(v[4].0, v[5].0);
+                let h67 = _mm256_hadd_ps(v[6].0, v[7].0);
+                // Per half: the sums of v0..v3 (and v4..v7) over that half's four lanes.
+                let q0 = _mm256_hadd_ps(h01, h23);
+                let q1 = _mm256_hadd_ps(h45, h67);
+                let low = _mm256_permute2f128_ps::<0x20>(q0, q1);
+                let high = _mm256_permute2f128_ps::<0x31>(q0, q1);
+                Self(_mm256_add_ps(low, high)).store(&mut out);
+            }
+            out
+        }
+        #[inline(always)]
         fn exponent_bits(self, k: u32) -> Self {
             Self(unsafe {
                 let i = _mm256_sub_epi32(_mm256_castps_si256(self.0), _mm256_set1_epi32(k as i32));
@@ -651,6 +696,16 @@ mod tests {
         );
         let sum: f32 = a[..L::N].iter().sum();
         assert_eq!(va.reduce_sum(), sum, "{name}");
+        // Eight vectors reduced at once: vector j holds j * 100 + lane, so sums are exact.
+        let vs: [L; 8] = std::array::from_fn(|j| {
+            let lanes: Vec<f32> = (0..16).map(|i| (j * 100 + i) as f32).collect();
+            L::load(token, &lanes)
+        });
+        let sums = L::reduce8(vs);
+        for (j, got) in sums.iter().enumerate() {
+            let want: f32 = (0..L::N).map(|i| (j * 100 + i) as f32).sum();
+            assert_eq!(*got, want, "{name}: reduce8 of vector {j}");
+        }
         let m = L::mask_from_fn(token, |i| i == 1);
         assert_eq!(L::count(m), 1, "{name}");
     }

@@ -72,7 +72,6 @@ pub struct ForwardState<F: Real> {
     /// Per pixel final transmittance, tile-major.
     final_t: Vec<F>,
     tiles_x: u32,
-    tiles_y: u32,
     /// The settings of the forward pass, with the kernel that ran (never `Auto`): the backward
     /// pass must divide out the very alphas the forward pass multiplied in.
     config: RasterConfig,
@@ -131,20 +130,12 @@ fn project_all<F: Real>(
     config: &RasterConfig,
 ) -> (Vec<Splat<F>>, Vec<u32>) {
     let near = F::c(config.near as f64);
-    let projected: Vec<Option<Splat<F>>> = (0..cloud.len())
+    // Parallel, and in Gaussian order (rayon keeps the order of a filtered collect).
+    (0..cloud.len())
         .into_par_iter()
         .with_min_len(1024)
-        .map(|g| project(cloud, g, cam, config.low_pass, near))
-        .collect();
-    let mut splats = Vec::with_capacity(projected.len());
-    let mut ids = Vec::with_capacity(projected.len());
-    for (g, s) in projected.into_iter().enumerate() {
-        if let Some(s) = s {
-            splats.push(s);
-            ids.push(g as u32);
-        }
-    }
-    (splats, ids)
+        .filter_map(|g| project(cloud, g, cam, config.low_pass, near).map(|s| (s, g as u32)))
+        .unzip()
 }
 
 fn tile_span(s: &[u32; 4]) -> (u32, u32, u32, u32) {
@@ -187,22 +178,34 @@ fn bin<F: Real>(
     }
     let tile_ranges: Vec<(u32, u32)> = (0..n_tiles).map(|t| (offsets[t], offsets[t + 1])).collect();
     if sort {
-        // Split `entries` into per-tile slices and sort each in parallel.
-        let mut slices: Vec<&mut [u32]> = Vec::with_capacity(n_tiles);
-        let mut rest: &mut [u32] = &mut entries;
-        for &(a, b) in &tile_ranges {
-            let (head, tail) = rest.split_at_mut((b - a) as usize);
-            slices.push(head);
-            rest = tail;
-        }
-        slices.into_par_iter().for_each(|list| {
-            list.sort_unstable_by(|&x, &y| {
-                let (sx, sy) = (&splats[x as usize], &splats[y as usize]);
-                sx.depth
-                    .partial_cmp(&sy.depth)
-                    .unwrap_or(std::cmp::Ordering::Equal)
-                    .then(ids[x as usize].cmp(&ids[y as usize]))
+        // Per tile, sort 64-bit keys (the depth's f32 bits above the splat's index: positive
+        // floats order as their bits, and splats are in Gaussian order, so ties go to the lower
+        // id) with no indirection in the comparisons.
+        let mut keys: Vec<u64> = entries
+            .par_iter()
+            .with_min_len(4096)
+            .map(|&i| {
+                ((splats[i as usize].depth.as_f64() as f32).to_bits() as u64) << 32 | i as u64
             })
+            .collect();
+        let exact_f32 = std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>();
+        let key_lists = split_by_tile(&mut keys, &tile_ranges);
+        let lists = split_by_tile(&mut entries, &tile_ranges);
+        (key_lists, lists).into_par_iter().for_each(|(keys, list)| {
+            keys.sort_unstable();
+            for (e, k) in list.iter_mut().zip(keys.iter()) {
+                *e = *k as u32;
+            }
+            if !exact_f32 {
+                // Wider floats: order by the exact depth (the f32 keys have put it nearly there).
+                list.sort_by(|&x, &y| {
+                    let (sx, sy) = (&splats[x as usize], &splats[y as usize]);
+                    sx.depth
+                        .partial_cmp(&sy.depth)
+                        .unwrap_or(std::cmp::Ordering::Equal)
+                        .then(ids[x as usize].cmp(&ids[y as usize]))
+                });
+            }
         });
     }
     Bins {
@@ -211,6 +214,18 @@ fn bin<F: Real>(
         entries,
         tile_ranges,
     }
+}
+
+/// `values` (tile-major, like the entries) cut into each tile's slice.
+fn split_by_tile<'a, T>(values: &'a mut [T], tile_ranges: &[(u32, u32)]) -> Vec<&'a mut [T]> {
+    let mut slices = Vec::with_capacity(tile_ranges.len());
+    let mut rest = values;
+    for &(a, b) in tile_ranges {
+        let (head, tail) = rest.split_at_mut((b - a) as usize);
+        slices.push(head);
+        rest = tail;
+    }
+    slices
 }
 
 /// Projected splats binned into tiles without sorting (for stochastic splatting): the splats,
@@ -324,6 +339,7 @@ fn as_f32_mut<T: Any, U: Any>(x: &mut T) -> Option<&mut U> {
 /// every pixel still sees its splats front to back with the same arithmetic as a per-pixel loop.
 fn forward_tile_scalar<F: Real>(
     splats: &[Splat<F>],
+    list: &[u32],
     origin: [u32; 2],
     size: [u32; 2],
     want_depth: bool,
@@ -345,10 +361,11 @@ fn forward_tile_scalar<F: Real>(
     // Pixel-centre coordinates of the tile's columns and rows, converted once.
     let cx: [F; TILE as usize] = std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
     let cy: [F; TILE as usize] = std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
-    for (k, s) in splats.iter().enumerate() {
+    for (k, &si) in list.iter().enumerate() {
         if active == 0 {
             break;
         }
+        let s = &splats[si as usize];
         let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
         let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
         for y in ay..=by {
@@ -383,6 +400,23 @@ fn forward_tile_scalar<F: Real>(
     }
 }
 
+/// A row-major `w` x `h` image from tile-major values (each tile's 16x16 pixels in a run,
+/// tiles row by row), a row at a time in parallel.
+fn tile_major_to_rows<T: Copy + Default + Send + Sync>(tile_major: &[T], w: u32, h: u32) -> Vec<T> {
+    let (tile, tiles_x) = (TILE as usize, w.div_ceil(TILE) as usize);
+    let mut img = vec![T::default(); (w * h) as usize];
+    img.par_chunks_mut(w as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (ty, py) = (y / tile, y % tile);
+            for (x, v) in row.iter_mut().enumerate() {
+                let ti = ty * tiles_x + x / tile;
+                *v = tile_major[ti * TILE_PIXELS + py * tile + x % tile];
+            }
+        });
+    img
+}
+
 /// Renders the cloud; returns the images and the state the backward pass needs.
 pub fn render<F: Real>(
     cloud: &GaussianCloud<F>,
@@ -401,56 +435,54 @@ pub fn render<F: Real>(
 
     let kernel = resolved_kernel::<F>(config.kernel);
     let isa = Isa::of(kernel);
-    let outs: Vec<TileOut<F>> = (0..n_tiles)
+    let splats_f32 = as_f32::<_, Vec<Splat<f32>>>(&bins.splats);
+    // Tile-major outputs, written in parallel one tile each; the backward pass reads the counts
+    // and final transmittances in this order.
+    let tile_major = n_tiles * tile_px;
+    let mut color_tm = vec![[F::zero(); 3]; tile_major];
+    let mut final_t = vec![F::one(); tile_major];
+    let mut n_contrib = vec![0u32; tile_major];
+    let mut depth_tm = vec![F::zero(); if config.depth { tile_major } else { 0 }];
+    let mut depth_chunks: Vec<Option<&mut [F]>> = if config.depth {
+        depth_tm.chunks_mut(tile_px).map(Some).collect()
+    } else {
+        (0..n_tiles).map(|_| None).collect()
+    };
+    (
+        color_tm.par_chunks_mut(tile_px),
+        final_t.par_chunks_mut(tile_px),
+        n_contrib.par_chunks_mut(tile_px),
+        depth_chunks.par_iter_mut(),
+    )
         .into_par_iter()
-        .map(|ti| {
+        .enumerate()
+        .for_each(|(ti, (color, t, n, depth))| {
             let (a, b) = bins.tile_ranges[ti];
             let list = &bins.entries[a as usize..b as usize];
-            let local: Vec<Splat<F>> = list.iter().map(|&i| bins.splats[i as usize]).collect();
             let origin = [(ti as u32 % tiles_x) * TILE, (ti as u32 / tiles_x) * TILE];
             let mut out = TileOut::new();
-            match (
-                isa,
-                as_f32::<_, Vec<Splat<f32>>>(&local),
-                as_f32_mut(&mut out),
-            ) {
-                (Some(isa), Some(local), Some(out)) => {
-                    isa.forward_tile(local, origin, [w, h], config.depth, out)
+            match (isa, splats_f32, as_f32_mut(&mut out)) {
+                (Some(isa), Some(splats), Some(out)) => {
+                    isa.forward_tile(splats, list, origin, [w, h], config.depth, out)
                 }
-                _ => forward_tile_scalar(&local, origin, [w, h], config.depth, &mut out),
+                _ => {
+                    forward_tile_scalar(&bins.splats, list, origin, [w, h], config.depth, &mut out)
+                }
             }
             for p in 0..tile_px {
-                let (t, c) = (out.t[p], &mut out.color[p]);
-                for ch in 0..3 {
-                    c[ch] = c[ch] + t * bg[ch];
-                }
+                let (tp, c) = (out.t[p], out.color[p]);
+                color[p] = [c[0] + tp * bg[0], c[1] + tp * bg[1], c[2] + tp * bg[2]];
             }
-            out
-        })
-        .collect();
+            t.copy_from_slice(&out.t);
+            n.copy_from_slice(&out.n);
+            if let Some(d) = depth {
+                d.copy_from_slice(&out.depth);
+            }
+        });
 
-    let npx = (w * h) as usize;
-    let mut color = vec![[F::zero(); 3]; npx];
-    let mut transmittance = vec![F::one(); npx];
-    let mut depth = if config.depth {
-        Some(vec![F::zero(); npx])
-    } else {
-        None
-    };
-    let mut n_contrib = Vec::with_capacity(n_tiles * tile_px);
-    let mut final_t = Vec::with_capacity(n_tiles * tile_px);
-    for (ti, o) in outs.iter().enumerate() {
-        for (x, y, p) in tile_pixels(ti, tiles_x, w, h) {
-            let q = (y * w + x) as usize;
-            color[q] = o.color[p];
-            transmittance[q] = o.t[p];
-            if let Some(d) = depth.as_mut() {
-                d[q] = o.depth[p];
-            }
-        }
-        n_contrib.extend_from_slice(&o.n);
-        final_t.extend_from_slice(&o.t);
-    }
+    let color = tile_major_to_rows(&color_tm, w, h);
+    let transmittance = tile_major_to_rows(&final_t, w, h);
+    let depth = config.depth.then(|| tile_major_to_rows(&depth_tm, w, h));
     let state = ForwardState {
         splats: bins.splats,
         ids: bins.ids,
@@ -459,7 +491,6 @@ pub fn render<F: Real>(
         n_contrib,
         final_t,
         tiles_x,
-        tiles_y,
         config: RasterConfig { kernel, ..*config },
     };
     (
@@ -494,58 +525,50 @@ pub fn backward<F: Real>(
     let cam = CameraTerms::<F>::new(camera);
     let (w, h) = (camera.width, camera.height);
     let bg = state.config.background.map(|v| F::c(v as f64));
-    let n_tiles = (state.tiles_x * state.tiles_y) as usize;
     let zero = F::zero();
 
     let isa = Isa::of(state.config.kernel);
-    // One record per entry, tile by tile.
-    let records: Vec<Vec<SplatGrad<F>>> = (0..n_tiles)
-        .into_par_iter()
-        .map(|ti| {
-            let (a, b) = state.tile_ranges[ti];
-            let list = &state.entries[a as usize..b as usize];
-            let mut rec = vec![SplatGrad::<F>::default(); list.len()];
-            if list.is_empty() {
-                return rec;
-            }
-            let local: Vec<Splat<F>> = list.iter().map(|&i| state.splats[i as usize]).collect();
-            let origin = [
-                (ti as u32 % state.tiles_x) * TILE,
-                (ti as u32 / state.tiles_x) * TILE,
-            ];
-            let mut input = TilePixels {
-                origin,
-                contributors: [0; TILE_PIXELS],
-                dl_dc: [[zero; 3]; TILE_PIXELS],
-                dl_dd: [zero; TILE_PIXELS],
-                bg_dot: [zero; TILE_PIXELS],
-                t_final: [zero; TILE_PIXELS],
-                depth: grads.depth.is_some(),
-            };
-            for (x, y, p) in tile_pixels(ti, state.tiles_x, w, h) {
-                let q = (y * w + x) as usize;
-                let dl_dc = grads.color[q];
-                let dl_dt = grads.transmittance.map_or(zero, |g| g[q]);
-                input.contributors[p] = state.n_contrib[ti * TILE_PIXELS + p];
-                input.dl_dc[p] = dl_dc;
-                input.dl_dd[p] = grads.depth.map_or(zero, |g| g[q]);
-                input.bg_dot[p] = dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt;
-                input.t_final[p] = state.final_t[ti * TILE_PIXELS + p];
-            }
-            match (
-                isa,
-                as_f32::<_, Vec<Splat<f32>>>(&local),
-                as_f32(&input),
-                as_f32_mut::<_, Vec<SplatGrad<f32>>>(&mut rec),
-            ) {
-                (Some(isa), Some(local), Some(input), Some(rec)) => {
-                    isa.backward_tile(local, input, rec)
-                }
-                _ => backward_tile_scalar(&local, &input, &mut rec),
-            }
-            rec
-        })
-        .collect();
+    let splats_f32 = as_f32::<_, Vec<Splat<f32>>>(&state.splats);
+    // One record per entry (tile-major, like `entries`), written tile by tile.
+    let mut records = vec![SplatGrad::<F>::default(); state.entries.len()];
+    let per_tile = split_by_tile(&mut records, &state.tile_ranges);
+    per_tile.into_par_iter().enumerate().for_each(|(ti, rec)| {
+        let (a, b) = state.tile_ranges[ti];
+        let list = &state.entries[a as usize..b as usize];
+        if list.is_empty() {
+            return;
+        }
+        let origin = [
+            (ti as u32 % state.tiles_x) * TILE,
+            (ti as u32 / state.tiles_x) * TILE,
+        ];
+        let mut input = TilePixels {
+            origin,
+            contributors: [0; TILE_PIXELS],
+            dl_dc: [[zero; 3]; TILE_PIXELS],
+            dl_dd: [zero; TILE_PIXELS],
+            bg_dot: [zero; TILE_PIXELS],
+            t_final: [zero; TILE_PIXELS],
+            depth: grads.depth.is_some(),
+        };
+        for (x, y, p) in tile_pixels(ti, state.tiles_x, w, h) {
+            let q = (y * w + x) as usize;
+            let dl_dc = grads.color[q];
+            let dl_dt = grads.transmittance.map_or(zero, |g| g[q]);
+            input.contributors[p] = state.n_contrib[ti * TILE_PIXELS + p];
+            input.dl_dc[p] = dl_dc;
+            input.dl_dd[p] = grads.depth.map_or(zero, |g| g[q]);
+            input.bg_dot[p] = dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt;
+            input.t_final[p] = state.final_t[ti * TILE_PIXELS + p];
+        }
+        if let (Some(isa), Some(splats), Some(input)) = (isa, splats_f32, as_f32(&input))
+            && let Some(rec) = F::grads_as_f32(rec)
+        {
+            isa.backward_tile(splats, list, input, rec)
+        } else {
+            backward_tile_scalar(&state.splats, list, &input, rec)
+        }
+    });
 
     // For each splat, its records in tile order.
     let n_splats = state.splats.len();
@@ -562,7 +585,6 @@ pub fn backward<F: Real>(
         slots[cursor[e as usize] as usize] = pos as u32;
         cursor[e as usize] += 1;
     }
-    let flat: Vec<&SplatGrad<F>> = records.iter().flat_map(|r| r.iter()).collect();
 
     let mut out = cloud.zeros_like();
     let stride = cloud.color_stride();
@@ -575,7 +597,7 @@ pub fn backward<F: Real>(
         .map(|si| {
             let mut total = SplatGrad::<F>::default();
             for &pos in &slots[counts[si] as usize..counts[si + 1] as usize] {
-                total.add(flat[pos as usize]);
+                total.add(&records[pos as usize]);
             }
             let g = state.ids[si] as usize;
             let (mut dm, mut ds, mut dr, mut dc, mut dl) =
@@ -611,6 +633,7 @@ pub fn backward<F: Real>(
 /// per splat of the tile's list.
 fn backward_tile_scalar<F: Real>(
     splats: &[Splat<F>],
+    list: &[u32],
     input: &TilePixels<F>,
     records: &mut [SplatGrad<F>],
 ) {
@@ -636,8 +659,10 @@ fn backward_tile_scalar<F: Real>(
     });
     let cx: [F; TILE as usize] = std::array::from_fn(|i| F::c((x0 + i as u32) as f64 + 0.5));
     let cy: [F; TILE as usize] = std::array::from_fn(|j| F::c((y0 + j as u32) as f64 + 0.5));
-    for k in (0..splats.len()).rev() {
-        let s = &splats[k];
+    // Entries past every pixel's last contributor add nothing: start at the last one.
+    let last = input.contributors.iter().copied().max().unwrap_or(0) as usize;
+    for k in (0..last.min(list.len())).rev() {
+        let s = &splats[list[k] as usize];
         let r = &mut records[k];
         let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
         let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));

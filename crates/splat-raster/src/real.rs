@@ -3,6 +3,8 @@
 //! Kernels are generic over [`Real`] so that the same code runs in f32 (production) and f64
 //! (the finite-difference reference that checks the hand-written gradients).
 
+use crate::project::SplatGrad;
+
 /// f32 or f64.
 pub trait Real:
     num_traits::Float + Default + Send + Sync + std::fmt::Debug + std::iter::Sum + 'static
@@ -16,9 +18,18 @@ pub trait Real:
     fn as_f64(self) -> f64 {
         num_traits::ToPrimitive::to_f64(&self).unwrap()
     }
+    /// The same records as f32 ones when `Self` is f32: how generic code hands its buffers to
+    /// the f32-only SIMD kernels without `unsafe`.
+    fn grads_as_f32(_: &mut [SplatGrad<Self>]) -> Option<&mut [SplatGrad<f32>]> {
+        None
+    }
 }
 
-impl Real for f32 {}
+impl Real for f32 {
+    fn grads_as_f32(x: &mut [SplatGrad<f32>]) -> Option<&mut [SplatGrad<f32>]> {
+        Some(x)
+    }
+}
 impl Real for f64 {}
 
 pub type V3<F> = [F; 3];

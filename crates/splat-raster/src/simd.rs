@@ -97,6 +97,7 @@ impl Isa {
     pub(crate) fn forward_tile(
         self,
         splats: &[Splat<f32>],
+        list: &[u32],
         origin: [u32; 2],
         size: [u32; 2],
         depth: bool,
@@ -106,9 +107,9 @@ impl Isa {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `forward_avx2_fma` needs AVX2 and FMA, which the token proves this CPU has.
             Isa::Avx2Fma(token) => unsafe {
-                forward_avx2_fma(token, splats, origin, size, depth, out)
+                forward_avx2_fma(token, splats, list, origin, size, depth, out)
             },
-            Isa::Baseline => forward_baseline(splats, origin, size, depth, out),
+            Isa::Baseline => forward_baseline(splats, list, origin, size, depth, out),
         }
     }
 
@@ -116,14 +117,17 @@ impl Isa {
     pub(crate) fn backward_tile(
         self,
         splats: &[Splat<f32>],
+        list: &[u32],
         input: &TilePixels<f32>,
         records: &mut [SplatGrad<f32>],
     ) {
         match self {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `forward_tile`, the token proves AVX2 and FMA are there.
-            Isa::Avx2Fma(token) => unsafe { backward_avx2_fma(token, splats, input, records) },
-            Isa::Baseline => backward_baseline(splats, input, records),
+            Isa::Avx2Fma(token) => unsafe {
+                backward_avx2_fma(token, splats, list, input, records)
+            },
+            Isa::Baseline => backward_baseline(splats, list, input, records),
         }
     }
 }
@@ -139,15 +143,16 @@ type BaselineLanes = crate::lanes::Portable;
 fn forward_avx2_fma(
     token: Avx2Token,
     splats: &[Splat<f32>],
+    list: &[u32],
     origin: [u32; 2],
     size: [u32; 2],
     depth: bool,
     out: &mut TileOut<f32>,
 ) {
     if depth {
-        forward::<Avx2, true>(token, splats, origin, size, out)
+        forward::<Avx2, true>(token, splats, list, origin, size, out)
     } else {
-        forward::<Avx2, false>(token, splats, origin, size, out)
+        forward::<Avx2, false>(token, splats, list, origin, size, out)
     }
 }
 
@@ -156,39 +161,42 @@ fn forward_avx2_fma(
 fn backward_avx2_fma(
     token: Avx2Token,
     splats: &[Splat<f32>],
+    list: &[u32],
     input: &TilePixels<f32>,
     records: &mut [SplatGrad<f32>],
 ) {
     if input.depth {
-        backward::<Avx2, true>(token, splats, input, records)
+        backward::<Avx2, true>(token, splats, list, input, records)
     } else {
-        backward::<Avx2, false>(token, splats, input, records)
+        backward::<Avx2, false>(token, splats, list, input, records)
     }
 }
 
 fn forward_baseline(
     splats: &[Splat<f32>],
+    list: &[u32],
     origin: [u32; 2],
     size: [u32; 2],
     depth: bool,
     out: &mut TileOut<f32>,
 ) {
     if depth {
-        forward::<BaselineLanes, true>((), splats, origin, size, out)
+        forward::<BaselineLanes, true>((), splats, list, origin, size, out)
     } else {
-        forward::<BaselineLanes, false>((), splats, origin, size, out)
+        forward::<BaselineLanes, false>((), splats, list, origin, size, out)
     }
 }
 
 fn backward_baseline(
     splats: &[Splat<f32>],
+    list: &[u32],
     input: &TilePixels<f32>,
     records: &mut [SplatGrad<f32>],
 ) {
     if input.depth {
-        backward::<BaselineLanes, true>((), splats, input, records)
+        backward::<BaselineLanes, true>((), splats, list, input, records)
     } else {
-        backward::<BaselineLanes, false>((), splats, input, records)
+        backward::<BaselineLanes, false>((), splats, list, input, records)
     }
 }
 
@@ -197,6 +205,44 @@ const T: usize = TILE as usize;
 const MAX_CHUNKS: usize = T * T / 4;
 /// Chunks per row at the narrowest width.
 const MAX_ROW_CHUNKS: usize = T / 4;
+
+/// The splats of a tile's list, copied a block at a time: the list is in depth order, so its
+/// splats are scattered through memory, and a copy loop lets the CPU fetch a block's cache lines
+/// at once instead of stalling on each splat in turn.
+struct Block {
+    splats: [Splat<f32>; BLOCK],
+    /// The list position of `splats[0]`, or `usize::MAX` before the first copy.
+    start: usize,
+}
+
+/// Splats per copied block.
+const BLOCK: usize = 32;
+
+impl Default for Block {
+    fn default() -> Self {
+        Self {
+            splats: [Splat::default(); BLOCK],
+            start: usize::MAX,
+        }
+    }
+}
+
+impl Block {
+    /// The splat at list position `k`, copying its block first when it is not the current one
+    /// (blocks are aligned to `BLOCK`, so a walk in either direction copies each one once).
+    #[inline(always)]
+    fn get(&mut self, splats: &[Splat<f32>], list: &[u32], k: usize) -> &Splat<f32> {
+        let start = k - k % BLOCK;
+        if start != self.start {
+            let end = (start + BLOCK).min(list.len());
+            for (dst, &i) in self.splats.iter_mut().zip(&list[start..end]) {
+                *dst = splats[i as usize];
+            }
+            self.start = start;
+        }
+        &self.splats[k - start]
+    }
+}
 
 /// What one splat's lanes share: its exponent as `dx (a dx + b dy) + c dy^2`, and its bounds.
 struct SplatLanes<L: Lanes> {
@@ -278,6 +324,7 @@ fn lane_columns<L: Lanes>(token: L::Token, x0: u32) -> ([L; MAX_ROW_CHUNKS], [L;
 fn forward<L: Lanes, const DEPTH: bool>(
     token: L::Token,
     splats: &[Splat<f32>],
+    list: &[u32],
     origin: [u32; 2],
     size: [u32; 2],
     out: &mut TileOut<f32>,
@@ -304,14 +351,17 @@ fn forward<L: Lanes, const DEPTH: bool>(
     let (centres, columns) = lane_columns::<L>(token, origin[0]);
     let (alpha_max, alpha_min, t_min) =
         (sp(ALPHA_MAX as f32), sp(ALPHA_MIN as f32), sp(T_MIN as f32));
-    for (k, s) in splats.iter().enumerate() {
+    let mut block = Block::default();
+    for k in 0..list.len() {
         if active == 0 {
             break;
         }
+        let s = block.get(splats, list, k);
         let sl = SplatLanes::<L>::new(token, s, origin);
         let color = s.color.map(sp);
         let splat_depth = sp(s.depth);
-        let index = L::load_bits(token, &[k as u32 + 1; 16]);
+        // Integer bits in float lanes: only moved and compared as integers, never computed on.
+        let index = L::splat(token, f32::from_bits(k as u32 + 1));
         let (c0, c1) = (sl.x[0] as usize / n, sl.x[1] as usize / n);
         for row in sl.y[0]..=sl.y[1] {
             let (_, rb, rc) = sl.row(token, origin, row);
@@ -368,6 +418,7 @@ fn forward<L: Lanes, const DEPTH: bool>(
 fn backward<L: Lanes, const DEPTH: bool>(
     token: L::Token,
     splats: &[Splat<f32>],
+    list: &[u32],
     input: &TilePixels<f32>,
     records: &mut [SplatGrad<f32>],
 ) {
@@ -410,29 +461,34 @@ fn backward<L: Lanes, const DEPTH: bool>(
     let (centres, columns) = lane_columns::<L>(token, origin[0]);
     let (alpha_max, alpha_min) = (sp(ALPHA_MAX as f32), sp(ALPHA_MIN as f32));
     let half = sp(0.5);
-    for k in (0..splats.len()).rev() {
-        let s = &splats[k];
+    // Entries past every pixel's last contributor add nothing: start at the last one.
+    let last = input.contributors.iter().copied().max().unwrap_or(0) as usize;
+    let mut block = Block::default();
+    for k in (0..last.min(list.len())).rev() {
+        let s = block.get(splats, list, k);
         let sl = SplatLanes::<L>::new(token, s, origin);
         let color = s.color.map(sp);
         let splat_depth = sp(s.depth);
         let conic = s.conic.map(sp);
-        let index = L::load_bits(token, &[k as u32; 16]);
+        let index = L::splat(token, f32::from_bits(k as u32));
         // This splat's sums over the tile's pixels, lane by lane.
         let mut g_color = [zero; 3];
         let (mut g_depth, mut g_opacity) = (zero, zero);
         let (mut g_xy, mut g_conic) = ([zero; 2], [zero; 3]);
+        let mut touched = false;
         let (c0, c1) = (sl.x[0] as usize / n, sl.x[1] as usize / n);
         for row in sl.y[0]..=sl.y[1] {
             let (dy, rb, rc) = sl.row(token, origin, row);
             let dy = sp(dy);
             for c in c0..=c1 {
                 let i = row as usize * chunks_per_row + c;
+                let mut m = index.bits_lt(contributors[i]) & sl.in_columns(columns[c]);
+                if !L::any(m) {
+                    continue;
+                }
                 let dx = centres[c] - sl.centre_x;
                 let power = sl.a.mul_add(dx, rb).mul_add(dx, rc);
-                let mut m = index.bits_lt(contributors[i])
-                    & sl.in_columns(columns[c])
-                    & power.le(zero)
-                    & power.ge(sl.power_min);
+                m = m & power.le(zero) & power.ge(sl.power_min);
                 if !L::any(m) {
                     continue;
                 }
@@ -443,6 +499,7 @@ fn backward<L: Lanes, const DEPTH: bool>(
                 if !L::any(m) {
                     continue;
                 }
+                touched = true;
                 let one_minus = one - alpha;
                 // Masked lanes keep their state; dividing there is harmless (one_minus >= 0.01).
                 let t = L::select(m, trans[i] / one_minus, trans[i]);
@@ -481,13 +538,17 @@ fn backward<L: Lanes, const DEPTH: bool>(
                 g_conic[2] = g_conic[2] - hp * dy * dy;
             }
         }
-        let r = &mut records[k];
-        for ch in 0..3 {
-            r.color[ch] = g_color[ch].reduce_sum();
-            r.conic[ch] = g_conic[ch].reduce_sum();
+        if !touched {
+            continue; // the record stays zero
         }
-        r.xy = [g_xy[0].reduce_sum(), g_xy[1].reduce_sum()];
-        r.opacity = g_opacity.reduce_sum();
+        let sums = L::reduce8([
+            g_color[0], g_color[1], g_color[2], g_opacity, g_xy[0], g_xy[1], g_conic[0], g_conic[1],
+        ]);
+        let r = &mut records[k];
+        r.color = [sums[0], sums[1], sums[2]];
+        r.opacity = sums[3];
+        r.xy = [sums[4], sums[5]];
+        r.conic = [sums[6], sums[7], g_conic[2].reduce_sum()];
         r.depth = if DEPTH { g_depth.reduce_sum() } else { 0.0 };
     }
 }

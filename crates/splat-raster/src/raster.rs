@@ -72,6 +72,8 @@ pub struct ForwardState<F: Real> {
     /// Per pixel final transmittance, tile-major.
     final_t: Vec<F>,
     tiles_x: u32,
+    /// Pixel evaluations the kernel ran (lanes of the vectors it computed, live or not).
+    lane_evaluations: u64,
     /// The settings of the forward pass, with the kernel that ran (never `Auto`): the backward
     /// pass must divide out the very alphas the forward pass multiplied in.
     config: RasterConfig,
@@ -90,9 +92,14 @@ impl<F: Real> ForwardState<F> {
     pub fn visible_count(&self) -> usize {
         self.splats.len()
     }
-    /// Splat-pixel pairs the forward pass visits (every pixel of each splat's rectangle within
-    /// its tiles; pixels whose transmittance is exhausted stop earlier): the work measure of the
-    /// benchmarks.
+    /// Pixel evaluations the forward pass ran: lanes of every vector whose alpha it computed
+    /// (masked lanes included), or pixels for the scalar kernel. With a kernel's operation count
+    /// per lane, the measure of how close it runs to the core's arithmetic peak.
+    pub fn lane_evaluations(&self) -> u64 {
+        self.lane_evaluations
+    }
+    /// Splat-pixel pairs in each splat's rectangle within its tiles, whether or not the pixel
+    /// was saturated by then: the work a kernel without early termination would do.
     pub fn evaluations(&self) -> u64 {
         (0..self.tile_ranges.len())
             .into_par_iter()
@@ -283,6 +290,8 @@ pub(crate) struct TileOut<F> {
     pub t: [F; TILE_PIXELS],
     pub depth: [F; TILE_PIXELS],
     pub n: [u32; TILE_PIXELS],
+    /// Pixel evaluations run (see [`ForwardState::lane_evaluations`]).
+    pub lane_evaluations: u64,
 }
 
 impl<F: Real> TileOut<F> {
@@ -292,6 +301,7 @@ impl<F: Real> TileOut<F> {
             t: [F::one(); TILE_PIXELS],
             depth: [F::zero(); TILE_PIXELS],
             n: [0; TILE_PIXELS],
+            lane_evaluations: 0,
         }
     }
 }
@@ -375,6 +385,7 @@ fn forward_tile_scalar<F: Real>(
                 if done[p] {
                     continue;
                 }
+                out.lane_evaluations += 1;
                 let Some((alpha, _, _, _)) = splat_alpha(s, cx[(x - x0) as usize], py) else {
                     continue;
                 };
@@ -448,7 +459,7 @@ pub fn render<F: Real>(
     } else {
         (0..n_tiles).map(|_| None).collect()
     };
-    (
+    let lane_evaluations = (
         color_tm.par_chunks_mut(tile_px),
         final_t.par_chunks_mut(tile_px),
         n_contrib.par_chunks_mut(tile_px),
@@ -456,7 +467,7 @@ pub fn render<F: Real>(
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(ti, (color, t, n, depth))| {
+        .map(|(ti, (color, t, n, depth))| {
             let (a, b) = bins.tile_ranges[ti];
             let list = &bins.entries[a as usize..b as usize];
             let origin = [(ti as u32 % tiles_x) * TILE, (ti as u32 / tiles_x) * TILE];
@@ -478,7 +489,9 @@ pub fn render<F: Real>(
             if let Some(d) = depth {
                 d.copy_from_slice(&out.depth);
             }
-        });
+            out.lane_evaluations
+        })
+        .sum();
 
     let color = tile_major_to_rows(&color_tm, w, h);
     let transmittance = tile_major_to_rows(&final_t, w, h);
@@ -491,6 +504,7 @@ pub fn render<F: Real>(
         n_contrib,
         final_t,
         tiles_x,
+        lane_evaluations,
         config: RasterConfig { kernel, ..*config },
     };
     (

@@ -352,6 +352,7 @@ fn forward<L: Lanes, const DEPTH: bool>(
     let (alpha_max, alpha_min, t_min) =
         (sp(ALPHA_MAX as f32), sp(ALPHA_MIN as f32), sp(T_MIN as f32));
     let mut block = Block::default();
+    let mut evaluated = 0u64;
     for k in 0..list.len() {
         if active == 0 {
             break;
@@ -367,10 +368,14 @@ fn forward<L: Lanes, const DEPTH: bool>(
             let (_, rb, rc) = sl.row(token, origin, row);
             for c in c0..=c1 {
                 let i = row as usize * chunks_per_row + c;
+                let mut m = live[i] & sl.in_columns(columns[c]);
+                if !L::any(m) {
+                    continue;
+                }
+                evaluated += 1;
                 let dx = centres[c] - sl.centre_x;
                 let power = sl.a.mul_add(dx, rb).mul_add(dx, rc);
-                let mut m =
-                    live[i] & sl.in_columns(columns[c]) & power.le(zero) & power.ge(sl.power_min);
+                m = m & power.le(zero) & power.ge(sl.power_min);
                 if !L::any(m) {
                     continue;
                 }
@@ -396,6 +401,7 @@ fn forward<L: Lanes, const DEPTH: bool>(
             }
         }
     }
+    out.lane_evaluations = evaluated * n as u64;
     let mut lanes = [[0.0f32; 16]; 3];
     for i in 0..chunks {
         let p = i * n;

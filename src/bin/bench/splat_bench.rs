@@ -1,4 +1,5 @@
-//! `bench splat`: forward and backward of the rasteriser at 1280x720.
+//! `bench splat`: forward and backward of the rasteriser, every kernel side by side: a cache
+//! level at 320x180, volume-density clouds and the plant asset at 1280x720.
 
 use anyhow::Result;
 use glam::Vec3;
@@ -104,7 +105,7 @@ fn measure(
                 let t0 = Instant::now();
                 let (_, state) = render(cloud, cam, &cfg);
                 f.push(t0.elapsed().as_secs_f64());
-                *evals = state.evaluations();
+                *evals = state.lane_evaluations();
                 let t1 = Instant::now();
                 let g = backward(
                     cloud,
@@ -127,17 +128,48 @@ fn measure(
     })
 }
 
+/// f32 operations per pixel evaluation of the forward lane kernel (depth off): the exponent
+/// (5), `exp` (22: the range reduction and Horner's seven FMAs), alpha (1), transmittance (2),
+/// the weight (1) and the colour (6). Compares, selects and the clamps of `exp` are not counted.
+const FLOPS_PER_EVALUATION: f64 = 37.0;
+/// f32 operations per cycle of one core at its FMA peak with 8-lane vectors: two 256-bit FMA
+/// pipes (AMD Zen 4, this machine; Intel since Haswell has the same).
+const PEAK_FLOPS_PER_CYCLE: f64 = 32.0;
+
+/// The clock the peak is taken at: the first `cpu MHz` of /proc/cpuinfo (the nominal clock in a
+/// VM), or 2.6 GHz.
+fn clock_ghz() -> f64 {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("cpu MHz"))
+                .and_then(|l| l.split(':').nth(1))
+                .and_then(|v| v.trim().parse::<f64>().ok())
+        })
+        .map_or(2.6, |mhz| mhz / 1000.0)
+}
+
 pub fn run(a: &SplatArgs) -> Result<()> {
+    let ghz = clock_ghz();
     println!(
-        "1280x720, median of {} runs; evaluations = splat-pixel pairs in each splat's rectangle within its tiles (the forward pass's work)\n",
-        a.reps
+        "Median of {} runs, kernels alternated within each run. Lane evaluations: pixels of every \
+         vector whose alpha the forward pass computed (masked lanes included; one per pixel for \
+         the scalar kernel). GFLOP/s: {FLOPS_PER_EVALUATION} f32 operations per evaluation; peak: \
+         {PEAK_FLOPS_PER_CYCLE} per cycle at {ghz:.2} GHz = {:.1} GFLOP/s per core.\n",
+        a.reps,
+        PEAK_FLOPS_PER_CYCLE * ghz
     );
     let kernels = kernels(!a.no_scalar);
     println!(
-        "| cloud | Gaussians | threads | kernel | forward ms | backward ms | backward / forward | M evaluations / s / core (forward) | forward speed-up over scalar |"
+        "| cloud | size | Gaussians | threads | kernel | forward ms | backward ms | backward / forward | forward speed-up over scalar | M lane evaluations / s / core | GFLOP/s / core (of peak) |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut clouds: Vec<(String, GaussianCloud<f32>, Camera)> = Vec::new();
+    // A level of the radiance cache as the experiments draw it: 20k Gaussians at 320x180.
+    let (c, mut cam) = volume_cloud(20_000)?;
+    (cam.width, cam.height) = (320, 180);
+    clouds.push(("cache level (neghip) 20k".into(), c, cam));
     for n in [10_000, 100_000, 300_000, 1_000_000] {
         if n > a.max_gaussians {
             continue;
@@ -163,19 +195,26 @@ pub fn run(a: &SplatArgs) -> Result<()> {
         }
         Err(e) => eprintln!("note: skipping the plant asset ({e}); is ../shared/data present?"),
     }
+    let peak = PEAK_FLOPS_PER_CYCLE * ghz;
     for (name, cloud, cam) in &clouds {
         for threads in [1, 2] {
             let rows = measure(cloud, cam, a.reps, threads, &kernels);
             let scalar = kernels.iter().position(|k| *k == Kernel::Scalar);
             for (kernel, &(f, b, evals)) in kernels.iter().zip(&rows) {
                 let speedup = scalar.map_or("-".to_string(), |s| format!("{:.2}x", rows[s].0 / f));
+                let per_core = evals as f64 / f / threads as f64;
+                let gflops = per_core * FLOPS_PER_EVALUATION / 1e9;
                 println!(
-                    "| {name} | {} | {threads} | {kernel:?} | {:.1} | {:.1} | {:.2} | {:.1} | {speedup} |",
+                    "| {name} | {}x{} | {} | {threads} | {kernel:?} | {:.1} | {:.1} | {:.2} | {speedup} | {:.0} | {:.1} ({:.0}%) |",
+                    cam.width,
+                    cam.height,
                     cloud.len(),
                     f * 1e3,
                     b * 1e3,
                     b / f,
-                    evals as f64 / f / threads as f64 / 1e6
+                    per_core / 1e6,
+                    gflops,
+                    100.0 * gflops / peak
                 );
             }
         }

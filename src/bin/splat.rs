@@ -114,6 +114,10 @@ struct RenderArgs {
     /// Stochastic splatting with this many samples per pixel instead of sorted compositing.
     #[arg(long)]
     stochastic: Option<u32>,
+    /// Per-pixel kernel of sorted compositing: `auto` (the widest SIMD lanes this CPU runs),
+    /// `lanes8` (AVX2 + FMA), `lanes4` (SSE2 / NEON) or `scalar` (the reference).
+    #[arg(long, default_value = "auto")]
+    kernel: splat_raster::Kernel,
     #[arg(short = 'o', long, default_value = "out/splat.exr")]
     output: PathBuf,
     #[arg(long)]
@@ -236,6 +240,7 @@ fn run() -> Result<()> {
                     LowPass::Classic
                 },
                 background: a.background.to_array(),
+                kernel: a.kernel,
                 ..Default::default()
             };
             let t0 = std::time::Instant::now();
@@ -247,10 +252,11 @@ fn run() -> Result<()> {
                 None => {
                     let (img, state) = render(&cloud, &cam, &cfg);
                     let info = format!(
-                        "sorted, {} visible, {} tile entries, {:.1} splat evaluations per pixel",
+                        "sorted ({} kernel), {} visible, {} tile entries, {:.1} splat evaluations per pixel",
+                        state.kernel(),
                         state.visible_count(),
                         state.entry_count(),
-                        state.evaluations() as f64 / (cam.width * cam.height) as f64
+                        state.lane_evaluations() as f64 / (cam.width * cam.height) as f64
                     );
                     (img, info)
                 }

@@ -6,6 +6,15 @@
 //! the splat that would take `T` below 1e-4 and every splat after it are left out. Colour is
 //! HDR: nothing is clamped above.
 //!
+//! Kernels: a tile is composited by one of two kernels with the same equations. The scalar
+//! kernel here visits one pixel at a time (generic over f32/f64: the f64 path is the reference of
+//! the gradient tests); the lane kernels of [`crate::simd`] take a row's pixels 8 or 4 at a time
+//! (f32 only). [`RasterConfig::kernel`] chooses; the default is the widest this CPU runs.
+//!
+//! Where the time goes (2 cores, 300k Gaussians at 1280x720, lane kernel): projection about a
+//! quarter, binning and the per-tile depth sort a sixth, the tile kernels half, the tile-major to
+//! row-major copy the rest (`BENCHMARKS.md`).
+//!
 //! Determinism: the backward pass writes one gradient record per (tile, splat) entry, each tile's
 //! pixels in a fixed order, and sums every Gaussian's records in tile order; no atomics, so
 //! gradients are bit-identical for any thread count.
@@ -600,45 +609,55 @@ pub fn backward<F: Real>(
         cursor[e as usize] += 1;
     }
 
+    // Each Gaussian's splat, if it has one.
+    let mut splat_of = vec![u32::MAX; cloud.len()];
+    for (si, &g) in state.ids.iter().enumerate() {
+        splat_of[g as usize] = si as u32;
+    }
     let mut out = cloud.zeros_like();
     let stride = cloud.color_stride();
-    // Per splat (in Gaussian order), sum its records and back-propagate into its parameters.
-    // (Gaussian, d mean, d log-scale, d rotation, d colour, d opacity logit).
-    type GaussianGrad<F> = (u32, [F; 3], [F; 3], [F; 4], Vec<F>, F);
-    let per_gaussian: Vec<GaussianGrad<F>> = (0..n_splats)
+    let GaussianCloud {
+        means,
+        log_scales,
+        rotations,
+        colors,
+        opacity_logits,
+        ..
+    } = &mut out;
+    // Per Gaussian, in parallel: sum its splat's records and back-propagate them into its
+    // parameters, written in place.
+    (
+        means.par_chunks_mut(3),
+        log_scales.par_chunks_mut(3),
+        rotations.par_chunks_mut(4),
+        colors.par_chunks_mut(stride),
+        opacity_logits.par_iter_mut(),
+    )
         .into_par_iter()
         .with_min_len(256)
-        .map(|si| {
+        .enumerate()
+        .for_each(|(g, (dm, ds, dr, dc, dl))| {
+            let si = splat_of[g] as usize;
+            if si == u32::MAX as usize {
+                return; // culled: no gradient
+            }
             let mut total = SplatGrad::<F>::default();
             for &pos in &slots[counts[si] as usize..counts[si + 1] as usize] {
                 total.add(&records[pos as usize]);
             }
-            let g = state.ids[si] as usize;
-            let (mut dm, mut ds, mut dr, mut dc, mut dl) =
-                ([zero; 3], [zero; 3], [zero; 4], vec![zero; stride], zero);
             project_backward(
                 cloud,
                 g,
                 &cam,
                 state.config.low_pass,
                 &total,
-                &mut dm,
-                &mut ds,
-                &mut dr,
-                &mut dc,
-                &mut dl,
+                dm,
+                ds,
+                dr,
+                dc,
+                dl,
             );
-            (g as u32, dm, ds, dr, dc, dl)
-        })
-        .collect();
-    for (g, dm, ds, dr, dc, dl) in per_gaussian {
-        let g = g as usize;
-        out.means[3 * g..3 * g + 3].copy_from_slice(&dm);
-        out.log_scales[3 * g..3 * g + 3].copy_from_slice(&ds);
-        out.rotations[4 * g..4 * g + 4].copy_from_slice(&dr);
-        out.colors[stride * g..stride * (g + 1)].copy_from_slice(&dc);
-        out.opacity_logits[g] = dl;
-    }
+        });
     sanitize(&mut out);
     out
 }

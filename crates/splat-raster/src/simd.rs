@@ -66,6 +66,32 @@ impl Kernel {
     }
 }
 
+impl std::fmt::Display for Kernel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Kernel::Auto => "auto",
+            Kernel::Scalar => "scalar",
+            Kernel::Lanes4 => "lanes4",
+            Kernel::Lanes8 => "lanes8",
+        })
+    }
+}
+
+impl std::str::FromStr for Kernel {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(Kernel::Auto),
+            "scalar" => Ok(Kernel::Scalar),
+            "lanes4" => Ok(Kernel::Lanes4),
+            "lanes8" => Ok(Kernel::Lanes8),
+            _ => Err(format!(
+                "unknown kernel `{s}`: expected auto, scalar, lanes4 or lanes8"
+            )),
+        }
+    }
+}
+
 /// The instruction set of a lane kernel, with the proof that this CPU has it.
 #[derive(Clone, Copy)]
 pub(crate) enum Isa {
@@ -506,9 +532,10 @@ fn backward<L: Lanes, const DEPTH: bool>(
                     continue;
                 }
                 touched = true;
-                let one_minus = one - alpha;
-                // Masked lanes keep their state; dividing there is harmless (one_minus >= 0.01).
-                let t = L::select(m, trans[i] / one_minus, trans[i]);
+                // One division for both uses; masked lanes keep their state, and dividing there
+                // is harmless (1 - alpha >= 0.01).
+                let inv_one_minus = one / (one - alpha);
+                let t = L::select(m, trans[i] * inv_one_minus, trans[i]);
                 trans[i] = t;
                 let weight = L::keep(m, alpha * t);
                 let la = last_alpha[i];
@@ -528,7 +555,7 @@ fn backward<L: Lanes, const DEPTH: bool>(
                     last_depth[i] = L::select(m, splat_depth, last_depth[i]);
                 }
                 last_alpha[i] = L::select(m, alpha, la);
-                let dl_dalpha = dl_dalpha * t - t_final[i] / one_minus * bg_dot[i];
+                let dl_dalpha = dl_dalpha * t - t_final[i] * inv_one_minus * bg_dot[i];
                 // alpha = min(0.99, opacity G): no gradient through the cap.
                 let through = L::and_not(m, raw_alpha.gt(alpha_max));
                 let dl_dalpha = L::keep(through, dl_dalpha);

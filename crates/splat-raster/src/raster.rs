@@ -578,10 +578,19 @@ pub fn backward<F: Real>(
             let q = (y * w + x) as usize;
             let dl_dc = grads.color[q];
             let dl_dt = grads.transmittance.map_or(zero, |g| g[q]);
-            input.contributors[p] = state.n_contrib[ti * TILE_PIXELS + p];
+            let dl_dd = grads.depth.map_or(zero, |g| g[q]);
+            let bg_dot = dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt;
+            // A pixel with no upstream gradient (masked out of the loss) adds exactly nothing
+            // to any splat: give it no contributors, so the kernels skip it.
+            let silent = dl_dc == [zero; 3] && dl_dd == zero && bg_dot == zero;
+            input.contributors[p] = if silent {
+                0
+            } else {
+                state.n_contrib[ti * TILE_PIXELS + p]
+            };
             input.dl_dc[p] = dl_dc;
-            input.dl_dd[p] = grads.depth.map_or(zero, |g| g[q]);
-            input.bg_dot[p] = dl_dc[0] * bg[0] + dl_dc[1] * bg[1] + dl_dc[2] * bg[2] + dl_dt;
+            input.dl_dd[p] = dl_dd;
+            input.bg_dot[p] = bg_dot;
             input.t_final[p] = state.final_t[ti * TILE_PIXELS + p];
         }
         if let (Some(isa), Some(splats), Some(input)) = (isa, splats_f32, as_f32(&input))

@@ -333,3 +333,79 @@ fn kernel_choice_resolves_to_what_the_cpu_runs() {
     let (_, state) = render(&cloud.cast::<f32>(), &cam, &RasterConfig::default());
     assert_eq!(state.kernel(), widest);
 }
+
+/// Pixels masked out of a loss (zero upstream gradient) are skipped by the backward pass. The
+/// skip must never drop a pixel that has any gradient left: the gradients of `u` must equal
+/// those of `u` plus a tiny red gradient on every pixel (so that no pixel is skipped) to within
+/// that tiny change. The upstream gradients have single non-zero components on some pixels (only
+/// green, only the transmittance, only the depth), so a skip that looked at the colour alone
+/// drops those pixels' whole contribution and fails by far more.
+#[test]
+fn masked_pixels_are_skipped_and_no_others() {
+    let (_, cloud, cam, cfg) = scenes().swap_remove(1);
+    let n = (cam.width * cam.height) as usize;
+    let upstream = |i: usize| -> ([f64; 3], f64, f64) {
+        match i % 5 {
+            0 => ([0.0, 0.7, 0.0], 0.0, 0.0),
+            1 => ([0.0, 0.0, 0.0], -0.4, 0.0),
+            2 => ([0.0, 0.0, 0.0], 0.0, 0.3),
+            3 => ([0.0; 3], 0.0, 0.0),
+            _ => ([0.2, -1.0, 0.5], 0.1, -0.2),
+        }
+    };
+    fn grads<F: splat_raster::real::Real>(
+        cloud: &GaussianCloud<F>,
+        cam: &Camera,
+        cfg: &RasterConfig,
+        n: usize,
+        up: impl Fn(usize) -> ([f64; 3], f64, f64),
+        nudge: f64,
+    ) -> Vec<f64> {
+        let (_, state) = render(cloud, cam, cfg);
+        let c = |v: f64| F::c(v);
+        let color: Vec<[F; 3]> = (0..n)
+            .map(|i| {
+                let [r, g, b] = up(i).0;
+                [c(r + nudge), c(g), c(b)]
+            })
+            .collect();
+        let trans: Vec<F> = (0..n).map(|i| c(up(i).1)).collect();
+        let depth: Vec<F> = (0..n).map(|i| c(up(i).2)).collect();
+        let g = backward(
+            cloud,
+            cam,
+            &state,
+            PixelGrads {
+                color: &color,
+                transmittance: Some(&trans),
+                depth: Some(&depth),
+            },
+        );
+        g.groups()
+            .iter()
+            .flat_map(|(_, v)| v.iter().map(|x| x.as_f64()))
+            .collect()
+    }
+    fn distance(a: &[f64], b: &[f64]) -> f64 {
+        let (mut diff, mut norm) = (0.0f64, 0.0f64);
+        for (x, y) in a.iter().zip(b) {
+            diff += (x - y).powi(2);
+            norm += y.powi(2);
+        }
+        (diff / norm).sqrt()
+    }
+    let c64 = cloud.cast::<f64>();
+    let d = distance(
+        &grads(&c64, &cam, &cfg, n, upstream, 0.0),
+        &grads(&c64, &cam, &cfg, n, upstream, 1e-9),
+    );
+    assert!(d <= 1e-6, "f64: {d:e}");
+    for kernel in lane_kernels() {
+        let cfg = RasterConfig { kernel, ..cfg };
+        let d = distance(
+            &grads(&cloud, &cam, &cfg, n, upstream, 0.0),
+            &grads(&cloud, &cam, &cfg, n, upstream, 1e-6),
+        );
+        assert!(d <= 1e-3, "{kernel:?}: {d:e}");
+    }
+}

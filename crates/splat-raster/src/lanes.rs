@@ -13,6 +13,13 @@
 //!
 //! Lanes that a kernel masks out may hold any value (NaN included); every operation here is
 //! defined for every input, so they cannot fault, and masks keep them out of the results.
+//!
+//! Why `std::arch` and not a crate: `wide` picks its instructions when the crate is compiled, so
+//! one portable binary would not use AVX2; `pulp` (already built for burn's matrix kernels)
+//! dispatches at run time, but its 4-lane x86 level computes `mul_add` in software, lane by
+//! lane. Plain arrays left to the auto-vectoriser were tried first: LLVM split the 8-lane
+//! operations into 128-bit halves with spills, and the backward pass ran slower than the scalar
+//! kernel. So each operation here is one intrinsic, and the proof of soundness is the token.
 
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Sub};
 

@@ -143,7 +143,7 @@ fn natural_termination_bias_is_the_documented_one() {
 
 /// Training lowers the squared error against the same noisy targets on a static view (the HDR
 /// loss's value is no measure of fit on noisy targets: its weights move with the prediction), and the thinning correction (per-level masks,
-/// our form of seed 002's beta) matters: trained with zeros where no path reached a level,
+/// our form of the GSCache paper's beta) matters: trained with zeros where no path reached a level,
 /// the cached image is darker than the reference; with masks it is not.
 #[test]
 fn masks_keep_the_cache_bright_and_training_lowers_the_loss() {

@@ -63,7 +63,7 @@ struct Args {
     cache: CacheArgs,
 }
 
-/// The gs-cache radiance cache (seed 002): read where paths stop, trained between frames.
+/// The gs-cache radiance cache (Bauer et al., 2025): read where paths stop, trained between frames.
 #[derive(clap::Args, Debug)]
 struct CacheArgs {
     /// `off`, `raster` (levels drawn by the splatting rasteriser) or `rt` (by the stochastic
@@ -85,7 +85,7 @@ struct CacheArgs {
     /// Frames rendered and trained on before the image starts accumulating.
     #[arg(long, default_value_t = 0)]
     warmup: u32,
-    /// Multiplies every learning rate (seed 002's values are the default).
+    /// Multiplies every learning rate (the GSCache paper's values are the default).
     #[arg(long, default_value_t = 1.0)]
     cache_lr_scale: f32,
     /// Read the cache but never train it.

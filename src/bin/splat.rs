@@ -41,7 +41,7 @@ struct TraceArgs {
     /// `exact`, `kbuffer`, `stochastic` or `stochastic-pass`.
     #[arg(long, default_value = "stochastic")]
     mode: String,
-    /// Samples per traversal for `stochastic` (seed 000 section 3.5).
+    /// Samples per traversal for `stochastic` (Sun et al., section 3.5).
     #[arg(long, default_value_t = 1)]
     samples_per_traversal: u32,
     /// Hits per pass for `kbuffer` and `stochastic-pass`.
@@ -56,7 +56,7 @@ struct TraceArgs {
     /// `mean` (1D Gaussian mean along the ray) or `center` (the rasteriser's depth).
     #[arg(long, default_value = "mean")]
     depth: String,
-    /// Acceptance numbers: `hash` (integer) or `trig` (seed 000 Eq. 8-10).
+    /// Acceptance numbers: `hash` (integer) or `trig` (Sun et al., Eq. 8-10).
     #[arg(long, default_value = "hash")]
     random: String,
     #[arg(long, default_value_t = 0)]
@@ -139,7 +139,7 @@ struct FitArgs {
     points: usize,
     #[arg(long, default_value_t = 300)]
     iterations: u32,
-    /// `hdr` (seed 002 Eq. 4), `l1` or `l2`.
+    /// `hdr` (the GSCache paper's Eq. 4), `l1` or `l2`.
     #[arg(long, default_value = "l1")]
     loss: String,
     #[arg(short = 'o', long, default_value = "out/fitted.ply")]

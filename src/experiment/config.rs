@@ -106,7 +106,7 @@ pub struct CacheDesc {
     pub natural: bool,
     /// `adamw` or `adam`.
     pub optimizer: Optimizer,
-    /// Multiplies every learning rate of seed 002.
+    /// Multiplies every learning rate of the GSCache paper.
     pub lr_scale: f32,
     /// The scales' learning rate (0 in the paper; 0.0125 is the "-CO" ablation).
     pub scale_lr: f32,
@@ -445,7 +445,7 @@ fn method(name: String, integrator: IntegratorKind, cache: Option<CacheDesc>) ->
     if let Some(c) = &cache {
         if integrator != IntegratorKind::Nee {
             bail!(
-                "method `{name}`: a cache needs `integrator = \"nee\"` (seed 002 caches NEE paths)"
+                "method `{name}`: a cache needs `integrator = \"nee\"` (the GSCache paper caches NEE paths)"
             );
         }
         c.config()

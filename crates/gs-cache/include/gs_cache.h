@@ -44,7 +44,7 @@ typedef struct GsCacheHandle GsCacheHandle;
 typedef struct GsCacheConfig {
   // Levels; level `i` (0-based) holds paths of length `i + 1`. 1..=8.
   uint32_t levels;
-  // How many points the renderer should find for `gs_cache_new` (seed 002: 300k). The
+  // How many points the renderer should find for `gs_cache_new` (the GSCache paper: 300k). The
   // cache takes as many as it is given: level `i` has `count >> i` Gaussians.
   uint32_t points;
   // Algorithm 1's coefficient C.
@@ -69,7 +69,7 @@ typedef struct GsCacheConfig {
   // Per-level masks (see the crate docs); false only for ablations.
   bool masked_targets;
   // Learning rates relative to each level's mean radiance (see the crate docs); false for
-  // seed 002's absolute colours.
+  // the GSCache paper's absolute colours.
   bool normalized_radiance;
   enum GsCacheLookup lookup;
 } GsCacheConfig;
@@ -107,7 +107,7 @@ extern "C" {
 // next failing call.
 const char *gs_cache_last_error(void);
 
-// The default settings (seed 002's: 3 levels, 300k points, C = 0.5, the paper's rates).
+// The default settings (the GSCache paper's: 3 levels, 300k points, C = 0.5, the paper's rates).
 struct GsCacheConfig gs_cache_default_config(void);
 
 // Algorithm 1's probability of going on at a vertex whose path has the albedo product

@@ -129,7 +129,7 @@ fn adamw_config(config: &CacheConfig) -> AdamWConfig {
 }
 
 impl GsCache {
-    /// A cache initialised from points and their albedos (seed 002 section 3.2).
+    /// A cache initialised from points and their albedos (the GSCache paper's section 3.2).
     pub fn new(points: &[Vec3], albedo: &[Vec3], config: CacheConfig) -> Result<Self> {
         let levels = initial_levels(points, albedo, &config)?;
         let mut cache = Self::from_levels(levels, config)?;

@@ -56,7 +56,7 @@ pub enum GsCacheLookup {
 pub struct GsCacheConfig {
     /// Levels; level `i` (0-based) holds paths of length `i + 1`. 1..=8.
     pub levels: u32,
-    /// How many points the renderer should find for `gs_cache_new` (seed 002: 300k). The
+    /// How many points the renderer should find for `gs_cache_new` (the GSCache paper: 300k). The
     /// cache takes as many as it is given: level `i` has `count >> i` Gaussians.
     pub points: u32,
     /// Algorithm 1's coefficient C.
@@ -81,7 +81,7 @@ pub struct GsCacheConfig {
     /// Per-level masks (see the crate docs); false only for ablations.
     pub masked_targets: bool,
     /// Learning rates relative to each level's mean radiance (see the crate docs); false for
-    /// seed 002's absolute colours.
+    /// the GSCache paper's absolute colours.
     pub normalized_radiance: bool,
     pub lookup: GsCacheLookup,
 }
@@ -226,7 +226,7 @@ pub extern "C" fn gs_cache_last_error() -> *const c_char {
     LAST_ERROR.with(|e| e.borrow().as_ptr())
 }
 
-/// The default settings (seed 002's: 3 levels, 300k points, C = 0.5, the paper's rates).
+/// The default settings (the GSCache paper's: 3 levels, 300k points, C = 0.5, the paper's rates).
 #[unsafe(no_mangle)]
 pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
     let d = CacheConfig::default();

@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 use stochastic_rt::Estimator;
 
-/// Per-parameter learning rates (seed 002 section 4.1), before the schedule of Eq. 5.
+/// Per-parameter learning rates (the GSCache paper's section 4.1), before the schedule of Eq. 5.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LearningRates {
@@ -41,7 +41,7 @@ impl LearningRates {
     }
 }
 
-/// How paths stop into the cache (seed 002 sections 3.3-3.4; see the crate docs for the
+/// How paths stop into the cache (the GSCache paper's sections 3.3-3.4; see the crate docs for the
 /// estimator these settings define).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -128,7 +128,7 @@ pub struct CacheConfig {
     /// Each level draws its cloud times a radiance scale, set from the mean of its first
     /// frame's samples, so the learning rates act in units of the scene's own radiance (Adam's
     /// steps are absolute: without it, a scene lit 10x brighter adapts 10x slower). Off gives
-    /// seed 002's absolute colours.
+    /// the GSCache paper's absolute colours.
     pub normalized_radiance: bool,
     pub lookup: Lookup,
 }

@@ -1,4 +1,4 @@
-//! Initial levels from a point cloud (seed 002 section 3.2): level `i` takes the first
+//! Initial levels from a point cloud (the GSCache paper's section 3.2): level `i` takes the first
 //! `N / 2^i` points; each Gaussian is isotropic, its scale set by Eq. 2 from its three nearest
 //! neighbours within its level, its colour the point's albedo, its opacity uniform.
 //!

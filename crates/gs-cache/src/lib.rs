@@ -1,8 +1,8 @@
-//! gs-cache: the GSCache radiance cache (seed 002) for volume path tracers: one cloud of 3D
-//! Gaussians per path length, drawn from the frame's camera into per-level cache images, read
-//! by paths that stop early or end with nothing, and trained online from the paths' own noisy
-//! samples. It knows nothing of volumes: a renderer gives it points with albedos to start
-//! from, a camera per frame, and per pixel the samples its paths produce.
+//! gs-cache: the GSCache radiance cache (Bauer et al., 2025) for volume path tracers: one cloud of
+//! 3D Gaussians per path length, drawn from the frame's camera into per-level cache images, read by
+//! paths that stop early or end with nothing, and trained online from the paths' own noisy samples.
+//! It knows nothing of volumes: a renderer gives it points with albedos to start from, a camera per
+//! frame, and per pixel the samples its paths produce.
 //!
 //! - [`config`]: levels, sizes, termination, learning rates, lookup.
 //! - [`init`]: initial levels from a point cloud (Eq. 2 scales from three nearest neighbours).
@@ -18,11 +18,11 @@
 //!
 //! Pixel `p`'s path has real scattering vertices `x_1, x_2, ...` with single-scattering albedos
 //! `s_k` (RGB). The renderer's throughput after vertex `n` is `W_n = prod_{k<=n} s_k / b_{n-1}`,
-//! where `b_{n-1}` is the product of the Russian-roulette survival probabilities before vertex
-//! `n` (seed 002's Eq. 3 attenuation). Let `D_n` be the radiance the renderer credits to path
+//! where `b_{n-1}` is the product of the Russian-roulette survival probabilities before vertex `n`
+//! (the GSCache paper's Eq. 3 attenuation). Let `D_n` be the radiance the renderer credits to path
 //! length `n` per unit of `W_n` (next-event estimation at `x_n`, and emission reached by the
-//! phase-sampled ray from `x_n`, MIS-weighted). The pixel estimate without the cache is
-//! `I = E_0 + sum_{n>=1} W_n D_n` (`E_0`: emission seen by the camera ray).
+//! phase-sampled ray from `x_n`, MIS-weighted). The pixel estimate without the cache is `I = E_0 +
+//! sum_{n>=1} W_n D_n` (`E_0`: emission seen by the camera ray).
 //!
 //! **What level `n` holds.** The radiance a path gathers from `x_n` on, per unit of `W_n`:
 //! `R_n = sum_{j>=n} (W_j / W_n) D_j`. The cache's level `n` image is trained towards
@@ -61,22 +61,22 @@
 //! levels, which is why deeper levels are given fewer Gaussians). `C` trades it: `C` large stops
 //! no path (no early-termination bias); `C = 0` stops every path at `x_1`.
 //!
-//! **Where seed 002 leaves things open.** (1) Which levels a path trains: every level it reached
-//! and went on from, not only the one where it ended, so a path of length 3 trains levels 1-3
-//! (a path that stops into level `n` trains the shorter levels with the cached value included:
+//! **Where the GSCache paper leaves things open.** (1) Which levels a path trains: every level it
+//! reached and went on from, not only the one where it ended, so a path of length 3 trains levels
+//! 1-3 (a path that stops into level `n` trains the shorter levels with the cached value included:
 //! self-training). (2) A pixel whose path never reached level `n` gives that level no target
 //! (masked out), rather than a zero target. Trained with zeros there (`masked_targets = false`),
 //! level `n` learns `P(reach x_n) Lambda_n`, which renders too dark by that probability: this is
-//! the darkening seed 002's Fig. 4 attributes to a missing `beta`, and the masks are our
+//! the darkening the GSCache paper's Fig. 4 attributes to a missing `beta`, and the masks are our
 //! correction for it. (3) Units. Adam's steps are absolute (about one learning rate per step,
-//! whatever the gradient's size), so seed 002's colour rate moves a cache by a fixed amount of
-//! radiance per frame: a scene whose level values are 10 adapts 10x slower than one whose
-//! values are 1, and its albedo start (values near 1) is far off. We draw each level as
-//! `s_n * cloud` with `s_n` the mean luminance of the level's first frame of samples, so the
-//! rates act relative to the scene's radiance and the albedo start is scaled to it
-//! (`normalized_radiance`, on by default; saved files hold absolute radiance). The estimator is
-//! unchanged: `s_n` is a constant of the parametrisation. (4) The cache for length 0 is never
-//! needed: camera rays that leave the volume see the lights and the environment exactly.
+//! whatever the gradient's size), so the GSCache paper's colour rate moves a cache by a fixed
+//! amount of radiance per frame: a scene whose level values are 10 adapts 10x slower than one whose
+//! values are 1, and its albedo start (values near 1) is far off. We draw each level as `s_n *
+//! cloud` with `s_n` the mean luminance of the level's first frame of samples, so the rates act
+//! relative to the scene's radiance and the albedo start is scaled to it (`normalized_radiance`, on
+//! by default; saved files hold absolute radiance). The estimator is unchanged: `s_n` is a constant
+//! of the parametrisation. (4) The cache for length 0 is never needed: camera rays that leave the
+//! volume see the lights and the environment exactly.
 
 pub mod cache;
 pub mod capi;

@@ -1,5 +1,5 @@
-//! Seed 002's Eq. 5: the learning rate falls as `1 / (1 + ln t)` while the view stays put, and
-//! returns to its initial value when the camera, the transfer function or the lights change.
+//! The GSCache paper's Eq. 5: the learning rate falls as `1 / (1 + ln t)` while the view stays put,
+//! and returns to its initial value when the camera, the transfer function or the lights change.
 
 /// Frames trained since the last reset.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -1,4 +1,4 @@
-//! Seed 002's Algorithm 1: the probability that a path goes on past a vertex instead of
+//! The GSCache paper's Algorithm 1: the probability that a path goes on past a vertex instead of
 //! stopping into the cache.
 
 use crate::config::TerminationConfig;

@@ -12,9 +12,10 @@
 //! - [`lanes`]: fixed-width f32 lanes and a vector `exp` with a tested error bound.
 //! - [`sh`]: spherical harmonics (degree 0-3) and their gradients.
 //! - [`train`]: one training step (render, loss, backward, AdamW).
-//! - [`stochastic`]: sorting-free stochastic splatting (seed 004 section 1).
+//! - [`stochastic`]: sorting-free stochastic splatting (the Vulkan Gaussian-splatting sample's
+//!   stochastic modes, section 1).
 //! - [`random`]: stateless hashing for per-fragment random decisions.
-//! - [`loss`]: HDR (seed 002 Eq. 4), L1 and L2 losses with masks.
+//! - [`loss`]: HDR (the GSCache paper's Eq. 4), L1 and L2 losses with masks.
 //! - [`adamw`]: the fused AdamW step over the parameter arrays.
 //! - [`reference`]: a brute-force compositor the tiled one is tested against.
 //! - [`real`]: the f32/f64 scalar the kernels are generic over.

@@ -1,7 +1,7 @@
 //! Image losses and their gradients, each with a per-pixel mask (pixels that received no sample
 //! take no part). Every loss is a mean over the valid pixels and the three channels.
 //!
-//! The HDR loss is seed 002's Eq. 4 (after Lehtinen et al.'s Noise2Noise):
+//! The HDR loss is the GSCache paper's Eq. 4 (after Lehtinen et al.'s Noise2Noise):
 //! `L = mean (x - y)^2 / (sg(y) + 0.01)^2` for the noisy target `x` and the prediction `y`, where
 //! `sg` stops the gradient: the denominator only rescales each pixel, so the minimiser over many
 //! noisy samples of one value is their mean (an undetached denominator would bias it).

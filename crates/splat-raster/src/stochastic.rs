@@ -1,4 +1,5 @@
-//! Stochastic splatting (seed 004 section 1, after Kheradmand et al. 2025): no depth sort. Per
+//! Stochastic splatting (the Vulkan Gaussian-splatting sample's stochastic modes, section 1, after
+//! Kheradmand et al. 2025): no depth sort. Per
 //! pixel sample, every splat whose alpha reaches 1/255 is accepted with probability alpha (a
 //! hash of seed, pixel, sample and Gaussian id) and written as opaque if it is nearer than what
 //! the pixel holds (the depth test). The pixel's colour is the nearest accepted splat's, or the

@@ -9,8 +9,8 @@
 //!   with probability alpha; an accepted one clips the ray; the colour is the closest accepted
 //!   Gaussian's (Eq. 6), or the background. With N samples per traversal (section 3.5) each of N
 //!   slots keeps its own closest accepted hit, and the ray is clipped at the farthest slot.
-//! - `StochasticPass` (seed 004 section 4): K-buffer passes, each composited from a fresh state
-//!   to `(L_p, T_p)`; the pass is accepted with probability `1 - T_p`, returning `L_p / (1 -
+//! - `StochasticPass` (the Vulkan Gaussian-splatting sample's stochastic modes, section 4):
+//!   K-buffer passes, each composited from a fresh state to `(L_p, T_p)`; the pass is accepted with probability `1 - T_p`, returning `L_p / (1 -
 //!   T_p)`, or discarded; when no hits are left the background is returned. In expectation a
 //!   discarded pass weights the rest by `T_p`, so the estimate is unbiased.
 
@@ -213,7 +213,8 @@ pub fn trace_stochastic(
     sum / slots.len() as f32
 }
 
-/// One stochastic-pass estimate (seed 004 section 4).
+/// One stochastic-pass estimate (the Vulkan Gaussian-splatting sample's stochastic modes, section
+/// 4).
 pub fn trace_stochastic_pass(
     scene: &GaussianScene,
     r: &TraceRay,

@@ -15,11 +15,11 @@ use splat_raster::{ColorModel, GaussianCloud};
 /// Where along the ray an intersection is placed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum DepthMode {
-    /// The mean of the 1D Gaussian along the ray (seed 000 "OursMean").
+    /// The mean of the 1D Gaussian along the ray (Sun et al.'s "OursMean").
     #[default]
     Mean,
     /// The Gaussian's centre projected onto the camera's forward axis, as a rasteriser sorts
-    /// (seed 000 section 4.1, "OursCenter").
+    /// (Sun et al., section 4.1, "OursCenter").
     Center,
 }
 

@@ -1,13 +1,15 @@
 //! stochastic-rt: ray tracing of transparent 3D Gaussians with one BVH traversal per ray, each
-//! intersection accepted with probability equal to its opacity (seed 000, Algorithm 1).
+//! intersection accepted with probability equal to its opacity (Sun et al. 2025, "Stochastic ray
+//! tracing of transparent 3D Gaussians", Algorithm 1).
 //!
 //! - [`gaussians`]: per-Gaussian data for tracing (canonical transforms, cut-offs, bounds) and
 //!   the ray-Gaussian response.
-//! - [`random`]: the acceptance numbers: an integer hash, or seed 000's trigonometric hash.
+//! - [`random`]: the acceptance numbers: an integer hash, or Sun et al.'s trigonometric hash.
 //! - [`scene`]: the BVH over the Gaussians' bounds (obvhs `Bvh2`).
 //! - [`estimators`]: `exact` (every hit, sorted, Eq. 3), `kbuffer` (K closest per pass,
 //!   3DGRT-style), `stochastic` (closest accepted hit, Eq. 6; N samples per traversal, section
-//!   3.5) and `stochastic-pass` (seed 004 section 4).
+//!   3.5) and `stochastic-pass` (the Vulkan Gaussian-splatting sample's stochastic modes,
+//!   section 4).
 //!
 
 pub mod estimators;

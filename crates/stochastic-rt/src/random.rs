@@ -1,5 +1,5 @@
 //! The random numbers that decide acceptance, both stateless: an integer hash keyed on
-//! (seed, pixel, sample, Gaussian id), and seed 000's trigonometric hash (Eq. 8-10) of the hit
+//! (seed, pixel, sample, Gaussian id), and Sun et al.'s trigonometric hash (Eq. 8-10) of the hit
 //! position, perturbed per (seed, pixel, sample) as the paper perturbs it per frame.
 
 use glam::Vec3;
@@ -12,7 +12,7 @@ pub enum RandomKind {
     #[default]
     Hash,
     /// `xi(p) = r2(p_xy + r1(p_z))` with `r1(q) = fract(b1 sin(a1 q))` and
-    /// `r2(q) = fract(b2 sin(a2 . q))` (seed 000, Eq. 8-10), at the perturbed hit position.
+    /// `r2(q) = fract(b2 sin(a2 . q))` (Sun et al. 2025, Eq. 8-10), at the perturbed hit position.
     Trig,
 }
 
@@ -43,7 +43,7 @@ fn fract(x: f32) -> f32 {
     x - x.floor()
 }
 
-/// Seed 000's trigonometric hash of a position, in [0, 1).
+/// Sun et al.'s trigonometric hash of a position, in [0, 1).
 #[inline]
 pub fn trig_hash(p: Vec3) -> f32 {
     let r1 = fract(47_453.547 * (91.3458 * p.z).sin());

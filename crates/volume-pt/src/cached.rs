@@ -1,5 +1,5 @@
-//! Rendering with the gs-cache radiance cache: the initial point cloud (seed 002 section 3.2,
-//! delta tracking of random rays), and frames that read the cache, gather its training samples
+//! Rendering with the gs-cache radiance cache: the initial point cloud (the GSCache paper's section
+//! 3.2, delta tracking of random rays), and frames that read the cache, gather its training samples
 //! and train it.
 
 use crate::film::Film;

@@ -1,9 +1,9 @@
-//! `bench cache`: seed 002's Table 2 on this machine, and image quality at equal spp and at
-//! equal time. Every volume is rendered along a camera orbit (`warmup + frames` frames ending
-//! at the scene's own camera) by `uniform`, `nee`, and `nee` with the cache (raster and
-//! ray-traced lookups); per-frame times are averaged over the frames after the warm-up, and the
-//! last frame (1 spp, at the scene camera) is compared with a high-spp `nee` reference made once
-//! and kept on disk.
+//! `bench cache`: the GSCache paper's Table 2 on this machine, and image quality at equal spp and
+//! at equal time. Every volume is rendered along a camera orbit (`warmup + frames` frames ending at
+//! the scene's own camera) by `uniform`, `nee`, and `nee` with the cache (raster and ray-traced
+//! lookups); per-frame times are averaged over the frames after the warm-up, and the last frame (1
+//! spp, at the scene camera) is compared with a high-spp `nee` reference made once and kept on
+//! disk.
 
 use anyhow::{Context, Result};
 use glam::Vec3;
@@ -37,7 +37,7 @@ pub struct CacheBenchArgs {
     /// Cache points (first level).
     #[arg(long, default_value_t = 100_000)]
     pub points: usize,
-    /// Multiplies every learning rate of seed 002.
+    /// Multiplies every learning rate of the GSCache paper.
     #[arg(long, default_value_t = 1.0)]
     pub lr_scale: f32,
     /// Samples per pixel of the `nee` reference.
@@ -349,7 +349,7 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         eprintln!("{name}: done");
     }
     println!(
-        "Per-frame times in ms (seed 002 Table 2: PT path tracing, ST splatting, OT optimisation)\n"
+        "Per-frame times in ms (the GSCache paper's Table 2: PT path tracing, ST splatting, OT optimisation)\n"
     );
     println!("{}\n", table2.join("\n"));
     println!(

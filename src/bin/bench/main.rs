@@ -8,8 +8,9 @@
 //! - `bench trace`: the ray tracer's estimators: rays per second, error at equal time, and the
 //!   multi-sample table.
 //!
-//! - `bench cache`: seed 002's Table 2 (per-frame path tracing, splat and optimisation times
-//!   along a camera orbit) on every volume, and quality at equal spp and equal time.
+//! - `bench cache`: the GSCache paper's Table 2 (per-frame path tracing, splat and
+//!   optimisation times along a camera orbit) on every volume, and quality at equal spp and
+//!   equal time.
 //! - `bench stability`: the cache over a 1000-frame orbit on every volume, inspected for
 //!   non-finite values, exploding or straying Gaussians.
 //!
@@ -43,7 +44,7 @@ enum Sub {
     Splat(splat_bench::SplatArgs),
     /// The stochastic Gaussian ray tracer.
     Trace(trace_bench::TraceArgs),
-    /// The radiance cache: seed 002's Table 2 and quality at equal spp and time.
+    /// The radiance cache: the GSCache paper's Table 2 and quality at equal spp and time.
     Cache(cache_bench::CacheBenchArgs),
     /// The radiance cache over a long fly-through: no NaN, no exploding Gaussians.
     Stability(stability_bench::StabilityArgs),

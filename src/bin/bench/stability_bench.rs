@@ -1,5 +1,5 @@
-//! `bench stability`: the cache over a long fly-through on every volume (seed 002's claim that
-//! training stays stable): a full orbit of `frames` frames, training after every one, with the
+//! `bench stability`: the cache over a long fly-through on every volume (the GSCache paper's claim
+//! that training stays stable): a full orbit of `frames` frames, training after every one, with the
 //! cache's parameters inspected at intervals. It fails (non-zero exit) if a parameter, a cache
 //! value or a sample is ever non-finite, or a Gaussian grows or strays past the stated bounds.
 
@@ -25,11 +25,11 @@ pub struct StabilityArgs {
     pub every: u32,
     #[arg(long, default_value_t = 100_000)]
     pub points: usize,
-    /// Multiplies every learning rate of seed 002.
+    /// Multiplies every learning rate of the GSCache paper.
     #[arg(long, default_value_t = 1.0)]
     pub lr_scale: f32,
-    /// Learning rate of the log-scales (seed 002: 0, the sizes are kept; its "-CO" ablation
-    /// trains them at 0.0125).
+    /// Learning rate of the log-scales (the GSCache paper: 0, the sizes are kept; its "-CO"
+    /// ablation trains them at 0.0125).
     #[arg(long)]
     pub scale_lr: Option<f32>,
     /// Largest Gaussian allowed, as a fraction of the volume's diagonal.
@@ -106,7 +106,7 @@ pub fn run(args: &StabilityArgs) -> Result<()> {
         args.points,
         args.lr_scale,
         args.scale_lr
-            .map_or("0 (seed 002's)".to_string(), |s| s.to_string())
+            .map_or("0 (the GSCache paper's)".to_string(), |s| s.to_string())
     );
     println!(
         "| volume | frame | non-finite parameters / cache values / samples | largest scale / diagonal | farthest stray / diagonal | opacity range | largest cache value | level-1 MSE | ms per frame |"

@@ -16,7 +16,7 @@ pub struct TraceArgs {
     /// Samples per pixel for the stochastic estimators in the throughput table.
     #[arg(long, default_value_t = 4)]
     spp: u32,
-    /// Total samples per pixel for the multi-sample table (seed 000 Tables 4-5 use 1024).
+    /// Total samples per pixel for the multi-sample table (Sun et al., Tables 4-5 use 1024).
     #[arg(long, default_value_t = 64)]
     multi_total: u32,
     /// Image width for the multi-sample table (default: --width); 1024 spp at 1280x960 with
@@ -207,7 +207,7 @@ pub fn run(a: &TraceArgs) -> Result<()> {
     multi_table(a, &scene, &cam)
 }
 
-/// Seed 000 Tables 4-5: the same total samples per pixel as m traversals of n samples each.
+/// Sun et al., Tables 4-5: the same total samples per pixel as m traversals of n samples each.
 fn multi_table(a: &TraceArgs, scene: &GaussianScene, cam: &Camera) -> Result<()> {
     let mut cam = *cam;
     if let Some(mw) = a.multi_width {
@@ -224,7 +224,7 @@ fn multi_table(a: &TraceArgs, scene: &GaussianScene, cam: &Camera) -> Result<()>
         },
     );
     println!(
-        "\nMulti-sample (seed 000 Tables 4-5): {} samples per pixel as m traversals x n samples, {w}x{h}, 2 threads\n",
+        "\nMulti-sample (Sun et al., Tables 4-5): {} samples per pixel as m traversals x n samples, {w}x{h}, 2 threads\n",
         a.multi_total
     );
     println!("| n per traversal | m traversals | seconds | speed-up over n = 1 | MSE |");

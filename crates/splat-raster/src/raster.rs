@@ -121,8 +121,7 @@ impl<F: Real> ForwardState<F> {
                 let mut n = 0u64;
                 for &e in &self.entries[a as usize..b as usize] {
                     let s = &self.splats[e as usize];
-                    let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
-                    let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+                    let [ax, ay, bx, by] = rect_in_tile(s, [x0, y0]);
                     if ax <= bx && ay <= by {
                         n += ((bx - ax + 1) * (by - ay + 1)) as u64;
                     }
@@ -292,6 +291,18 @@ pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, F, F)> 
     Some((alpha, gauss, dx, dy))
 }
 
+/// Splat `s`'s pixel rectangle clipped to the tile at `origin`: inclusive x0, y0, x1, y1 (empty
+/// when x0 > x1 or y0 > y1).
+fn rect_in_tile<F: Real>(s: &Splat<F>, origin: [u32; 2]) -> [u32; 4] {
+    let [x0, y0] = origin;
+    [
+        s.rect[0].max(x0),
+        s.rect[1].max(y0),
+        s.rect[2].min(x0 + TILE - 1),
+        s.rect[3].min(y0 + TILE - 1),
+    ]
+}
+
 /// A tile's output: colour (background not yet added), transmittance, depth, and the number of
 /// entries of its list each pixel processed (the last contributor + 1), in tile-local order.
 pub(crate) struct TileOut<F> {
@@ -385,8 +396,7 @@ fn forward_tile_scalar<F: Real>(
             break;
         }
         let s = &splats[si as usize];
-        let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
-        let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+        let [ax, ay, bx, by] = rect_in_tile(s, [x0, y0]);
         for y in ay..=by {
             let py = cy[(y - y0) as usize];
             for x in ax..=bx {
@@ -706,8 +716,7 @@ fn backward_tile_scalar<F: Real>(
     for k in (0..last.min(list.len())).rev() {
         let s = &splats[list[k] as usize];
         let r = &mut records[k];
-        let (ax, ay) = (s.rect[0].max(x0), s.rect[1].max(y0));
-        let (bx, by) = (s.rect[2].min(x0 + TILE - 1), s.rect[3].min(y0 + TILE - 1));
+        let [ax, ay, bx, by] = rect_in_tile(s, [x0, y0]);
         for y in ay..=by {
             let py = cy[(y - y0) as usize];
             for x in ax..=bx {

@@ -1,12 +1,13 @@
 //! The gs-cache radiance cache inside the volume path tracer: what its estimator claims (see the
 //! gs-cache crate docs), tested on the bundled neghip scene at a small size.
 
+use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
 use gscache_cli::metrics::rel_mse;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
-use volume_pt::{Film, Scene, load_scene, render, render_cached_frame, sample_cache_points};
+use volume_pt::{Film, Scene, load_scene, render, sample_cache_points};
 
 const SIZE: u32 = 64;
 

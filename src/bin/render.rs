@@ -1,6 +1,7 @@
 //! `render SCENE.toml`: path-trace a volume scene to EXR and PNG.
 
 use anyhow::{Context, Result, bail};
+use cached_pt::render_cached_frame;
 use clap::Parser;
 use gs_cache::{CacheConfig, GsCache, Lookup};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -10,8 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::output::{ToneMap, write_exr, write_png};
 use volume_pt::scene::max_depth_from;
 use volume_pt::{
-    Film, IntegratorKind, RenderStats, Scene, load_scene, render, render_cached_frame,
-    sample_cache_points,
+    Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points,
 };
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).

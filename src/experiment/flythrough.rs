@@ -10,11 +10,12 @@ use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
 use crate::metrics::rel_mse;
 use anyhow::{Context, Result};
+use cached_pt::render_cached_frame;
 use glam::Vec3;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
-use volume_pt::{Film, Scene, load_scene, render, render_cached_frame};
+use volume_pt::{Film, Scene, load_scene, render};
 
 /// One frame of one method.
 #[derive(Debug, Clone, serde::Serialize)]

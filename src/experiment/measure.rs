@@ -6,11 +6,12 @@
 use super::config::Method;
 use crate::camera_path::orbit;
 use anyhow::Result;
+use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
-use volume_pt::{Film, Scene, render, render_cached_frame, sample_cache_points};
+use volume_pt::{Film, Scene, render, sample_cache_points};
 
 /// A budget: samples per pixel, or wall-clock seconds per image.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

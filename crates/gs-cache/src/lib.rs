@@ -93,4 +93,4 @@ pub use cache::{CacheFrame, FrameReport, GsCache, Level};
 pub use config::{CacheConfig, LearningRates, Lookup, MAX_LEVELS, Optimizer, TerminationConfig};
 pub use error::{CacheError, Result};
 pub use path::CachedPath;
-pub use targets::TrainingTargets;
+pub use targets::{TileTargets, TrainingTargets};

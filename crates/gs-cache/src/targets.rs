@@ -1,6 +1,9 @@
 //! Per-level training targets: each pixel's mean sample for each level this frame, and how many
 //! samples it had (no sample: the pixel takes no part in that level's loss).
 
+use crate::path::CachedPath;
+use glam::Vec3;
+
 /// Training samples of one frame, one image per level, row-major.
 #[derive(Debug, Clone)]
 pub struct TrainingTargets {
@@ -74,5 +77,67 @@ impl TrainingTargets {
             }
         }
         (target, mask)
+    }
+}
+
+/// One tile's share of a frame's targets, filled by one thread while the frame renders: per
+/// level, per tile pixel, the sum and number of the samples its paths produced. The frame's
+/// [`TrainingTargets`] take each pixel's mean ([`TrainingTargets::add_tile`]), so the level
+/// index never leaves the cache.
+#[derive(Debug, Clone)]
+pub struct TileTargets {
+    x0: u32,
+    y0: u32,
+    width: u32,
+    height: u32,
+    levels: usize,
+    sums: Vec<Vec3>,
+    counts: Vec<u32>,
+}
+
+impl TileTargets {
+    /// Empty targets for the `width` x `height` tile whose top-left pixel is `(x0, y0)`.
+    pub fn new(levels: usize, x0: u32, y0: u32, width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize * levels;
+        Self {
+            x0,
+            y0,
+            width,
+            height,
+            levels,
+            sums: vec![Vec3::ZERO; n],
+            counts: vec![0; n],
+        }
+    }
+
+    /// Files the samples of `path`, which went through row-major tile pixel `in_tile`.
+    pub fn add_path(&mut self, in_tile: usize, path: &CachedPath) {
+        let tile_pixels = self.width as usize * self.height as usize;
+        for (level, value) in path.samples() {
+            let k = level * tile_pixels + in_tile;
+            self.sums[k] += value;
+            self.counts[k] += 1;
+        }
+    }
+}
+
+impl TrainingTargets {
+    /// Adds each pixel's mean sample of `tile`, level by level. The tile must lie inside the
+    /// image and have at most this frame's levels.
+    pub fn add_tile(&mut self, tile: &TileTargets) {
+        let (w, h) = (tile.width, tile.height);
+        let tile_pixels = w as usize * h as usize;
+        for level in 0..tile.levels.min(self.levels()) {
+            for j in 0..h {
+                for i in 0..w {
+                    let k = level * tile_pixels + (j * w + i) as usize;
+                    if tile.counts[k] > 0 {
+                        let pixel = ((tile.y0 + j) * self.width + tile.x0 + i) as usize;
+                        let mean = tile.sums[k] / tile.counts[k] as f32;
+                        self.add(level, pixel, mean.to_array());
+                    }
+                }
+            }
+        }
     }
 }

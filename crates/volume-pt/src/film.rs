@@ -17,6 +17,18 @@ pub struct Tile {
     pub count: Vec<u32>,
 }
 
+impl Tile {
+    /// The part of the image this tile covers.
+    pub fn rect(&self) -> crate::cache::TileRect {
+        crate::cache::TileRect {
+            x0: self.x0,
+            y0: self.y0,
+            width: self.width,
+            height: self.height,
+        }
+    }
+}
+
 /// Accumulated radiance for a whole image.
 #[derive(Debug, Clone)]
 pub struct Film {

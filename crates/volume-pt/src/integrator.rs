@@ -10,13 +10,13 @@
 //! Russian roulette at volume vertices from `rr_start_depth` on: continue with probability
 //! `max(throughput)`, dividing the throughput by it.
 
+use crate::cache::PathHooks;
 use crate::lights::Lights;
 use crate::medium::Medium;
 use crate::phase::Phase;
 use crate::sampling::{SampleStream, power_heuristic};
 use crate::tracking::{free_flight, transmittance};
 use glam::Vec3;
-use gs_cache::CachedPath;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -87,20 +87,20 @@ pub fn radiance(
     dir: Vec3,
     rng: &mut SampleStream,
 ) -> Vec3 {
-    radiance_cached(scene, settings, origin, dir, rng, None)
+    radiance_with(scene, settings, origin, dir, rng, &mut ())
 }
 
-/// [`radiance`] with a radiance cache: the path tells `cache` every vertex, re-weighting and
-/// radiance it adds, stops into it where Algorithm 1 says so, and reads it when it leaves the
-/// volume with nothing (the estimator is written out in the gs-cache crate docs). With no cache
-/// this is exactly [`radiance`], random numbers included.
-pub fn radiance_cached(
+/// [`radiance`] with a radiance cache's hooks: the path tells `hooks` every vertex, re-weighting
+/// and radiance it adds, stops into the cache where it is told to, and reads it when it leaves
+/// the volume (the GSCache estimator is written out in the gs-cache crate docs). With the no-op
+/// hooks `()` this is exactly [`radiance`], random numbers included.
+pub fn radiance_with<H: PathHooks>(
     scene: &SceneMedia,
     settings: &PathSettings,
     origin: Vec3,
     dir: Vec3,
     rng: &mut SampleStream,
-    mut cache: Option<&mut CachedPath>,
+    hooks: &mut H,
 ) -> Vec3 {
     let SceneMedia {
         medium,
@@ -128,9 +128,10 @@ pub fn radiance_cached(
             };
             let x = em.radiance * w;
             l += beta * x;
-            if let Some(c) = cache.as_deref_mut() {
-                c.radiance(x);
-                l += beta * c.escaped(l);
+            hooks.radiance(x);
+            let cached = hooks.escaped(l);
+            if cached != Vec3::ZERO {
+                l += beta * cached;
             }
             break;
         };
@@ -144,13 +145,11 @@ pub fn radiance_cached(
         if !(beta.max_element() > 0.0) {
             break;
         }
-        if let Some(c) = cache.as_deref_mut() {
-            c.vertex(albedo);
-            let q = c.continue_probability();
-            if q < 1.0 && rng.next_f32() >= q {
-                l += beta * c.stop_into_cache();
-                break;
-            }
+        hooks.vertex(albedo);
+        let q = hooks.continue_probability();
+        if q < 1.0 && rng.next_f32() >= q {
+            l += beta * hooks.stop_into_cache();
+            break;
         }
 
         if nee && let Some(ls) = lights.sample(x, rng.next_f32(), rng.next_2d()) {
@@ -169,9 +168,7 @@ pub fn radiance_cached(
                     let w = power_heuristic(ls.pdf, f);
                     let x = ls.radiance * (f * tr * w / ls.pdf);
                     l += beta * x;
-                    if let Some(c) = cache.as_deref_mut() {
-                        c.radiance(x);
-                    }
+                    hooks.radiance(x);
                 }
             }
         }
@@ -182,9 +179,7 @@ pub fn radiance_cached(
                 break;
             }
             beta /= survive;
-            if let Some(c) = cache.as_deref_mut() {
-                c.scale(Vec3::splat(1.0 / survive));
-            }
+            hooks.scale(Vec3::splat(1.0 / survive));
         }
 
         let (d_new, pdf) = phase.sample(d, rng.next_2d());

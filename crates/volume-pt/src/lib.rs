@@ -9,12 +9,12 @@
 //! - [`phase`], [`lights`]: phase functions; sphere lights and a constant environment.
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
 //! - [`render`], [`film`]: tiles, passes, threads; accumulation.
-//! - [`cached`]: rendering with the gs-cache radiance cache (initial points, cached frames).
+//! - [`cache`]: the seam a radiance cache plugs into (per-path hooks, per-frame cache, start points).
 //! - [`output`]: EXR and PNG.
 //! - [`scene`]: the TOML scene file.
 //! - [`sampling`]: counter-based random numbers and warps.
 
-pub mod cached;
+pub mod cache;
 pub mod error;
 pub mod film;
 pub mod grid;
@@ -31,14 +31,14 @@ pub mod scene;
 pub mod tracking;
 pub mod transfer;
 
-pub use cached::{CachedFrameStats, render_cached_frame, sample_cache_points};
+pub use cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, sample_cache_points};
 pub use error::{Error, Result};
 pub use film::Film;
 pub use grid::{Filter, ScalarGrid};
-pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance, radiance_cached};
+pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance, radiance_with};
 pub use lights::{Lights, SphereLight};
 pub use medium::Medium;
 pub use phase::Phase;
-pub use render::{RenderSettings, RenderStats, render};
+pub use render::{CachedFrame, RenderSettings, RenderStats, render, render_frame_with};
 pub use scene::{Scene, load_scene};
 pub use transfer::TransferFunction;

@@ -2,11 +2,11 @@
 //! counter-based streams. Pixel `(x, y)` with sample index `s` always draws the same numbers,
 //! so the image is bit-identical for a seed whatever the thread count or pass split.
 
+use crate::cache::{FrameCache, NoCache, TilePixel, TileRect};
 use crate::film::{Film, Tile};
-use crate::integrator::{PathSettings, SceneMedia, radiance_cached};
+use crate::integrator::{PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
-use glam::{DVec3, Vec3};
-use gs_cache::{CacheFrame, CachedPath, TerminationConfig};
+use glam::DVec3;
 use rayon::prelude::*;
 use splat_raster::Camera;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -41,56 +41,40 @@ fn pass_size(spp: u32, pixels: u64) -> u32 {
     ((target_samples_per_pass / pixels.max(1)) as u32).clamp(1, spp.max(1))
 }
 
-/// A cache to read during a pass, and where the pass's training samples go: per level, per
-/// tile pixel, a sum and a count.
-pub(crate) struct TileCache<'a> {
-    pub frame: &'a CacheFrame,
-    pub termination: TerminationConfig,
-    pub sums: Vec<Vec3>,
-    pub counts: Vec<u32>,
-}
-
-pub(crate) fn render_tile(
+/// Renders samples `samples` of every pixel of `tile` into it, reading `cache` and filing each
+/// path's record in `record`. Returns the number of samples that came out NaN or infinite.
+fn render_tile<C: FrameCache>(
     tile: &mut Tile,
     scene: &SceneMedia,
     camera: &Camera,
     settings: &RenderSettings,
     samples: std::ops::Range<u32>,
-    mut cache: Option<&mut TileCache>,
+    cache: &C,
+    record: &mut C::TileRecord,
 ) -> u64 {
     let mut nonfinite = 0;
-    let tile_px = (tile.width * tile.height) as usize;
     for j in 0..tile.height {
         for i in 0..tile.width {
             let (x, y) = (tile.x0 + i, tile.y0 + j);
-            let pixel = y as u64 * camera.width as u64 + x as u64;
-            let k = (j * tile.width + i) as usize;
+            let pixel = TilePixel {
+                pixel: y as u64 * camera.width as u64 + x as u64,
+                in_tile: (j * tile.width + i) as usize,
+            };
             let mut sum = DVec3::ZERO;
             for s in samples.clone() {
-                let mut rng = SampleStream::new(settings.seed, pixel, s as u64);
+                let mut rng = SampleStream::new(settings.seed, pixel.pixel, s as u64);
                 let (jx, jy) = rng.next_2d();
                 let dir = camera.ray_direction(x as f32 + jx, y as f32 + jy);
-                let l: Vec3 = match cache.as_deref_mut() {
-                    None => {
-                        radiance_cached(scene, &settings.path, camera.position, dir, &mut rng, None)
-                    }
-                    Some(tc) => {
-                        let mut path = CachedPath::new(tc.frame, pixel as usize, tc.termination);
-                        let l = radiance_cached(
-                            scene,
-                            &settings.path,
-                            camera.position,
-                            dir,
-                            &mut rng,
-                            Some(&mut path),
-                        );
-                        for (level, v) in path.samples() {
-                            tc.sums[level * tile_px + k] += v;
-                            tc.counts[level * tile_px + k] += 1;
-                        }
-                        l
-                    }
-                };
+                let mut path = cache.path(pixel);
+                let l = radiance_with(
+                    scene,
+                    &settings.path,
+                    camera.position,
+                    dir,
+                    &mut rng,
+                    &mut path,
+                );
+                cache.path_ended(path, pixel, record);
                 // Written so that NaN fails: a bad sample counts as black, never reaches the film.
                 if l.is_finite() && l.min_element() >= 0.0 {
                     sum += l.as_dvec3();
@@ -98,11 +82,69 @@ pub(crate) fn render_tile(
                     nonfinite += 1;
                 }
             }
-            tile.sum[k] += sum;
-            tile.count[k] += samples.len() as u32;
+            tile.sum[pixel.in_tile] += sum;
+            tile.count[pixel.in_tile] += samples.len() as u32;
         }
     }
     nonfinite
+}
+
+/// What one frame read through a cache left: each tile's record, and how long it took.
+#[derive(Debug)]
+pub struct CachedFrame<R> {
+    /// One record per tile, in the film's tile order; a tile skipped by cancellation has none.
+    pub records: Vec<(TileRect, R)>,
+    pub trace_seconds: f64,
+    pub nonfinite_samples: u64,
+    pub cancelled: bool,
+}
+
+/// Frame `frame_index` of a sequence read through `cache`: `settings.spp` paths per pixel,
+/// accumulated into `film`. Frame `f` draws sample indices `f * spp .. (f + 1) * spp`, so
+/// successive frames have independent noise (a cache must never be trained twice on the same
+/// random paths) and a film accumulated over frames is a progressive render. Setting `cancel`
+/// stops it between tiles.
+pub fn render_frame_with<C: FrameCache>(
+    scene: &SceneMedia,
+    camera: &Camera,
+    settings: &RenderSettings,
+    frame_index: u32,
+    film: &mut Film,
+    cache: &C,
+    cancel: &AtomicBool,
+) -> CachedFrame<C::TileRecord> {
+    let first_sample = frame_index.saturating_mul(settings.spp);
+    let start = std::time::Instant::now();
+    let nonfinite = AtomicU64::new(0);
+    let records = film
+        .tiles
+        .par_iter_mut()
+        .filter_map(|tile| {
+            if cancel.load(Ordering::Relaxed) {
+                return None;
+            }
+            let mut record = cache.tile_record(tile.rect());
+            let bad = render_tile(
+                tile,
+                scene,
+                camera,
+                settings,
+                first_sample..first_sample + settings.spp,
+                cache,
+                &mut record,
+            );
+            nonfinite.fetch_add(bad, Ordering::Relaxed);
+            Some((tile.rect(), record))
+        })
+        .collect();
+    let nonfinite = nonfinite.into_inner();
+    film.nonfinite_samples += nonfinite;
+    CachedFrame {
+        records,
+        trace_seconds: start.elapsed().as_secs_f64(),
+        nonfinite_samples: nonfinite,
+        cancelled: cancel.load(Ordering::Relaxed),
+    }
 }
 
 /// Renders `settings.spp` samples per pixel into `film`, calling `progress(samples_done)` after
@@ -127,7 +169,7 @@ pub fn render(
             if cancel.load(Ordering::Relaxed) {
                 return;
             }
-            let bad = render_tile(tile, scene, camera, settings, s0..s1, None);
+            let bad = render_tile(tile, scene, camera, settings, s0..s1, &NoCache, &mut ());
             nonfinite.fetch_add(bad, Ordering::Relaxed);
             progress((tile.width * tile.height * (s1 - s0)) as u64);
         });

@@ -6,6 +6,7 @@
 //! disk.
 
 use anyhow::{Context, Result};
+use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
 pub use gscache_cli::camera_path::orbit;
@@ -15,7 +16,7 @@ use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use volume_pt::output::{read_exr, write_exr};
-use volume_pt::{Film, IntegratorKind, Scene, load_scene, render, render_cached_frame};
+use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct CacheBenchArgs {

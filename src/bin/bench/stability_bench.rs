@@ -5,10 +5,11 @@
 
 use crate::cache_bench::{cache_config, default_scenes, load_sized, new_cache, orbit};
 use anyhow::{Result, bail};
+use cached_pt::render_cached_frame;
 use gs_cache::{GsCache, Lookup};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
-use volume_pt::{Film, IntegratorKind, render_cached_frame};
+use volume_pt::{Film, IntegratorKind};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct StabilityArgs {

@@ -1,0 +1,146 @@
+//! cached-pt: volume-pt's path tracer with the GSCache radiance cache (Bauer et al., 2025).
+//!
+//! The two crates do not know each other. volume-pt offers a seam ([`volume_pt::PathHooks`] per
+//! path, [`volume_pt::FrameCache`] per frame) and gs-cache offers one path's bookkeeping
+//! ([`gs_cache::CachedPath`]) and per-tile training targets ([`gs_cache::TileTargets`]); this
+//! crate joins them, so the plain path tracer builds and is tested without the cache, and the
+//! cache stays free of volumes. It is a crate of its own rather than a cargo feature of either
+//! side because the join needs both: a feature would make one of them depend on the other.
+//!
+//! - [`GsFrame`], [`GsPath`]: the adapter (the level index stays inside gs-cache).
+//! - [`render_cached_frame`]: one frame that draws the cache, traces paths reading it, and
+//!   trains it on their samples.
+
+use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets, TrainingTargets};
+use splat_raster::Camera;
+use std::sync::atomic::{AtomicBool, Ordering};
+use volume_pt::{
+    FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect, render_frame_with,
+};
+
+pub use volume_pt::sample_cache_points;
+
+/// One path's hooks: gs-cache's bookkeeping seen through volume-pt's seam.
+#[derive(Debug, Clone)]
+pub struct GsPath<'a>(pub CachedPath<'a>);
+
+impl PathHooks for GsPath<'_> {
+    fn vertex(&mut self, albedo: glam::Vec3) {
+        self.0.vertex(albedo);
+    }
+    fn scale(&mut self, factor: glam::Vec3) {
+        self.0.scale(factor);
+    }
+    fn radiance(&mut self, x: glam::Vec3) {
+        self.0.radiance(x);
+    }
+    fn continue_probability(&self) -> f32 {
+        self.0.continue_probability()
+    }
+    fn stop_into_cache(&mut self) -> glam::Vec3 {
+        self.0.stop_into_cache()
+    }
+    fn escaped(&mut self, path_radiance: glam::Vec3) -> glam::Vec3 {
+        self.0.escaped(path_radiance)
+    }
+}
+
+/// A drawn cache frame as volume-pt's renderer reads it; each tile's paths file their training
+/// samples in a [`TileTargets`].
+#[derive(Debug, Clone, Copy)]
+pub struct GsFrame<'a> {
+    pub frame: &'a CacheFrame,
+    pub termination: TerminationConfig,
+}
+
+impl FrameCache for GsFrame<'_> {
+    type Path<'b>
+        = GsPath<'b>
+    where
+        Self: 'b;
+    type TileRecord = TileTargets;
+
+    fn tile_record(&self, t: TileRect) -> TileTargets {
+        TileTargets::new(self.frame.levels(), t.x0, t.y0, t.width, t.height)
+    }
+    fn path(&self, pixel: TilePixel) -> GsPath<'_> {
+        GsPath(CachedPath::new(
+            self.frame,
+            pixel.pixel as usize,
+            self.termination,
+        ))
+    }
+    fn path_ended(&self, path: GsPath<'_>, pixel: TilePixel, record: &mut TileTargets) {
+        record.add_path(pixel.in_tile, &path.0);
+    }
+}
+
+/// What one cached frame did.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CachedFrameStats {
+    /// Path tracing time (the GSCache paper's PT).
+    pub trace_seconds: f64,
+    /// Drawing the levels (ST).
+    pub lookup_seconds: f64,
+    /// Training (OT).
+    pub train_seconds: f64,
+    pub samples: u64,
+    pub nonfinite_samples: u64,
+    pub cancelled: bool,
+}
+
+/// Frame `frame_index` of a sequence: draw the cache from `camera`, trace `settings.spp` paths
+/// per pixel reading it (accumulated into `film` when one is given), then train it on the
+/// frame's samples (unless cancelled). Frame `f` draws sample indices `f * spp .. (f + 1) * spp`
+/// (see [`render_frame_with`]).
+pub fn render_cached_frame(
+    scene: &SceneMedia,
+    camera: &Camera,
+    settings: &RenderSettings,
+    frame_index: u32,
+    film: Option<&mut volume_pt::Film>,
+    cache: &mut GsCache,
+    cancel: &AtomicBool,
+) -> Result<CachedFrameStats, gs_cache::CacheError> {
+    let termination = cache.config().termination;
+    let levels = cache.levels().len();
+    cache.begin_frame(camera);
+    let lookup_seconds = cache.report().lookup_seconds;
+    let mut scratch;
+    let film = match film {
+        Some(film) => film,
+        None => {
+            scratch = volume_pt::Film::new(camera.width, camera.height);
+            &mut scratch
+        }
+    };
+    let frame = cache.frame().expect("begin_frame draws the frame");
+    let gs_frame = GsFrame { frame, termination };
+    let traced = render_frame_with(
+        scene,
+        camera,
+        settings,
+        frame_index,
+        film,
+        &gs_frame,
+        cancel,
+    );
+    let mut targets = TrainingTargets::new(levels, camera.width, camera.height);
+    for (_, tile) in &traced.records {
+        targets.add_tile(tile);
+    }
+    let cancelled = traced.cancelled || cancel.load(Ordering::Relaxed);
+    let train_seconds = if cancelled {
+        0.0
+    } else {
+        cache.train(&targets)?.train_seconds
+    };
+    Ok(CachedFrameStats {
+        trace_seconds: traced.trace_seconds,
+        lookup_seconds,
+        train_seconds,
+        samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
+        nonfinite_samples: traced.nonfinite_samples,
+        cancelled,
+    })
+}

@@ -1,0 +1,132 @@
+//! The seam a radiance cache plugs into: what one path tells a cache and may ask of it
+//! ([`PathHooks`]), what a cache provides for a frame's tiles ([`FrameCache`]), and points to
+//! start a cache from ([`sample_cache_points`]).
+//!
+//! The path tracer knows no cache type: it is generic over [`FrameCache`], and the plain
+//! renderer runs with [`NoCache`], whose hooks do nothing and draw no random numbers, so a plain
+//! image is the same with or without a cache crate linked. The GSCache adapter lives in the
+//! `cached-pt` crate; any other cache (a neural radiance cache, a grid) implements the same two
+//! traits.
+
+use crate::integrator::SceneMedia;
+use crate::sampling::{SampleStream, uniform_sphere};
+use crate::tracking::free_flight;
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// One path's view of a cache. The integrator keeps its own throughput `W` and radiance `L` and
+/// reports every change to them; every default does nothing, which is the plain path tracer.
+pub trait PathHooks {
+    /// A new real scattering vertex with single-scattering albedo `albedo`, by which the
+    /// throughput has just been multiplied.
+    fn vertex(&mut self, _albedo: Vec3) {}
+    /// The throughput was multiplied by `factor` (e.g. `1 / p` after surviving Russian roulette
+    /// with probability `p`).
+    fn scale(&mut self, _factor: Vec3) {}
+    /// `W * x` was added to the path's radiance.
+    fn radiance(&mut self, _x: Vec3) {}
+    /// The probability of going on at the current vertex; the path draws a random number only
+    /// when this is below 1.
+    fn continue_probability(&self) -> f32 {
+        1.0
+    }
+    /// The path stops into the cache at the current vertex: the radiance `x` the integrator adds
+    /// as `W * x`.
+    fn stop_into_cache(&mut self) -> Vec3 {
+        Vec3::ZERO
+    }
+    /// The path left the volume after its last vertex, having gathered `path_radiance` in all:
+    /// radiance `x` the integrator adds as `W * x` (a cache's natural termination).
+    fn escaped(&mut self, _path_radiance: Vec3) -> Vec3 {
+        Vec3::ZERO
+    }
+}
+
+/// The hooks of a path with no cache.
+impl PathHooks for () {}
+
+/// A pixel's place in its tile: what a cache needs to file a path's samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TilePixel {
+    /// Row-major index of the pixel in the image.
+    pub pixel: u64,
+    /// Row-major index of the pixel in its tile.
+    pub in_tile: usize,
+}
+
+/// A rectangle of the image that one thread renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TileRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// A radiance cache, read for one frame. Tiles render in parallel, so the frame is shared; each
+/// tile owns the record its paths write into ([`FrameCache::TileRecord`]), which the cache's
+/// owner collects after the frame (to train, for instance).
+pub trait FrameCache: Sync {
+    /// One path's hooks.
+    type Path<'a>: PathHooks
+    where
+        Self: 'a;
+    /// What one tile's paths leave behind.
+    type TileRecord: Send;
+    /// An empty record for `tile`.
+    fn tile_record(&self, tile: TileRect) -> Self::TileRecord;
+    /// The hooks for a new path through `pixel`.
+    fn path(&self, pixel: TilePixel) -> Self::Path<'_>;
+    /// The path through `pixel` ended; file what it learned in its tile's record.
+    fn path_ended(&self, path: Self::Path<'_>, pixel: TilePixel, record: &mut Self::TileRecord);
+}
+
+/// No cache: the plain path tracer.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoCache;
+
+impl FrameCache for NoCache {
+    type Path<'a> = ();
+    type TileRecord = ();
+    fn tile_record(&self, _tile: TileRect) {}
+    fn path(&self, _pixel: TilePixel) {}
+    fn path_ended(&self, _path: (), _pixel: TilePixel, _record: &mut ()) {}
+}
+
+/// Points where random rays first scatter in the medium, with the albedo there: `n` of them,
+/// in random order (the GSCache paper's section 3.2 starts its clouds from such points). Each
+/// ray starts on a sphere around the volume and aims at a uniform point of the box; rays that
+/// pass through without scattering are replaced. Gives up (returning fewer points) after `64 n`
+/// rays, so an empty medium cannot hang it.
+pub fn sample_cache_points(media: &SceneMedia, n: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
+    let medium = &media.medium;
+    let (lo, hi) = medium.bounds();
+    let centre = 0.5 * (lo + hi);
+    let radius = 0.5 * (hi - lo).length() * 1.01;
+    const CHUNK: usize = 1024;
+    let chunks = n.div_ceil(CHUNK);
+    let found: Vec<Vec<(Vec3, Vec3)>> = (0..chunks)
+        .into_par_iter()
+        .map(|c| {
+            let want = CHUNK.min(n - c * CHUNK);
+            let mut out = Vec::with_capacity(want);
+            let mut attempt = 0u64;
+            while out.len() < want && attempt < 64 * want as u64 {
+                let mut rng = SampleStream::new(seed ^ 0x6a09_e667_f3bc_c908, c as u64, attempt);
+                attempt += 1;
+                let o = centre + radius * uniform_sphere(rng.next_2d());
+                let (u, v) = rng.next_2d();
+                let target = lo + (hi - lo) * Vec3::new(u, v, rng.next_f32());
+                let Some(d) = (target - o).try_normalize() else {
+                    continue;
+                };
+                let ray = medium.to_index_ray(o, d);
+                if let Some(t) = free_flight(medium, &ray, 0.0, f32::INFINITY, &mut rng) {
+                    out.push((o + d * t, medium.albedo(ray.at(t))));
+                }
+            }
+            out
+        })
+        .collect();
+    found.into_iter().flatten().unzip()
+}

@@ -294,12 +294,12 @@ pub fn tone_mapped(
     width: u32,
     height: u32,
     exposure: f32,
-    tone: volume_pt::output::ToneMap,
+    tone: hdr_image::ToneMap,
 ) -> Rgb8 {
     Rgb8 {
         width,
         height,
-        data: volume_pt::output::tone_map(pixels, exposure, tone),
+        data: hdr_image::tone_map(pixels, exposure, tone),
     }
 }
 

@@ -4,11 +4,11 @@ use anyhow::{Context, Result, bail};
 use cached_pt::render_cached_frame;
 use clap::Parser;
 use gs_cache::{CacheConfig, GsCache, Lookup};
+use hdr_image::{RgbImage, ToneMap};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use volume_pt::output::{ToneMap, write_exr, write_png};
 use volume_pt::scene::max_depth_from;
 use volume_pt::{
     Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points,
@@ -245,9 +245,9 @@ fn run() -> Result<()> {
     };
     bar.finish_and_clear();
 
-    let pixels = film.mean();
-    write_exr(&exr_path, cam.width, cam.height, &pixels)?;
-    write_png(&png_path, cam.width, cam.height, &pixels, exposure, tonemap)?;
+    let image = film.image();
+    image.write_exr(&exr_path)?;
+    image.write_png(&png_path, exposure, tonemap)?;
     let depth = match scene.settings.path.max_depth {
         Some(d) => format!("max path length {d} scattering vertices"),
         None => "unlimited path length".into(),
@@ -381,21 +381,10 @@ fn render_with_cache(
         let cam = scene.camera;
         let frame = cache.begin_frame(&cam);
         for level in 0..frame.levels() {
-            let img: Vec<glam::Vec3> = frame
-                .image(level)
-                .iter()
-                .map(|c| glam::Vec3::from_array(*c))
-                .collect();
+            let img = RgbImage::from_rgb(cam.width, cam.height, frame.image(level))?;
             let stem = dir.join(format!("length_{}", level + 1));
-            write_exr(&stem.with_extension("exr"), cam.width, cam.height, &img)?;
-            write_png(
-                &stem.with_extension("png"),
-                cam.width,
-                cam.height,
-                &img,
-                0.0,
-                ToneMap::Aces,
-            )?;
+            img.write_exr(&stem.with_extension("exr"))?;
+            img.write_png(&stem.with_extension("png"), 0.0, ToneMap::Aces)?;
         }
         eprintln!("cache: wrote the level images to {}", dir.display());
     }

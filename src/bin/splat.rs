@@ -4,6 +4,7 @@
 use anyhow::{Context, Result, bail};
 use clap::{Args as ClapArgs, Parser, Subcommand};
 use glam::Vec3;
+use hdr_image::{RgbImage, ToneMap};
 use splat_raster::adamw::{AdamW, AdamWConfig};
 use splat_raster::io::{read_cloud, write_ply};
 use splat_raster::loss::Loss;
@@ -11,7 +12,6 @@ use splat_raster::stochastic::render_stochastic;
 use splat_raster::train::train_step;
 use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, RasterConfig, render};
 use std::path::PathBuf;
-use volume_pt::output::{ToneMap, read_exr, write_exr, write_png};
 
 #[derive(Parser)]
 #[command(version, about = "Render or fit 3D Gaussian clouds on the CPU")]
@@ -211,10 +211,6 @@ fn make_camera(c: &CameraArgs, cloud: Option<&GaussianCloud<f32>>) -> Result<Cam
     )?)
 }
 
-fn to_vec3(px: &[[f32; 3]]) -> Vec<Vec3> {
-    px.iter().map(|c| Vec3::from_array(*c)).collect()
-}
-
 fn main() {
     if let Err(e) = run() {
         eprintln!("error: {e:#}");
@@ -266,10 +262,10 @@ fn run() -> Result<()> {
                 std::fs::create_dir_all(d)
                     .with_context(|| format!("{}: cannot create folder", d.display()))?;
             }
-            let px = to_vec3(&img.color);
-            write_exr(&a.output, cam.width, cam.height, &px)?;
+            let image = RgbImage::from_rgb(cam.width, cam.height, &img.color)?;
+            image.write_exr(&a.output)?;
             let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
-            write_png(&png, cam.width, cam.height, &px, 0.0, ToneMap::Clip)?;
+            image.write_png(&png, 0.0, ToneMap::Clip)?;
             println!(
                 "rendered {} Gaussians at {}x{} in {:.1} ms ({info}); wrote {} and {}",
                 cloud.len(),
@@ -281,7 +277,9 @@ fn run() -> Result<()> {
             );
         }
         Command::Fit(a) => {
-            let (w, h, target) = read_exr(&a.target_image)?;
+            let target = RgbImage::read_exr(&a.target_image)?;
+            let (w, h) = (target.width(), target.height());
+            let target = target.into_pixels();
             if (w, h) != (a.camera.width, a.camera.height) {
                 bail!(
                     "{}: the target is {w}x{h} but the camera is {}x{}: pass --width {w} --height {h}",
@@ -325,7 +323,7 @@ fn run() -> Result<()> {
             write_ply(&a.output, &cloud)?;
             let (img, _) = render(&cloud, &cam, &cfg);
             let png = a.output.with_extension("png");
-            write_png(&png, w, h, &to_vec3(&img.color), 0.0, ToneMap::Clip)?;
+            RgbImage::from_rgb(w, h, &img.color)?.write_png(&png, 0.0, ToneMap::Clip)?;
             println!(
                 "fitted {} Gaussians in {:.1} s; wrote {} and {}",
                 cloud.len(),
@@ -382,9 +380,10 @@ fn run() -> Result<()> {
                 std::fs::create_dir_all(d)
                     .with_context(|| format!("{}: cannot create folder", d.display()))?;
             }
-            write_exr(&a.output, cam.width, cam.height, &img)?;
+            let image = RgbImage::from_pixels(cam.width, cam.height, img)?;
+            image.write_exr(&a.output)?;
             let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
-            write_png(&png, cam.width, cam.height, &img, 0.0, ToneMap::Clip)?;
+            image.write_png(&png, 0.0, ToneMap::Clip)?;
             let rays = match estimator {
                 Estimator::Exact | Estimator::KBuffer { .. } => 1,
                 _ => settings.spp,

@@ -6,11 +6,11 @@
 
 use anyhow::{Context, Result};
 use glam::Vec3;
+use hdr_image::RgbImage;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
-use volume_pt::output::{read_exr, write_exr};
 use volume_pt::{Film, IntegratorKind, Scene, render};
 
 /// FNV-1a, 64 bits.
@@ -70,10 +70,10 @@ pub fn reference(
         camera.width, camera.height
     ));
     if file.exists() {
-        let (w, h, image) = read_exr(&file)?;
-        if (w, h) == (camera.width, camera.height) {
+        let image = RgbImage::read_exr(&file)?;
+        if (image.width(), image.height()) == (camera.width, camera.height) {
             return Ok(Reference {
-                image,
+                image: image.into_pixels(),
                 file,
                 reused: true,
                 seconds: 0.0,
@@ -96,13 +96,12 @@ pub fn reference(
         &|_| {},
     );
     let seconds = start.elapsed().as_secs_f64();
-    let image = film.mean();
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-    // Written under a temporary name and renamed, so an interrupted run leaves no half file
-    // that a later run would take for a reference.
-    let tmp = file.with_extension("exr.partial");
-    write_exr(&tmp, camera.width, camera.height, &image)?;
-    std::fs::rename(&tmp, &file).with_context(|| format!("{}: cannot rename", tmp.display()))?;
+    // Written atomically, so an interrupted run leaves no half file that a later run would take
+    // for a reference.
+    let image = film.image();
+    image.write_exr(&file)?;
+    let image = image.into_pixels();
     let about = serde_json::json!({
         "scene_file": scene_file.display().to_string(),
         "volume": scene.volume_path.display().to_string(),

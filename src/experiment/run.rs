@@ -11,11 +11,11 @@ use crate::metrics::{
 };
 use anyhow::{Context, Result};
 use glam::Vec3;
+use hdr_image::tone_map;
 use serde::Serialize;
 use std::io::Write;
 use std::path::PathBuf;
 use volume_pt::Scene;
-use volume_pt::output::tone_map;
 
 /// One method at one budget with one seed.
 #[derive(Debug, Clone, Serialize)]

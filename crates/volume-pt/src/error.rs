@@ -18,8 +18,6 @@ pub enum Error {
     Scene { path: PathBuf, message: String },
     #[error("transfer function: {0}")]
     TransferFunction(String),
-    #[error("{path}: cannot write image: {message}")]
-    Output { path: PathBuf, message: String },
     #[error("{0}")]
     Invalid(String),
 }

@@ -98,6 +98,12 @@ impl Film {
         out
     }
 
+    /// [`Film::mean`] as an image.
+    pub fn image(&self) -> hdr_image::RgbImage {
+        hdr_image::RgbImage::from_pixels(self.width, self.height, self.mean())
+            .expect("the film's mean has one pixel per film pixel")
+    }
+
     /// Samples per pixel, row-major.
     pub fn counts(&self) -> Vec<u32> {
         let mut out = vec![0; (self.width * self.height) as usize];

@@ -10,7 +10,6 @@
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
 //! - [`render`], [`film`]: tiles, passes, threads; accumulation.
 //! - [`cache`]: the seam a radiance cache plugs into (per-path hooks, per-frame cache, start points).
-//! - [`output`]: EXR and PNG.
 //! - [`scene`]: the TOML scene file.
 //! - [`sampling`]: counter-based random numbers and warps.
 
@@ -23,7 +22,6 @@ pub mod io;
 pub mod lights;
 pub mod majorant;
 pub mod medium;
-pub mod output;
 pub mod phase;
 pub mod render;
 pub mod sampling;

@@ -12,10 +12,10 @@ use gs_cache::{CacheConfig, GsCache, Lookup};
 pub use gscache_cli::camera_path::orbit;
 use gscache_cli::experiment::reference::{FNV_START, fnv1a};
 use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
+use hdr_image::RgbImage;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use volume_pt::output::{read_exr, write_exr};
 use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
 
 #[derive(clap::Args, Debug, Clone)]
@@ -141,10 +141,10 @@ fn reference(path: &Path, scene: &Scene, args: &CacheBenchArgs) -> Result<Vec<Ve
         file_hash(path)?
     ));
     if file.exists() {
-        let (w, h, img) = read_exr(&file)?;
-        if (w, h) == (cam.width, cam.height) {
+        let img = RgbImage::read_exr(&file)?;
+        if (img.width(), img.height()) == (cam.width, cam.height) {
             eprintln!("{name}: reference {}", file.display());
-            return Ok(img);
+            return Ok(img.into_pixels());
         }
     }
     let (img, secs) = plain(
@@ -156,7 +156,7 @@ fn reference(path: &Path, scene: &Scene, args: &CacheBenchArgs) -> Result<Vec<Ve
     );
     std::fs::create_dir_all(&args.references)
         .with_context(|| format!("{}: cannot create", args.references.display()))?;
-    write_exr(&file, cam.width, cam.height, &img)?;
+    RgbImage::from_pixels(cam.width, cam.height, img.clone())?.write_exr(&file)?;
     eprintln!(
         "{name}: rendered the reference ({} spp) in {secs:.1} s: {}",
         args.reference_spp,

@@ -106,12 +106,12 @@ fn main() -> Result<()> {
 
 fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
     use gscache_cli::metrics::{hdr_peak, psnr, rel_mse, smape};
-    let (_, _, r) = volume_pt::output::read_exr(reference)?;
+    let r = hdr_image::RgbImage::read_exr(reference)?.into_pixels();
     let peak = hdr_peak(&r);
     println!("| image | relMSE | SMAPE | PSNR (dB, peak {peak:.3}) |");
     println!("|---|---|---|---|");
     for p in images {
-        let (_, _, x) = volume_pt::output::read_exr(p)?;
+        let x = hdr_image::RgbImage::read_exr(p)?.into_pixels();
         if x.len() != r.len() {
             anyhow::bail!("{}: size differs from the reference", p.display());
         }

@@ -4,10 +4,9 @@
 
 use crate::camera_path::{Keyframe, check_keyframes};
 use anyhow::{Context, Result, bail};
-use gs_cache::{CacheConfig, LearningRates, Lookup, Optimizer, TerminationConfig};
+use gs_cache::CacheConfig;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use stochastic_rt::Estimator;
 use volume_pt::IntegratorKind;
 
 /// The whole file.
@@ -89,32 +88,12 @@ pub struct MethodDesc {
     pub cache: Option<CacheDesc>,
 }
 
-/// A cache's settings in the experiment file (the library's [`CacheConfig`] plus how it is
-/// warmed up before it is measured).
+/// A cache's settings in the experiment file: the library's [`CacheConfig`], key for key (the
+/// same keys as `gscache render --cache-KEY`), plus how it is warmed up before it is measured.
 #[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
+#[serde(try_from = "toml::Table", into = "toml::Table")]
 pub struct CacheDesc {
-    /// `raster` (the paper's) or `rt` (stochastic ray tracing of the levels).
-    pub lookup: String,
-    /// Stochastic samples per BVH traversal of the `rt` lookup.
-    pub rt_samples: u32,
-    pub points: usize,
-    pub levels: usize,
-    /// Algorithm 1's C.
-    pub c: f32,
-    pub early: bool,
-    pub natural: bool,
-    /// `adamw` or `adam`.
-    pub optimizer: Optimizer,
-    /// Multiplies every learning rate of the GSCache paper.
-    pub lr_scale: f32,
-    /// The scales' learning rate (0 in the paper; 0.0125 is the "-CO" ablation).
-    pub scale_lr: f32,
-    /// Eq. 2's cap on the initial sizes.
-    pub size_cap: bool,
-    pub masked_targets: bool,
-    pub normalized_radiance: bool,
-    pub train: bool,
+    pub settings: CacheConfig,
     /// Frames (1 spp each) trained along an orbit ending at the camera before measuring: the
     /// cache a user has after moving to this view. Not counted in the image's time.
     pub warmup: u32,
@@ -124,66 +103,63 @@ pub struct CacheDesc {
 
 impl Default for CacheDesc {
     fn default() -> Self {
-        let c = CacheConfig::default();
         Self {
-            lookup: "raster".into(),
-            rt_samples: 8,
-            points: c.points,
-            levels: c.levels,
-            c: c.termination.coefficient,
-            early: c.termination.early,
-            natural: c.termination.natural,
-            optimizer: c.optimizer,
-            lr_scale: 1.0,
-            scale_lr: c.learning_rates.scale,
-            size_cap: c.size_cap,
-            masked_targets: c.masked_targets,
-            normalized_radiance: c.normalized_radiance,
-            train: c.train,
+            settings: CacheConfig::default(),
             warmup: 40,
             warmup_orbit_degrees: 60.0,
         }
     }
 }
 
+impl TryFrom<toml::Table> for CacheDesc {
+    type Error = String;
+    /// Takes the warm-up keys out and reads every other key as a [`CacheConfig`] key (unknown
+    /// keys are refused by it).
+    fn try_from(mut table: toml::Table) -> std::result::Result<Self, String> {
+        let d = CacheDesc::default();
+        let warmup = match table.remove("warmup") {
+            None => d.warmup,
+            Some(v) => v
+                .as_integer()
+                .and_then(|n| u32::try_from(n).ok())
+                .ok_or_else(|| format!("warmup = {v}: expected a frame count >= 0"))?,
+        };
+        let warmup_orbit_degrees = match table.remove("warmup_orbit_degrees") {
+            None => d.warmup_orbit_degrees,
+            Some(v) => {
+                let x = v.as_float().or_else(|| v.as_integer().map(|n| n as f64));
+                match x {
+                    Some(x) if x.is_finite() => x as f32,
+                    _ => return Err(format!("warmup_orbit_degrees = {v}: expected a finite angle")),
+                }
+            }
+        };
+        let settings = CacheConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
+        Ok(Self {
+            settings,
+            warmup,
+            warmup_orbit_degrees,
+        })
+    }
+}
+
+impl From<CacheDesc> for toml::Table {
+    fn from(d: CacheDesc) -> toml::Table {
+        let mut t = toml::Table::try_from(d.settings).expect("cache settings are plain TOML values");
+        t.insert("warmup".into(), toml::Value::Integer(d.warmup.into()));
+        t.insert(
+            "warmup_orbit_degrees".into(),
+            toml::Value::Float(d.warmup_orbit_degrees.into()),
+        );
+        t
+    }
+}
+
 impl CacheDesc {
     /// The library configuration, checked.
     pub fn config(&self) -> Result<CacheConfig> {
-        let d = CacheConfig::default();
-        let lookup = match self.lookup.as_str() {
-            "raster" => Lookup::Raster,
-            "rt" => Lookup::RayTrace {
-                estimator: Estimator::Stochastic {
-                    samples_per_traversal: self.rt_samples.max(1),
-                },
-                spp: 1,
-            },
-            other => bail!("cache lookup `{other}`: expected `raster` or `rt`"),
-        };
-        let config = CacheConfig {
-            levels: self.levels,
-            points: self.points,
-            termination: TerminationConfig {
-                coefficient: self.c,
-                early: self.early,
-                natural: self.natural,
-                ..d.termination
-            },
-            learning_rates: LearningRates {
-                scale: self.scale_lr,
-                ..d.learning_rates
-            }
-            .scaled(self.lr_scale),
-            optimizer: self.optimizer,
-            size_cap: self.size_cap,
-            masked_targets: self.masked_targets,
-            normalized_radiance: self.normalized_radiance,
-            train: self.train,
-            lookup,
-            ..d
-        };
-        config.validate()?;
-        Ok(config)
+        self.settings.validate()?;
+        Ok(self.settings)
     }
 }
 
@@ -531,6 +507,7 @@ fn value_label(v: &toml::Value) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gs_cache::Optimizer;
 
     fn parse(text: &str) -> Result<Experiment> {
         let f: ExperimentFile = toml::from_str(text)?;
@@ -559,12 +536,12 @@ mod tests {
         assert_eq!(e.baseline.as_deref(), Some("nee"));
         let size = &e.ablations[0];
         assert_eq!(size.variants.len(), 2);
-        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().points, 2000);
-        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().c, 0.5);
+        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().settings.points, 2000);
+        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().settings.c, 0.5);
         assert_eq!(size.variants[0].1.name, "cache [points=100]");
         let opt = &e.ablations[1];
         assert_eq!(
-            opt.variants[1].1.cache.as_ref().unwrap().optimizer,
+            opt.variants[1].1.cache.as_ref().unwrap().settings.optimizer,
             Optimizer::Adam
         );
     }
@@ -578,6 +555,9 @@ mod tests {
             "{METHODS}\n[[ablation]]\nname = \"a\"\nmethod = \"cache\"\nparameter = \"pionts\"\nvalues = [1]"
         ));
         assert!(e.contains("`pionts` is not a cache setting"), "{e}");
+        // A misspelt key in a method's cache table is refused, naming it.
+        let e = err(&METHODS.replace("c = 0.5", "cc = 0.5"));
+        assert!(e.contains("cc"), "{e}");
         let e = err(&format!(
             "{METHODS}\n[[ablation]]\nname = \"a\"\nmethod = \"cache\"\nparameter = \"points\"\nvalues = [\"many\"]"
         ));

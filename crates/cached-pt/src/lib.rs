@@ -102,7 +102,7 @@ pub fn render_cached_frame(
     cache: &mut GsCache,
     cancel: &AtomicBool,
 ) -> Result<CachedFrameStats, gs_cache::CacheError> {
-    let termination = cache.config().termination;
+    let termination = cache.config().termination();
     let levels = cache.levels().len();
     cache.begin_frame(camera);
     let lookup_seconds = cache.report().lookup_seconds;

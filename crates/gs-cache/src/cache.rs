@@ -11,7 +11,7 @@ use splat_raster::loss::{Loss, loss_and_grad};
 use splat_raster::raster::ForwardState;
 use splat_raster::{Camera, GaussianCloud, PixelGrads, RasterConfig, backward, render};
 use std::time::Instant;
-use stochastic_rt::{DepthMode, GaussianScene, TraceSettings, trace_image};
+use stochastic_rt::{DepthMode, Estimator, GaussianScene, TraceSettings, trace_image};
 
 /// One level: the Gaussians for paths of one length, and their optimiser state.
 #[derive(Debug, Clone)]
@@ -110,7 +110,7 @@ pub struct GsCache {
 }
 
 fn adamw_config(config: &CacheConfig) -> AdamWConfig {
-    let lr = &config.learning_rates;
+    let lr = config.learning_rates();
     let wd = match config.optimizer {
         Optimizer::AdamW => config.weight_decay,
         Optimizer::Adam => 0.0,
@@ -246,11 +246,13 @@ impl GsCache {
                     (out.color, Some(state))
                 })
                 .unzip(),
-            Lookup::RayTrace { estimator, spp } => {
+            Lookup::Rt => {
                 let settings = TraceSettings {
-                    estimator,
+                    estimator: Estimator::Stochastic {
+                        samples_per_traversal: self.config.rt_samples.max(1),
+                    },
                     depth_mode: DepthMode::Center,
-                    spp: spp.max(1),
+                    spp: 1,
                     ..Default::default()
                 };
                 self.levels

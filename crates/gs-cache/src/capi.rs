@@ -13,7 +13,7 @@
 //! number of threads while it is not being called).
 
 use crate::cache::GsCache;
-use crate::config::{CacheConfig, LearningRates, Lookup, Optimizer, TerminationConfig};
+use crate::config::{CacheConfig, Lookup, Optimizer, TerminationConfig};
 use crate::targets::TrainingTargets;
 use crate::termination;
 use glam::Vec3;
@@ -40,17 +40,18 @@ pub enum GsCacheStatus {
     Panic = 5,
 }
 
-/// How each frame reads the cache.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum GsCacheLookup {
-    /// Rasterise every level (the paper's lookup).
-    Raster = 0,
-    /// Ray-trace every level stochastically (8 samples per traversal).
-    RayTrace = 1,
-}
+/// `GsCacheConfig::lookup`: rasterise every level (the paper's lookup).
+pub const GS_CACHE_LOOKUP_RASTER: u32 = 0;
+/// `GsCacheConfig::lookup`: ray-trace every level stochastically (`rt_samples` per traversal).
+pub const GS_CACHE_LOOKUP_RT: u32 = 1;
+/// `GsCacheConfig::optimizer`: AdamW.
+pub const GS_CACHE_OPTIMIZER_ADAMW: u32 = 0;
+/// `GsCacheConfig::optimizer`: Adam (no weight decay).
+pub const GS_CACHE_OPTIMIZER_ADAM: u32 = 1;
 
-/// Every setting of a cache; start from `gs_cache_default_config()` and change fields.
+/// Every setting of a cache; start from `gs_cache_default_config()` and change fields. The
+/// fields are the Rust `CacheConfig`'s, with the same names and meanings (its documentation
+/// says what each does); the two enums are `uint32_t` codes, checked when a cache is made.
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
 pub struct GsCacheConfig {
@@ -59,19 +60,25 @@ pub struct GsCacheConfig {
     /// How many points the renderer should find for `gs_cache_new` (the GSCache paper: 300k). The
     /// cache takes as many as it is given: level `i` has `count >> i` Gaussians.
     pub points: u32,
+    /// `GS_CACHE_LOOKUP_RASTER` or `GS_CACHE_LOOKUP_RT`.
+    pub lookup: u32,
+    /// Stochastic samples per traversal of the ray-traced lookup.
+    pub rt_samples: u32,
     /// Algorithm 1's coefficient C.
-    pub termination_coefficient: f32,
+    pub c: f32,
     /// Algorithm 1's threshold.
-    pub termination_threshold: f32,
-    pub early_termination: bool,
-    pub natural_termination: bool,
+    pub threshold: f32,
+    pub early: bool,
+    pub natural: bool,
+    /// `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
+    pub optimizer: u32,
     pub lr_position: f32,
     pub lr_color: f32,
     pub lr_rotation: f32,
-    pub lr_scale: f32,
+    pub lr_scales: f32,
     pub lr_opacity: f32,
-    /// false: Adam (no weight decay).
-    pub adamw: bool,
+    /// Multiplies every learning rate.
+    pub lr_multiplier: f32,
     pub weight_decay: f32,
     /// Eq. 2's cap on the initial scales.
     pub size_cap: bool,
@@ -83,7 +90,6 @@ pub struct GsCacheConfig {
     /// Learning rates relative to each level's mean radiance (see the crate docs); false for
     /// the GSCache paper's absolute colours.
     pub normalized_radiance: bool,
-    pub lookup: GsCacheLookup,
 }
 
 /// A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -182,40 +188,52 @@ fn null(name: &str) -> (GsCacheStatus, String) {
     (GsCacheStatus::NullArgument, format!("{name} is NULL"))
 }
 
-impl From<&GsCacheConfig> for CacheConfig {
-    fn from(c: &GsCacheConfig) -> Self {
-        CacheConfig {
+impl TryFrom<&GsCacheConfig> for CacheConfig {
+    type Error = String;
+    /// The Rust settings, refusing enum codes outside their range (a C enum can hold any
+    /// integer).
+    fn try_from(c: &GsCacheConfig) -> Result<Self, String> {
+        let lookup = match c.lookup {
+            GS_CACHE_LOOKUP_RASTER => Lookup::Raster,
+            GS_CACHE_LOOKUP_RT => Lookup::Rt,
+            other => {
+                return Err(format!(
+                    "lookup = {other}: expected GS_CACHE_LOOKUP_RASTER (0) or GS_CACHE_LOOKUP_RT (1)"
+                ));
+            }
+        };
+        let optimizer = match c.optimizer {
+            GS_CACHE_OPTIMIZER_ADAMW => Optimizer::AdamW,
+            GS_CACHE_OPTIMIZER_ADAM => Optimizer::Adam,
+            other => {
+                return Err(format!(
+                    "optimizer = {other}: expected GS_CACHE_OPTIMIZER_ADAMW (0) or GS_CACHE_OPTIMIZER_ADAM (1)"
+                ));
+            }
+        };
+        Ok(CacheConfig {
             levels: c.levels as usize,
             points: c.points as usize,
-            termination: TerminationConfig {
-                coefficient: c.termination_coefficient,
-                threshold: c.termination_threshold,
-                early: c.early_termination,
-                natural: c.natural_termination,
-            },
-            learning_rates: LearningRates {
-                position: c.lr_position,
-                color: c.lr_color,
-                rotation: c.lr_rotation,
-                scale: c.lr_scale,
-                opacity: c.lr_opacity,
-            },
-            optimizer: if c.adamw {
-                Optimizer::AdamW
-            } else {
-                Optimizer::Adam
-            },
+            lookup,
+            rt_samples: c.rt_samples,
+            c: c.c,
+            threshold: c.threshold,
+            early: c.early,
+            natural: c.natural,
+            optimizer,
+            lr_position: c.lr_position,
+            lr_color: c.lr_color,
+            lr_rotation: c.lr_rotation,
+            lr_scales: c.lr_scales,
+            lr_opacity: c.lr_opacity,
+            lr_multiplier: c.lr_multiplier,
             weight_decay: c.weight_decay,
             size_cap: c.size_cap,
             initial_opacity: c.initial_opacity,
             train: c.train,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
-            lookup: match c.lookup {
-                GsCacheLookup::Raster => Lookup::Raster,
-                GsCacheLookup::RayTrace => Lookup::ray_traced(),
-            },
-        }
+        })
     }
 }
 
@@ -233,23 +251,31 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
     GsCacheConfig {
         levels: d.levels as u32,
         points: d.points as u32,
-        termination_coefficient: d.termination.coefficient,
-        termination_threshold: d.termination.threshold,
-        early_termination: d.termination.early,
-        natural_termination: d.termination.natural,
-        lr_position: d.learning_rates.position,
-        lr_color: d.learning_rates.color,
-        lr_rotation: d.learning_rates.rotation,
-        lr_scale: d.learning_rates.scale,
-        lr_opacity: d.learning_rates.opacity,
-        adamw: d.optimizer == Optimizer::AdamW,
+        lookup: match d.lookup {
+            Lookup::Raster => GS_CACHE_LOOKUP_RASTER,
+            Lookup::Rt => GS_CACHE_LOOKUP_RT,
+        },
+        rt_samples: d.rt_samples,
+        c: d.c,
+        threshold: d.threshold,
+        early: d.early,
+        natural: d.natural,
+        optimizer: match d.optimizer {
+            Optimizer::AdamW => GS_CACHE_OPTIMIZER_ADAMW,
+            Optimizer::Adam => GS_CACHE_OPTIMIZER_ADAM,
+        },
+        lr_position: d.lr_position,
+        lr_color: d.lr_color,
+        lr_rotation: d.lr_rotation,
+        lr_scales: d.lr_scales,
+        lr_opacity: d.lr_opacity,
+        lr_multiplier: d.lr_multiplier,
         weight_decay: d.weight_decay,
         size_cap: d.size_cap,
         initial_opacity: d.initial_opacity,
         train: d.train,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,
-        lookup: GsCacheLookup::Raster,
     }
 }
 
@@ -270,7 +296,12 @@ pub unsafe extern "C" fn gs_cache_continue_probability(
     // SAFETY: both pointers are non-NULL and, by the caller's contract, point to a config and
     // to 3 readable floats.
     let (config, rgb) = unsafe { (&*config, std::slice::from_raw_parts(albedo_product, 3)) };
-    let t = CacheConfig::from(config).termination;
+    let t = TerminationConfig {
+        coefficient: config.c,
+        threshold: config.threshold,
+        early: config.early,
+        natural: config.natural,
+    };
     termination::continue_probability(&t, Vec3::new(rgb[0], rgb[1], rgb[2]))
 }
 
@@ -302,7 +333,7 @@ pub unsafe extern "C" fn gs_cache_new(
         };
         let points: Vec<Vec3> = p.chunks_exact(3).map(Vec3::from_slice).collect();
         let albedo: Vec<Vec3> = a.chunks_exact(3).map(Vec3::from_slice).collect();
-        let mut config = CacheConfig::from(config);
+        let mut config = CacheConfig::try_from(config).map_err(invalid)?;
         config.points = count;
         GsCache::new(&points, &albedo, config).map_err(|e| invalid(e.to_string()))
     })
@@ -325,7 +356,8 @@ pub unsafe extern "C" fn gs_cache_load(
         // SAFETY: non-NULL; the caller promises a NUL-terminated string and a config.
         let (dir, config) = unsafe { (CStr::from_ptr(dir), &*config) };
         let dir = dir.to_str().map_err(|_| invalid("dir is not UTF-8"))?;
-        GsCache::load(Path::new(dir), CacheConfig::from(config))
+        let config = CacheConfig::try_from(config).map_err(invalid)?;
+        GsCache::load(Path::new(dir), config)
             .map_err(|e| (GsCacheStatus::Io, e.to_string()))
     })
 }
@@ -542,7 +574,7 @@ mod tests {
     #[test]
     fn default_config_round_trips() {
         let c = gs_cache_default_config();
-        assert_eq!(CacheConfig::from(&c), CacheConfig::default());
+        assert_eq!(CacheConfig::try_from(&c), Ok(CacheConfig::default()));
     }
 
     #[test]

@@ -2,153 +2,166 @@
 //! learns, and how it is read.
 
 use serde::{Deserialize, Serialize};
-use stochastic_rt::Estimator;
 
-/// Per-parameter learning rates (the GSCache paper's section 4.1), before the schedule of Eq. 5.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+/// Per-parameter learning rates, before the schedule of Eq. 5: what training uses, built from
+/// a [`CacheConfig`] by [`CacheConfig::learning_rates`].
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LearningRates {
     pub position: f32,
     pub color: f32,
     pub rotation: f32,
-    /// 0 in the paper: the initial scales (Eq. 2) are kept. The ablation "-CO" sets 0.0125.
     pub scale: f32,
     pub opacity: f32,
 }
 
-impl Default for LearningRates {
-    fn default() -> Self {
-        Self {
-            position: 1.16e-3,
-            color: 1.25e-2,
-            rotation: 1e-3,
-            scale: 0.0,
-            opacity: 1.5e-1,
-        }
-    }
-}
-
-impl LearningRates {
-    /// Every rate multiplied by `factor`.
-    pub fn scaled(self, factor: f32) -> Self {
-        Self {
-            position: self.position * factor,
-            color: self.color * factor,
-            rotation: self.rotation * factor,
-            scale: self.scale * factor,
-            opacity: self.opacity * factor,
-        }
-    }
-}
-
-/// How paths stop into the cache (the GSCache paper's sections 3.3-3.4; see the crate docs for the
-/// estimator these settings define).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+/// How paths stop into the cache (the GSCache paper's sections 3.3-3.4): what one path needs
+/// of a [`CacheConfig`], built by [`CacheConfig::termination`].
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TerminationConfig {
-    /// Algorithm 1's coefficient C: the continuation probability is
-    /// `clamp(C * luminance(albedo product), 0, 1)`. 0 stops every path at its first vertex;
-    /// large values never stop early.
+    /// Algorithm 1's coefficient C.
     pub coefficient: f32,
-    /// Algorithm 1's threshold: paths whose continuation probability is at or above it always
-    /// continue.
+    /// Algorithm 1's threshold.
     pub threshold: f32,
     /// Early termination (Algorithm 1) on or off.
     pub early: bool,
-    /// Natural termination: a path that leaves the volume having carried no radiance takes the
-    /// cached value of its length instead of zero.
+    /// Natural termination on or off.
     pub natural: bool,
 }
 
-impl Default for TerminationConfig {
-    fn default() -> Self {
-        Self {
-            coefficient: 0.5,
-            threshold: 0.9,
-            early: true,
-            natural: true,
-        }
-    }
-}
-
 /// How the renderer reads the cache each frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
 pub enum Lookup {
     /// Rasterise each level with splat-raster (the paper's lookup).
     Raster,
-    /// Ray-trace each level with stochastic-rt (BVH rebuilt per frame, since training moves the
-    /// Gaussians). Training still uses the rasteriser's gradients.
-    RayTrace { estimator: Estimator, spp: u32 },
-}
-
-impl Lookup {
-    /// The ray-traced lookup with its default estimator: 8 stochastic samples per traversal.
-    pub fn ray_traced() -> Self {
-        Lookup::RayTrace {
-            estimator: Estimator::Stochastic {
-                samples_per_traversal: 8,
-            },
-            spp: 1,
-        }
-    }
+    /// Ray-trace each level with stochastic-rt's single-traversal stochastic estimator (Sun et
+    /// al., 2025), `rt_samples` samples per traversal. The BVH is rebuilt per frame, since
+    /// training moves the Gaussians; training still uses the rasteriser's gradients.
+    Rt,
 }
 
 /// Which optimiser trains the levels. Adam is AdamW without weight decay (the "-REG" ablation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Optimizer {
+    #[cfg_attr(feature = "clap", value(name = "adamw"))]
     AdamW,
     Adam,
 }
 
-/// Everything that defines a cache.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Everything that defines a cache, in one flat list: the same keys in an experiment file's
+/// `cache` table (serde), on the command line as `--cache-KEY` (clap, with the `clap` feature),
+/// and in the C ABI's `GsCacheConfig` (a test holds the three to the same names). Defaults are
+/// the GSCache paper's, except where the crate docs say why not.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+#[serde(deny_unknown_fields, default)]
 pub struct CacheConfig {
-    /// Number of levels; level `i` (0-based) holds paths of length `i + 1`.
+    /// Number of levels; level i (0-based) holds paths of length i + 1.
+    #[cfg_attr(feature = "clap", arg(long = "cache-levels", default_value_t = DEFAULT.levels))]
     pub levels: usize,
-    /// Gaussians in the first level; level `i` has `points / 2^i`.
+    /// Gaussians in the first level; level i has points / 2^i.
+    #[cfg_attr(feature = "clap", arg(long = "cache-points", default_value_t = DEFAULT.points))]
     pub points: usize,
-    pub termination: TerminationConfig,
-    pub learning_rates: LearningRates,
+    /// How each frame draws the levels: `raster` or `rt`.
+    #[cfg_attr(feature = "clap", arg(long = "cache-lookup", value_enum, default_value_t = DEFAULT.lookup))]
+    pub lookup: Lookup,
+    /// Stochastic samples per BVH traversal of the `rt` lookup.
+    #[cfg_attr(feature = "clap", arg(long = "cache-rt-samples", default_value_t = DEFAULT.rt_samples))]
+    pub rt_samples: u32,
+    /// Algorithm 1's coefficient C: the continuation probability is
+    /// clamp(C luminance(albedo product), 0, 1); 0 stops every path at its first vertex.
+    #[cfg_attr(feature = "clap", arg(long = "cache-c", default_value_t = DEFAULT.c))]
+    pub c: f32,
+    /// Algorithm 1's threshold: paths whose continuation probability is at or above it always
+    /// go on.
+    #[cfg_attr(feature = "clap", arg(long = "cache-threshold", default_value_t = DEFAULT.threshold))]
+    pub threshold: f32,
+    /// Early termination (Algorithm 1); false leaves only natural termination.
+    #[cfg_attr(feature = "clap", arg(long = "cache-early", action = clap::ArgAction::Set, default_value_t = DEFAULT.early))]
+    pub early: bool,
+    /// Natural termination: a path that leaves the volume having carried no radiance takes the
+    /// cached value of its length instead of zero.
+    #[cfg_attr(feature = "clap", arg(long = "cache-natural", action = clap::ArgAction::Set, default_value_t = DEFAULT.natural))]
+    pub natural: bool,
+    /// `adamw` or `adam` (no weight decay).
+    #[cfg_attr(feature = "clap", arg(long = "cache-optimizer", value_enum, default_value_t = DEFAULT.optimizer))]
     pub optimizer: Optimizer,
+    /// Learning rate of the means (the GSCache paper's section 4.1).
+    #[cfg_attr(feature = "clap", arg(long = "cache-lr-position", default_value_t = DEFAULT.lr_position))]
+    pub lr_position: f32,
+    /// Learning rate of the colours.
+    #[cfg_attr(feature = "clap", arg(long = "cache-lr-color", default_value_t = DEFAULT.lr_color))]
+    pub lr_color: f32,
+    /// Learning rate of the rotations.
+    #[cfg_attr(feature = "clap", arg(long = "cache-lr-rotation", default_value_t = DEFAULT.lr_rotation))]
+    pub lr_rotation: f32,
+    /// Learning rate of the log-scales: 0 in the paper (Eq. 2's sizes are kept); the "-CO"
+    /// ablation sets 0.0125.
+    #[cfg_attr(feature = "clap", arg(long = "cache-lr-scales", default_value_t = DEFAULT.lr_scales))]
+    pub lr_scales: f32,
+    /// Learning rate of the opacities.
+    #[cfg_attr(feature = "clap", arg(long = "cache-lr-opacity", default_value_t = DEFAULT.lr_opacity))]
+    pub lr_opacity: f32,
+    /// Multiplies every learning rate (sweeps move them together).
+    #[cfg_attr(feature = "clap", arg(long = "cache-lr-multiplier", default_value_t = DEFAULT.lr_multiplier))]
+    pub lr_multiplier: f32,
     /// AdamW's decoupled weight decay on colours and opacities (means, rotations and scales are
     /// not decayed: decay would pull every Gaussian towards the world origin).
+    #[cfg_attr(feature = "clap", arg(long = "cache-weight-decay", default_value_t = DEFAULT.weight_decay))]
     pub weight_decay: f32,
     /// Eq. 2's cap (mean + 2 sd of the neighbour distances) and halving of the initial scales;
-    /// off gives 3DGS's plain mean neighbour distance (the "-SC" ablation).
+    /// false gives 3DGS's plain mean neighbour distance (the "-SC" ablation).
+    #[cfg_attr(feature = "clap", arg(long = "cache-size-cap", action = clap::ArgAction::Set, default_value_t = DEFAULT.size_cap))]
     pub size_cap: bool,
     /// Opacity of every Gaussian at initialisation.
+    #[cfg_attr(feature = "clap", arg(long = "cache-initial-opacity", default_value_t = DEFAULT.initial_opacity))]
     pub initial_opacity: f32,
-    /// Train after each frame; off freezes the cache (it is still read).
+    /// Train after each frame; false freezes the cache (it is still read).
+    #[cfg_attr(feature = "clap", arg(long = "cache-train", action = clap::ArgAction::Set, default_value_t = DEFAULT.train))]
     pub train: bool,
-    /// Train each level only where a path reached it (the per-level masks). Off treats pixels
-    /// without a sample as zero targets: the cache then learns values thinned by the probability
-    /// of reaching the level and renders too dark (kept for the ablation; see the crate docs).
+    /// Train each level only where a path reached it (the per-level masks); false treats pixels
+    /// without a sample as zero targets and renders too dark (kept for the ablation; see the
+    /// crate docs).
+    #[cfg_attr(feature = "clap", arg(long = "cache-masked-targets", action = clap::ArgAction::Set, default_value_t = DEFAULT.masked_targets))]
     pub masked_targets: bool,
-    /// Each level draws its cloud times a radiance scale, set from the mean of its first
-    /// frame's samples, so the learning rates act in units of the scene's own radiance (Adam's
-    /// steps are absolute: without it, a scene lit 10x brighter adapts 10x slower). Off gives
-    /// the GSCache paper's absolute colours.
+    /// Draw each level's cloud times a radiance scale set from its first frame's samples, so the
+    /// learning rates act in units of the scene's own radiance (Adam's steps are absolute).
+    /// false gives the GSCache paper's absolute colours.
+    #[cfg_attr(feature = "clap", arg(long = "cache-normalized-radiance", action = clap::ArgAction::Set, default_value_t = DEFAULT.normalized_radiance))]
     pub normalized_radiance: bool,
-    pub lookup: Lookup,
 }
+
+/// The defaults, as a constant so the command line's defaults are these very values.
+const DEFAULT: CacheConfig = CacheConfig {
+    levels: 3,
+    points: 300_000,
+    lookup: Lookup::Raster,
+    rt_samples: 8,
+    c: 0.5,
+    threshold: 0.9,
+    early: true,
+    natural: true,
+    optimizer: Optimizer::AdamW,
+    lr_position: 1.16e-3,
+    lr_color: 1.25e-2,
+    lr_rotation: 1e-3,
+    lr_scales: 0.0,
+    lr_opacity: 1.5e-1,
+    lr_multiplier: 1.0,
+    weight_decay: 0.01,
+    size_cap: true,
+    initial_opacity: 0.5,
+    train: true,
+    masked_targets: true,
+    normalized_radiance: true,
+};
 
 impl Default for CacheConfig {
     fn default() -> Self {
-        Self {
-            levels: 3,
-            points: 300_000,
-            termination: TerminationConfig::default(),
-            learning_rates: LearningRates::default(),
-            optimizer: Optimizer::AdamW,
-            weight_decay: 0.01,
-            size_cap: true,
-            initial_opacity: 0.5,
-            train: true,
-            masked_targets: true,
-            normalized_radiance: true,
-            lookup: Lookup::Raster,
-        }
+        DEFAULT
     }
 }
 
@@ -171,45 +184,86 @@ impl CacheConfig {
                 self.points, self.levels
             ));
         }
-        let t = &self.termination;
-        if !(t.coefficient >= 0.0 && t.coefficient.is_finite()) {
+        if !(self.c >= 0.0 && self.c.is_finite()) {
             return bad(format!(
-                "termination coefficient C = {}: expected a finite value >= 0",
-                t.coefficient
+                "c = {}: Algorithm 1's coefficient must be finite and >= 0",
+                self.c
             ));
         }
-        if !(t.threshold >= 0.0 && t.threshold <= 1.0) {
+        if !(self.threshold >= 0.0 && self.threshold <= 1.0) {
             return bad(format!(
-                "termination threshold = {}: expected a value in [0, 1]",
-                t.threshold
+                "threshold = {}: expected a value in [0, 1]",
+                self.threshold
             ));
         }
-        let lr = &self.learning_rates;
+        if self.lookup == Lookup::Rt && !(1..=64).contains(&self.rt_samples) {
+            return bad(format!(
+                "rt_samples = {}: expected 1..=64 samples per traversal",
+                self.rt_samples
+            ));
+        }
+        for (name, v) in [
+            ("lr_position", self.lr_position),
+            ("lr_color", self.lr_color),
+            ("lr_rotation", self.lr_rotation),
+            ("lr_scales", self.lr_scales),
+            ("lr_opacity", self.lr_opacity),
+            ("lr_multiplier", self.lr_multiplier),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return bad(format!("{name} = {v}: expected a finite value >= 0"));
+            }
+        }
+        // A step of more than one unit in logit or log space per frame (the paper's opacity rate
+        // is 0.15) throws a cache away in a few frames; refuse what can only explode.
+        let lr = self.learning_rates();
         for (name, v) in [
             ("position", lr.position),
             ("color", lr.color),
             ("rotation", lr.rotation),
-            ("scale", lr.scale),
+            ("scales", lr.scale),
             ("opacity", lr.opacity),
         ] {
-            if !(v >= 0.0 && v.is_finite()) {
+            if v > 10.0 {
                 return bad(format!(
-                    "{name} learning rate = {v}: expected a finite value >= 0"
+                    "the {name} learning rate is {v} after lr_multiplier: expected at most 10 (a step that large only explodes the cache)"
                 ));
             }
         }
         if !(self.weight_decay >= 0.0 && self.weight_decay.is_finite()) {
             return bad(format!(
-                "weight decay = {}: expected a finite value >= 0",
+                "weight_decay = {}: expected a finite value >= 0",
                 self.weight_decay
             ));
         }
         if !(self.initial_opacity > 0.0 && self.initial_opacity < 1.0) {
             return bad(format!(
-                "initial opacity = {}: expected a value in (0, 1)",
+                "initial_opacity = {}: expected a value in (0, 1)",
                 self.initial_opacity
             ));
         }
         Ok(())
+    }
+
+    /// What one path needs: Algorithm 1's settings and natural termination.
+    pub fn termination(&self) -> TerminationConfig {
+        TerminationConfig {
+            coefficient: self.c,
+            threshold: self.threshold,
+            early: self.early,
+            natural: self.natural,
+        }
+    }
+
+    /// The learning rates training starts from (before Eq. 5), `lr_multiplier` applied.
+    pub fn learning_rates(&self) -> LearningRates {
+        let m = self.lr_multiplier;
+        LearningRates {
+            position: self.lr_position * m,
+            color: self.lr_color * m,
+            rotation: self.lr_rotation * m,
+            scale: self.lr_scales * m,
+            opacity: self.lr_opacity * m,
+        }
     }
 }

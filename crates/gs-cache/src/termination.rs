@@ -28,7 +28,7 @@ mod tests {
 
     #[test]
     fn algorithm_one() {
-        let c = TerminationConfig::default();
+        let c = crate::CacheConfig::default().termination();
         // C = 0.5, grey albedo 0.8: Tr = 0.4 < 0.9.
         assert!((continue_probability(&c, Vec3::splat(0.8)) - 0.4).abs() < 1e-6);
         // Above the threshold every path continues.

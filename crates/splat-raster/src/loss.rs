@@ -8,6 +8,7 @@
 
 /// Which loss.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Loss {
     Hdr,
     L1,

@@ -14,6 +14,7 @@ use splat_raster::{ColorModel, GaussianCloud};
 
 /// Where along the ray an intersection is placed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum DepthMode {
     /// The mean of the 1D Gaussian along the ray (Sun et al.'s "OursMean").
     #[default]

@@ -7,6 +7,7 @@ use splat_raster::random::{hash32, unit_f32};
 
 /// Which generator decides acceptance.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum RandomKind {
     /// xxHash32-style integer hash of (seed, pixel, sample, Gaussian id).
     #[default]

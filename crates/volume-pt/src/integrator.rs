@@ -19,6 +19,7 @@ use crate::tracking::{free_flight, transmittance};
 use glam::Vec3;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum IntegratorKind {
     /// Phase-function sampling only: emitters are found by chance.
@@ -26,19 +27,6 @@ pub enum IntegratorKind {
     /// Light sampling and phase sampling combined by MIS.
     #[default]
     Nee,
-}
-
-impl std::str::FromStr for IntegratorKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "uniform" => Ok(IntegratorKind::Uniform),
-            "nee" => Ok(IntegratorKind::Nee),
-            _ => Err(format!(
-                "unknown integrator `{s}`: expected `uniform` or `nee`"
-            )),
-        }
-    }
 }
 
 impl std::fmt::Display for IntegratorKind {

@@ -1,8 +1,11 @@
-//! `splat`: render a Gaussian cloud (3DGS PLY or .splat) with the differentiable rasteriser, or
-//! fit a cloud to a target EXR seen from a given camera.
+//! `gscache splat render | fit | trace`: render a Gaussian cloud (3DGS PLY or .splat) with the
+//! differentiable rasteriser, fit a cloud to a target EXR seen from a given camera, or ray-trace
+//! it with stochastic transparency (Sun et al., 2025).
 
-use anyhow::{Context, Result, bail};
-use clap::{Args as ClapArgs, Parser, Subcommand};
+use anyhow::{Result, bail};
+use crate::common::{Global, prepare_output};
+use clap::{Args as ClapArgs, Subcommand};
+use stochastic_rt::{DepthMode, RandomKind};
 use glam::Vec3;
 use hdr_image::{RgbImage, ToneMap};
 use splat_raster::adamw::{AdamW, AdamWConfig};
@@ -13,18 +16,8 @@ use splat_raster::train::train_step;
 use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, RasterConfig, render};
 use std::path::PathBuf;
 
-#[derive(Parser)]
-#[command(version, about = "Render or fit 3D Gaussian clouds on the CPU")]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-    /// Worker threads (default: all cores).
-    #[arg(long, global = true)]
-    threads: Option<usize>,
-}
-
-#[derive(Subcommand)]
-enum Command {
+#[derive(Subcommand, Debug)]
+pub enum SplatCommand {
     /// Render ASSET (.ply or .splat) to EXR and PNG.
     Render(RenderArgs),
     /// Fit a cloud to TARGET.exr seen from the given camera.
@@ -33,14 +26,27 @@ enum Command {
     Trace(TraceArgs),
 }
 
-#[derive(ClapArgs)]
-struct TraceArgs {
+/// The ray tracer's estimators.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+enum TraceMode {
+    /// Every hit sorted and composited: the reference.
+    Exact,
+    /// The K closest hits per pass (3DGRT-style).
+    Kbuffer,
+    /// One traversal, each hit accepted with its opacity (Sun et al.).
+    Stochastic,
+    /// The stochastic pass over K-hit buffers.
+    StochasticPass,
+}
+
+#[derive(ClapArgs, Debug)]
+pub struct TraceArgs {
     asset: PathBuf,
     #[command(flatten)]
     camera: CameraArgs,
-    /// `exact`, `kbuffer`, `stochastic` or `stochastic-pass`.
-    #[arg(long, default_value = "stochastic")]
-    mode: String,
+    /// The estimator.
+    #[arg(long, value_enum, default_value_t = TraceMode::Stochastic)]
+    mode: TraceMode,
     /// Samples per traversal for `stochastic` (Sun et al., section 3.5).
     #[arg(long, default_value_t = 1)]
     samples_per_traversal: u32,
@@ -53,12 +59,13 @@ struct TraceArgs {
     /// Estimates per pixel.
     #[arg(long, default_value_t = 16)]
     spp: u32,
-    /// `mean` (1D Gaussian mean along the ray) or `center` (the rasteriser's depth).
-    #[arg(long, default_value = "mean")]
-    depth: String,
+    /// Where a hit sits along the ray: `mean` (the 1D Gaussian's mean) or `center` (the
+    /// rasteriser's depth).
+    #[arg(long, value_enum, default_value_t = DepthMode::Mean)]
+    depth: DepthMode,
     /// Acceptance numbers: `hash` (integer) or `trig` (Sun et al., Eq. 8-10).
-    #[arg(long, default_value = "hash")]
-    random: String,
+    #[arg(long, value_enum, default_value_t = RandomKind::Hash)]
+    random: RandomKind,
     #[arg(long, default_value_t = 0)]
     seed: u32,
     /// Background colour `r,g,b`.
@@ -71,7 +78,7 @@ struct TraceArgs {
 }
 
 /// The camera: explicit (`--eye`, `--target`) or an orbit around the cloud.
-#[derive(ClapArgs, Clone)]
+#[derive(ClapArgs, Clone, Debug)]
 struct CameraArgs {
     /// Camera position `x,y,z` (with --target; otherwise an orbit around the cloud).
     #[arg(long, value_parser = parse_vec3)]
@@ -100,8 +107,8 @@ struct CameraArgs {
     height: u32,
 }
 
-#[derive(ClapArgs)]
-struct RenderArgs {
+#[derive(ClapArgs, Debug)]
+pub struct RenderArgs {
     asset: PathBuf,
     #[command(flatten)]
     camera: CameraArgs,
@@ -124,8 +131,8 @@ struct RenderArgs {
     png: Option<PathBuf>,
 }
 
-#[derive(ClapArgs)]
-struct FitArgs {
+#[derive(ClapArgs, Debug)]
+pub struct FitArgs {
     /// The image to fit (EXR, linear RGB).
     #[arg(value_name = "TARGET.exr")]
     target_image: PathBuf,
@@ -140,8 +147,8 @@ struct FitArgs {
     #[arg(long, default_value_t = 300)]
     iterations: u32,
     /// `hdr` (the GSCache paper's Eq. 4), `l1` or `l2`.
-    #[arg(long, default_value = "l1")]
-    loss: String,
+    #[arg(long, value_enum, default_value_t = Loss::L1)]
+    loss: Loss,
     #[arg(short = 'o', long, default_value = "out/fitted.ply")]
     output: PathBuf,
 }
@@ -211,22 +218,13 @@ fn make_camera(c: &CameraArgs, cloud: Option<&GaussianCloud<f32>>) -> Result<Cam
     )?)
 }
 
-fn main() {
-    if let Err(e) = run() {
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
-    }
-}
-
-fn run() -> Result<()> {
-    let cli = Cli::parse();
-    if let Some(t) = cli.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build_global()?;
-    }
-    match cli.command {
-        Command::Render(a) => {
+pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
+    match command {
+        SplatCommand::Render(a) => {
+            prepare_output(&a.output)?;
+            if let Some(png) = &a.png {
+                prepare_output(png)?;
+            }
             let cloud = read_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
             let cfg = RasterConfig {
@@ -258,10 +256,6 @@ fn run() -> Result<()> {
                 }
             };
             let secs = t0.elapsed().as_secs_f64();
-            if let Some(d) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(d)
-                    .with_context(|| format!("{}: cannot create folder", d.display()))?;
-            }
             let image = RgbImage::from_rgb(cam.width, cam.height, &img.color)?;
             image.write_exr(&a.output)?;
             let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
@@ -276,7 +270,8 @@ fn run() -> Result<()> {
                 png.display()
             );
         }
-        Command::Fit(a) => {
+        SplatCommand::Fit(a) => {
+            prepare_output(&a.output)?;
             let target = RgbImage::read_exr(&a.target_image)?;
             let (w, h) = (target.width(), target.height());
             let target = target.into_pixels();
@@ -288,12 +283,7 @@ fn run() -> Result<()> {
                     a.camera.height
                 );
             }
-            let loss = match a.loss.as_str() {
-                "hdr" => Loss::Hdr,
-                "l1" => Loss::L1,
-                "l2" => Loss::L2,
-                other => bail!("unknown loss `{other}`: expected hdr, l1 or l2"),
-            };
+            let loss = a.loss;
             let init = a.init.as_ref().map(|p| read_cloud(p)).transpose()?;
             let cam = make_camera(&a.camera, init.as_ref())?;
             let mut cloud = match init {
@@ -317,9 +307,6 @@ fn run() -> Result<()> {
                     println!("iteration {it:5}: loss {l:.5e}");
                 }
             }
-            if let Some(d) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(d)?;
-            }
             write_ply(&a.output, &cloud)?;
             let (img, _) = render(&cloud, &cam, &cfg);
             let png = a.output.with_extension("png");
@@ -332,36 +319,26 @@ fn run() -> Result<()> {
                 png.display()
             );
         }
-        Command::Trace(a) => {
-            use stochastic_rt::{
-                DepthMode, Estimator, GaussianScene, RandomKind, TraceSettings, trace_image,
-            };
+        SplatCommand::Trace(a) => {
+            prepare_output(&a.output)?;
+            if let Some(png) = &a.png {
+                prepare_output(png)?;
+            }
+            use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image};
             let cloud = read_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
-            let estimator = match a.mode.as_str() {
-                "exact" => Estimator::Exact,
-                "kbuffer" => Estimator::KBuffer {
+            let estimator = match a.mode {
+                TraceMode::Exact => Estimator::Exact,
+                TraceMode::Kbuffer => Estimator::KBuffer {
                     k: a.k.max(1),
                     min_transmittance: a.min_transmittance,
                 },
-                "stochastic" => Estimator::Stochastic {
+                TraceMode::Stochastic => Estimator::Stochastic {
                     samples_per_traversal: a.samples_per_traversal.clamp(1, 64),
                 },
-                "stochastic-pass" => Estimator::StochasticPass { k: a.k.max(1) },
-                other => bail!(
-                    "unknown --mode `{other}`: expected exact, kbuffer, stochastic or stochastic-pass"
-                ),
+                TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k.max(1) },
             };
-            let depth_mode = match a.depth.as_str() {
-                "mean" => DepthMode::Mean,
-                "center" => DepthMode::Center,
-                other => bail!("unknown --depth `{other}`: expected mean or center"),
-            };
-            let random = match a.random.as_str() {
-                "hash" => RandomKind::Hash,
-                "trig" => RandomKind::Trig,
-                other => bail!("unknown --random `{other}`: expected hash or trig"),
-            };
+            let (depth_mode, random) = (a.depth, a.random);
             let t0 = std::time::Instant::now();
             let scene = GaussianScene::new(&cloud);
             let build = t0.elapsed().as_secs_f64();
@@ -376,10 +353,6 @@ fn run() -> Result<()> {
             let t1 = std::time::Instant::now();
             let img = trace_image(&scene, &cam, &settings);
             let secs = t1.elapsed().as_secs_f64();
-            if let Some(d) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(d)
-                    .with_context(|| format!("{}: cannot create folder", d.display()))?;
-            }
             let image = RgbImage::from_pixels(cam.width, cam.height, img)?;
             image.write_exr(&a.output)?;
             let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
@@ -396,7 +369,7 @@ fn run() -> Result<()> {
                 build * 1e3,
                 cam.width,
                 cam.height,
-                a.mode,
+                clap::ValueEnum::to_possible_value(&a.mode).expect("every mode has a name").get_name(),
                 secs,
                 rays / secs / 1e6,
                 rayon::current_num_threads(),
@@ -405,7 +378,7 @@ fn run() -> Result<()> {
             );
         }
     }
-    Ok(())
+    Ok(0)
 }
 
 /// Random small Gaussians spread through the camera's view between two depths (a hash-based

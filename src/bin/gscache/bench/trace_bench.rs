@@ -191,7 +191,7 @@ pub fn run(a: &TraceArgs) -> Result<()> {
     println!("|---|---|---|---|---|---|");
     hash_table("plant", &scene, &cam, a.spp);
     if a.volume_gaussians > 0 {
-        let (vcloud, mut vcam) = crate::splat_bench::volume_cloud(a.volume_gaussians)?;
+        let (vcloud, mut vcam) = crate::bench::splat_bench::volume_cloud(a.volume_gaussians)?;
         vcam.width = w;
         vcam.height = h;
         let t = Instant::now();

@@ -3,10 +3,10 @@
 //! cache's parameters inspected at intervals. It fails (non-zero exit) if a parameter, a cache
 //! value or a sample is ever non-finite, or a Gaussian grows or strays past the stated bounds.
 
-use crate::cache_bench::{cache_config, default_scenes, load_sized, new_cache, orbit};
+use crate::bench::cache_bench::{default_scenes, load_sized, new_cache, orbit};
 use anyhow::{Result, bail};
 use cached_pt::render_cached_frame;
-use gs_cache::{GsCache, Lookup};
+use gs_cache::GsCache;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use volume_pt::{Film, IntegratorKind};
@@ -24,15 +24,9 @@ pub struct StabilityArgs {
     /// Frames between inspections.
     #[arg(long, default_value_t = 250)]
     pub every: u32,
-    #[arg(long, default_value_t = 100_000)]
-    pub points: usize,
-    /// Multiplies every learning rate of the GSCache paper.
-    #[arg(long, default_value_t = 1.0)]
-    pub lr_scale: f32,
-    /// Learning rate of the log-scales (the GSCache paper: 0, the sizes are kept; its "-CO"
-    /// ablation trains them at 0.0125).
-    #[arg(long)]
-    pub scale_lr: Option<f32>,
+    /// The cache's settings (`--cache-KEY`, as for `gscache render`).
+    #[command(flatten)]
+    pub cache: gs_cache::CacheConfig,
     /// Largest Gaussian allowed, as a fraction of the volume's diagonal.
     #[arg(long, default_value_t = 0.5)]
     pub max_scale: f32,
@@ -104,10 +98,9 @@ pub fn run(args: &StabilityArgs) -> Result<()> {
         args.width,
         args.height,
         args.frames,
-        args.points,
-        args.lr_scale,
-        args.scale_lr
-            .map_or("0 (the GSCache paper's)".to_string(), |s| s.to_string())
+        args.cache.points,
+        args.cache.lr_multiplier,
+        args.cache.lr_scales
     );
     println!(
         "| volume | frame | non-finite parameters / cache values / samples | largest scale / diagonal | farthest stray / diagonal | opacity range | largest cache value | level-1 MSE | ms per frame |"
@@ -118,10 +111,7 @@ pub fn run(args: &StabilityArgs) -> Result<()> {
         let Some((name, scene)) = load_sized(path, args.width, args.height)? else {
             continue;
         };
-        let mut config = cache_config(args.points, args.lr_scale, Lookup::Raster);
-        if let Some(s) = args.scale_lr {
-            config.learning_rates.scale = s;
-        }
+        let config = args.cache;
         let (mut cache, _) = new_cache(&scene, config)?;
         let (lo, hi) = scene.media.medium.bounds();
         let diagonal = (hi - lo).length();

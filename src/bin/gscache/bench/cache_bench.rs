@@ -35,12 +35,10 @@ pub struct CacheBenchArgs {
     /// Degrees the camera orbits (about its up axis through the volume's centre) over the run.
     #[arg(long, default_value_t = 60.0)]
     pub orbit_degrees: f32,
-    /// Cache points (first level).
-    #[arg(long, default_value_t = 100_000)]
-    pub points: usize,
-    /// Multiplies every learning rate of the GSCache paper.
-    #[arg(long, default_value_t = 1.0)]
-    pub lr_scale: f32,
+    /// The cache's settings (`--cache-KEY`, as for `gscache render`); its lookup is measured
+    /// both ways unless `--no-rt`.
+    #[command(flatten)]
+    pub cache: CacheConfig,
     /// Samples per pixel of the `nee` reference.
     #[arg(long, default_value_t = 256)]
     pub reference_spp: u32,
@@ -81,17 +79,6 @@ pub fn load_sized(path: &Path, width: u32, height: u32) -> Result<Option<(String
     scene.camera.height = height;
     let name = path.file_stem().unwrap().to_string_lossy().into_owned();
     Ok(Some((name, scene)))
-}
-
-/// The cache settings of a run.
-pub fn cache_config(points: usize, lr_scale: f32, lookup: Lookup) -> CacheConfig {
-    let defaults = CacheConfig::default();
-    CacheConfig {
-        points,
-        lookup,
-        learning_rates: defaults.learning_rates.scaled(lr_scale),
-        ..defaults
-    }
 }
 
 /// A cache for `scene` (points found with the scene's seed), and its initialisation seconds.
@@ -256,8 +243,8 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         args.frames,
         args.warmup,
         args.orbit_degrees,
-        args.points,
-        args.lr_scale
+        args.cache.points,
+        args.cache.lr_multiplier
     );
     let mut table2 = vec![
         "| volume | uniform PT | nee PT | nee + cache PT | ST (raster) | OT | (ST + OT) / PT | ST (rt) | OT (rt) | cache MB (+ AdamW moments) | init ms |".to_string(),
@@ -279,7 +266,10 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         let nee = fly_plain(&scene, IntegratorKind::Nee, args, centre);
         let (mut cache, init) = new_cache(
             &scene,
-            cache_config(args.points, args.lr_scale, Lookup::Raster),
+            CacheConfig {
+                lookup: Lookup::Raster,
+                ..args.cache
+            },
         )?;
         let mb = cache.parameter_bytes() as f64 / 1e6;
         let raster = fly_cached(&scene, &mut cache, args, centre)?;
@@ -288,7 +278,10 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         } else {
             let (mut c, _) = new_cache(
                 &scene,
-                cache_config(args.points, args.lr_scale, Lookup::ray_traced()),
+                CacheConfig {
+                    lookup: Lookup::Rt,
+                    ..args.cache
+                },
             )?;
             Some(fly_cached(&scene, &mut c, args, centre)?)
         };

@@ -1,35 +1,34 @@
-//! `render SCENE.toml`: path-trace a volume scene to EXR and PNG.
+//! `gscache render SCENE.toml`: path-trace a volume scene to EXR and PNG, optionally reading
+//! and training the GSCache radiance cache.
 
+use crate::common::{Global, INTERRUPTED, cancellation, prepare_folder, prepare_output};
 use anyhow::{Context, Result, bail};
 use cached_pt::render_cached_frame;
-use clap::Parser;
-use gs_cache::{CacheConfig, GsCache, Lookup};
+use gs_cache::{CacheConfig, GsCache};
+use gscache_cli::camera_path::orbit;
 use hdr_image::{RgbImage, ToneMap};
-use indicatif::{ProgressBar, ProgressStyle};
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use indicatif::ProgressBar;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::scene::max_depth_from;
-use volume_pt::{
-    Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points,
-};
+use volume_pt::{Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points};
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
-#[derive(Parser, Debug)]
-#[command(version, allow_negative_numbers = true)]
-struct Args {
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct RenderArgs {
     /// Scene file (TOML).
     scene: PathBuf,
-    /// Samples per pixel (overrides the scene).
+    /// Samples per pixel (overrides the scene); with the cache, per frame.
     #[arg(long)]
     spp: Option<u32>,
     /// `uniform` (phase sampling only) or `nee` (light sampling + phase sampling, MIS).
-    #[arg(long)]
+    #[arg(long, value_enum)]
     integrator: Option<IntegratorKind>,
     /// Largest path length in real scattering vertices; -1 for unlimited.
     #[arg(long)]
     max_depth: Option<i64>,
-    /// Seed of the counter-based random numbers.
+    /// Seed of the counter-based random numbers (and of the cache's starting points).
     #[arg(long)]
     seed: Option<u64>,
     /// Image width in pixels (overrides the scene).
@@ -38,9 +37,6 @@ struct Args {
     /// Image height in pixels (overrides the scene).
     #[arg(long)]
     height: Option<u32>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
     /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
     #[arg(long)]
     macrocell: Option<u32>,
@@ -53,47 +49,32 @@ struct Args {
     /// PNG exposure in stops (overrides the scene).
     #[arg(long)]
     exposure: Option<f32>,
-    /// PNG tone map: `clip` or `aces` (overrides the scene).
-    #[arg(long)]
+    /// PNG tone map (overrides the scene).
+    #[arg(long, value_enum)]
     tonemap: Option<ToneMap>,
-    /// No progress bar.
-    #[arg(long, short)]
-    quiet: bool,
     #[command(flatten)]
-    cache: CacheArgs,
+    cache: CacheRun,
 }
 
-/// The gs-cache radiance cache (Bauer et al., 2025): read where paths stop, trained between frames.
+/// The GSCache radiance cache (Bauer et al., 2025): read where paths stop, trained between
+/// frames. Its settings are `--cache-KEY`, the keys of an experiment file's `cache` table.
 #[derive(clap::Args, Debug)]
-struct CacheArgs {
-    /// `off`, `raster` (levels drawn by the splatting rasteriser) or `rt` (by the stochastic
-    /// Gaussian ray tracer).
-    #[arg(long, default_value = "off")]
-    cache: CacheMode,
-    /// Algorithm 1's coefficient C (0 stops every path at its first vertex into the cache).
-    #[arg(long, default_value_t = 0.5)]
-    cache_c: f32,
-    /// Gaussians in the first level (level i has N / 2^i).
-    #[arg(long, default_value_t = 300_000)]
-    cache_points: usize,
-    /// Levels (level i holds paths of length i + 1).
-    #[arg(long, default_value_t = 3)]
-    cache_levels: usize,
+pub struct CacheRun {
+    /// Read and train the radiance cache.
+    #[arg(long)]
+    cache: bool,
+    #[command(flatten)]
+    settings: CacheConfig,
     /// Frames of `--spp` samples each, trained between them; the image is their mean.
     #[arg(long, default_value_t = 1)]
     frames: u32,
     /// Frames rendered and trained on before the image starts accumulating.
     #[arg(long, default_value_t = 0)]
     warmup: u32,
-    /// Multiplies every learning rate (the GSCache paper's values are the default).
-    #[arg(long, default_value_t = 1.0)]
-    cache_lr_scale: f32,
-    /// Read the cache but never train it.
-    #[arg(long)]
-    no_train: bool,
-    /// No early termination (Algorithm 1): the cache is read only by paths that end with nothing.
-    #[arg(long)]
-    no_early: bool,
+    /// Degrees of orbit about the volume's centre over the warm-up frames, ending at the
+    /// scene's camera (the experiment runner's warm-up); 0 keeps the camera still.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    warmup_orbit: f32,
     /// Write the trained levels as 3DGS PLY files into this folder.
     #[arg(long)]
     save_cache: Option<PathBuf>,
@@ -105,39 +86,7 @@ struct CacheArgs {
     cache_images: Option<PathBuf>,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum CacheMode {
-    Off,
-    Raster,
-    Rt,
-}
-
-fn ensure_parent(p: &Path) -> Result<()> {
-    if let Some(d) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(d)
-            .with_context(|| format!("{}: cannot create folder", d.display()))?;
-    }
-    Ok(())
-}
-
-fn main() {
-    if let Err(e) = run() {
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
-    }
-}
-
-fn run() -> Result<()> {
-    let args = Args::parse();
-    if let Some(t) = args.threads {
-        if t == 0 {
-            bail!("--threads 0: expected at least 1 thread");
-        }
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build_global()
-            .context("cannot start the thread pool")?;
-    }
+pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
     let mut scene = load_scene(&args.scene)?;
     for n in &scene.notes {
@@ -185,8 +134,29 @@ fn run() -> Result<()> {
         .png
         .clone()
         .unwrap_or_else(|| exr_path.with_extension("png"));
-    ensure_parent(&exr_path)?;
-    ensure_parent(&png_path)?;
+    prepare_output(&exr_path)?;
+    prepare_output(&png_path)?;
+    for dir in [&args.cache.save_cache, &args.cache.cache_images].into_iter().flatten() {
+        prepare_folder(dir)?;
+    }
+    if !args.cache.cache
+        && (args.cache.frames != 1
+            || args.cache.warmup != 0
+            || args.cache.save_cache.is_some()
+            || args.cache.load_cache.is_some()
+            || args.cache.cache_images.is_some())
+    {
+        bail!("--frames, --warmup and the cache's files need the cache: add --cache");
+    }
+    if args.cache.frames == 0 {
+        bail!("--frames 0: expected at least 1 frame");
+    }
+    if scene.settings.spp == 0 {
+        bail!("--spp 0: expected at least 1 sample per pixel");
+    }
+    if !exposure.is_finite() {
+        bail!("exposure {exposure}: expected a finite number of stops");
+    }
 
     let cam = scene.camera;
     let dims = scene.media.medium.grid().dims();
@@ -203,34 +173,11 @@ fn run() -> Result<()> {
         load_start.elapsed().as_secs_f64()
     );
 
-    let cancel = Arc::new(AtomicBool::new(false));
-    {
-        let cancel = cancel.clone();
-        ctrlc::set_handler(move || {
-            if cancel.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-            eprintln!("\ninterrupted: finishing the tiles under way, then writing the image (Ctrl-C again to quit now)");
-        })
-        .context("cannot install the Ctrl-C handler")?;
-    }
+    let cancel = cancellation()?;
     let total = scene.settings.spp as u64 * cam.width as u64 * cam.height as u64;
-    let bar = if args.quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(total)
-    };
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{bar:40} {percent:>3}% {human_pos}/{human_len} samples, {per_sec}, eta {eta}",
-        )
-        .expect("valid template"),
-    );
+    let bar = global.progress(total, "samples");
     let mut film = Film::new(cam.width, cam.height);
-    let stats = if args.cache.cache == CacheMode::Off {
-        if args.cache.frames != 1 || args.cache.warmup != 0 {
-            bail!("--frames and --warmup need a cache (--cache raster or --cache rt)");
-        }
+    let stats = if !args.cache.cache {
         render(
             &scene.media,
             &cam,
@@ -264,10 +211,10 @@ fn run() -> Result<()> {
             film.total_samples() as f64 / (cam.width as f64 * cam.height as f64),
             scene.settings.spp
         )
-    } else if args.cache.cache != CacheMode::Off {
+    } else if args.cache.cache {
         format!(
-            "{} frames of {} spp with the {:?} cache",
-            args.cache.frames, scene.settings.spp, args.cache.cache
+            "{} frames of {} spp with the cache ({:?} lookup)",
+            args.cache.frames, scene.settings.spp, args.cache.settings.lookup
         )
     } else {
         format!("{} spp", scene.settings.spp)
@@ -284,31 +231,19 @@ fn run() -> Result<()> {
         exr_path.display(),
         png_path.display()
     );
-    Ok(())
+    Ok(if stats.cancelled { INTERRUPTED } else { 0 })
 }
 
 /// Initialises (or loads) the cache, renders the warm-up and the accumulated frames, prints
 /// the per-frame costs, and saves the cache when asked.
 fn render_with_cache(
     scene: &Scene,
-    a: &CacheArgs,
+    a: &CacheRun,
     film: &mut Film,
     cancel: &AtomicBool,
     bar: &ProgressBar,
 ) -> Result<RenderStats> {
-    let mut config = CacheConfig {
-        levels: a.cache_levels,
-        points: a.cache_points,
-        train: !a.no_train,
-        lookup: match a.cache {
-            CacheMode::Rt => Lookup::ray_traced(),
-            _ => Lookup::Raster,
-        },
-        ..Default::default()
-    };
-    config.termination.coefficient = a.cache_c;
-    config.learning_rates = config.learning_rates.scaled(a.cache_lr_scale);
-    config.termination.early = !a.no_early;
+    let config = a.settings;
     config.validate()?;
     let t0 = std::time::Instant::now();
     let mut cache = match &a.load_cache {
@@ -342,14 +277,21 @@ fn render_with_cache(
     let start = std::time::Instant::now();
     let (mut pt, mut st, mut ot, mut samples, mut nonfinite) = (0.0, 0.0, 0.0, 0u64, 0u64);
     let mut counted = 0u32;
+    let (lo, hi) = scene.media.medium.bounds();
+    let centre = 0.5 * (lo + hi);
     for f in 0..a.warmup + a.frames {
         if cancel.load(Ordering::Relaxed) {
             break;
         }
         let accumulate = f >= a.warmup;
+        let camera = if accumulate || a.warmup_orbit == 0.0 {
+            scene.camera
+        } else {
+            orbit(&scene.camera, centre, a.warmup_orbit, f, a.warmup + 1)
+        };
         let s = render_cached_frame(
             &scene.media,
-            &scene.camera,
+            &camera,
             &scene.settings,
             f,
             accumulate.then_some(&mut *film),

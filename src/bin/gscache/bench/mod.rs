@@ -1,6 +1,6 @@
-//! `bench`: speed of the renderers, as Markdown tables.
+//! `gscache bench`: speed of the renderers, as Markdown tables.
 //!
-//! - `bench` (or `bench pt`): the volume path tracer on the bundled and shared volumes: samples
+//! - `gscache bench` (or `bench pt`): the volume path tracer on the bundled and shared volumes: samples
 //!   per second for `uniform` and `nee`, with the macrocell majorant grid and with one global
 //!   majorant, and how time grows with spp and image size.
 //! - `bench splat`: the rasteriser's forward and backward passes at 1280x720, the AdamW step,
@@ -22,14 +22,13 @@ mod stability_bench;
 mod trace_bench;
 
 use anyhow::Result;
-use clap::Parser;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
 
-#[derive(Parser, Debug)]
-#[command(version, args_conflicts_with_subcommands = true)]
-struct Cli {
+#[derive(clap::Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct BenchArgs {
     #[command(subcommand)]
     command: Option<Sub>,
     #[command(flatten)]
@@ -65,9 +64,6 @@ struct Args {
     /// Samples per pixel for the throughput table.
     #[arg(long, default_value_t = 8)]
     spp: u32,
-    /// Worker threads.
-    #[arg(long)]
-    threads: Option<usize>,
     /// Skip the spp / image-size scaling table.
     #[arg(long)]
     no_scaling: bool,
@@ -91,8 +87,7 @@ fn time_render(scene: &Scene, spp: u32, size: u32) -> (f64, f64) {
     (stats.seconds, stats.samples_per_second())
 }
 
-fn main() -> Result<()> {
-    let cli = Cli::parse();
+pub fn run(cli: BenchArgs) -> Result<i32> {
     match cli.command {
         Some(Sub::Splat(a)) => splat_bench::run(&a),
         Some(Sub::Trace(a)) => trace_bench::run(&a),
@@ -101,7 +96,8 @@ fn main() -> Result<()> {
         Some(Sub::Pt(a)) => run_pt(a),
         Some(Sub::Compare { reference, images }) => compare(&reference, &images),
         None => run_pt(cli.pt),
-    }
+    }?;
+    Ok(0)
 }
 
 fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
@@ -127,11 +123,6 @@ fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
 }
 
 fn run_pt(args: Args) -> Result<()> {
-    if let Some(t) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build_global()?;
-    }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes");
     let scenes = if args.scenes.is_empty() {
         ["default", "hydrogen", "headsq", "chest_ct", "embryo"]

@@ -1,0 +1,94 @@
+//! What every subcommand shares: the thread pool, cancellation, progress and output files.
+
+use anyhow::{Context, Result, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Options every subcommand takes.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct Global {
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long, global = true)]
+    pub threads: Option<usize>,
+    /// No progress bar.
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+}
+
+impl Global {
+    /// Starts the global thread pool with `--threads` workers, if given.
+    pub fn start_threads(&self) -> Result<()> {
+        if let Some(t) = self.threads {
+            if t == 0 {
+                bail!("--threads 0: expected at least 1 thread");
+            }
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build_global()
+                .context("cannot start the thread pool")?;
+        }
+        Ok(())
+    }
+
+    /// A progress bar over `total` units named `unit`, hidden with `--quiet`.
+    pub fn progress(&self, total: u64, unit: &str) -> ProgressBar {
+        let bar = if self.quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(total)
+        };
+        bar.set_style(
+            ProgressStyle::with_template(&format!(
+                "{{bar:40}} {{percent:>3}}% {{human_pos}}/{{human_len}} {unit}, {{per_sec}}, eta {{eta}}"
+            ))
+            .expect("valid template"),
+        );
+        bar
+    }
+}
+
+/// The flag that stops long work: set by the first Ctrl-C, SIGTERM or SIGHUP, after which the
+/// work finishes what is under way and writes what it has; a second signal quits at once.
+pub fn cancellation() -> Result<Arc<AtomicBool>> {
+    let cancel = Arc::new(AtomicBool::new(false));
+    let flag = cancel.clone();
+    ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        eprintln!(
+            "\ninterrupted: finishing the work under way, then writing what is done (interrupt again to quit now)"
+        );
+    })
+    .context("cannot install the interrupt handler")?;
+    Ok(cancel)
+}
+
+/// The exit status of a run that was interrupted and kept its partial result.
+pub const INTERRUPTED: i32 = 130;
+
+/// Makes sure `path` can be written before any work starts: creates its folder and tries a
+/// file there, so a bad `-o` is found now, not after an hour's render.
+pub fn prepare_output(path: &Path) -> Result<()> {
+    let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(d) => d,
+        None => Path::new("."),
+    };
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the folder for {}", dir.display(), path.display()))?;
+    if path.is_dir() {
+        bail!("{}: is a folder: expected a file name", path.display());
+    }
+    let probe = dir.join(format!(".gscache-write-test-{}", std::process::id()));
+    std::fs::write(&probe, b"")
+        .with_context(|| format!("{}: cannot write into {}", path.display(), dir.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Makes sure folder `dir` exists and can be written, before any work starts.
+pub fn prepare_folder(dir: &Path) -> Result<()> {
+    prepare_output(&dir.join("probe"))
+}

@@ -1,0 +1,60 @@
+//! `gscache`: the one program. Subcommands:
+//!
+//! - `render`: path-trace a volume scene, optionally with the radiance cache;
+//! - `splat render | fit | trace`: Gaussian clouds with the rasteriser or the ray tracer;
+//! - `experiment`: methods at budgets against a reference, fly-throughs, ablations, a report;
+//! - `bench ...`: the renderers' speed, as Markdown tables.
+//!
+//! `--threads` and `--quiet` apply to all of them; long work stops cleanly on Ctrl-C, SIGTERM
+//! or SIGHUP and keeps what it has done (see `common`).
+
+mod bench;
+mod common;
+mod experiment;
+mod render;
+mod splat;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "gscache",
+    version,
+    about = "Volume path tracing with a Gaussian radiance cache (GSCache, Bauer et al. 2025), on the CPU"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    #[command(flatten)]
+    global: common::Global,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Path-trace a volume scene (TOML) to EXR and PNG, optionally reading the radiance cache.
+    Render(Box<render::RenderArgs>),
+    /// Render, fit or ray-trace 3D Gaussian clouds (3DGS PLY or .splat).
+    #[command(subcommand)]
+    Splat(splat::SplatCommand),
+    /// Run experiment files: methods at budgets against a reference, with a report.
+    Experiment(experiment::ExperimentArgs),
+    /// Measure the renderers' speed (Markdown tables).
+    Bench(bench::BenchArgs),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = cli.global.start_threads().and_then(|()| match cli.command {
+        Command::Render(a) => render::run(*a, &cli.global),
+        Command::Splat(c) => splat::run(c, &cli.global),
+        Command::Experiment(a) => experiment::run(a, &cli.global),
+        Command::Bench(a) => bench::run(a),
+    });
+    match result {
+        Ok(code) => std::process::exit(code),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::exit(1);
+        }
+    }
+}

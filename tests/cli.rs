@@ -1,11 +1,13 @@
-//! The `render` program end to end: a render from the bundled scene, clear errors on bad input,
+//! `gscache render` end to end: a render from the bundled scene, clear errors on bad input,
 //! and Ctrl-C writing the image accumulated so far.
 
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
 fn render() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_render"))
+    let mut c = Command::new(env!("CARGO_BIN_EXE_gscache"));
+    c.arg("render");
+    c
 }
 
 fn repo() -> PathBuf {
@@ -91,32 +93,66 @@ fn bad_input_is_a_clear_error_not_a_panic() {
 }
 
 #[test]
-fn ctrl_c_writes_what_was_accumulated() {
-    let d = scratch("sigint");
-    let exr = d.join("partial.exr");
-    let child = render()
+fn an_interrupt_writes_what_was_accumulated_and_exits_130() {
+    for signal in ["-INT", "-TERM"] {
+        let d = scratch(&format!("signal{signal}"));
+        let exr = d.join("partial.exr");
+        let child = render()
+            .arg(repo().join("data/scenes/default.toml"))
+            .args(["--spp", "100000", "--width", "32", "--height", "32", "-q"])
+            .arg("-o")
+            .arg(&exr)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(1500));
+        let status = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let out = child.wait_with_output().unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(
+            out.status.code(),
+            Some(130),
+            "{signal}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(stdout.contains("interrupted after"), "{signal}: {stdout}");
+        let px = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
+        assert!(px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0));
+    }
+}
+
+#[test]
+fn an_unwritable_output_is_refused_before_rendering() {
+    let d = scratch("unwritable");
+    let file = d.join("a_file");
+    std::fs::write(&file, b"x").unwrap();
+    // The output's folder is a file: found at once, not after a million samples.
+    let start = std::time::Instant::now();
+    let out = render()
         .arg(repo().join("data/scenes/default.toml"))
-        .args(["--spp", "100000", "--width", "32", "--height", "32", "-q"])
-        .arg("-o")
-        .arg(&exr)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
+        .args(["--spp", "1000000", "-q", "-o"])
+        .arg(file.join("out.exr"))
+        .output()
         .unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(1500));
-    let status = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(status.success());
-    let out = child.wait_with_output().unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("a_file"), "{err}");
     assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        start.elapsed().as_secs() < 30,
+        "the render ran before the check"
     );
-    assert!(stdout.contains("interrupted after"), "{stdout}");
-    let px = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
-    assert!(px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0));
+    // Frames and warm-up without the cache are a mistake, not a silent plain render.
+    let out = render()
+        .arg(repo().join("data/scenes/default.toml"))
+        .args(["--frames", "4", "-q", "-o"])
+        .arg(d.join("x.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--cache"), "{err}");
 }

@@ -185,7 +185,8 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
         text.replace("parameter = \"c\"", "parameter = \"cc\""),
     )
     .unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_experiment"))
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .arg("experiment")
         .arg(&bad)
         .output()
         .unwrap();
@@ -197,7 +198,8 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
     );
     let missing = dir.join("missing.toml");
     std::fs::write(&missing, text.replace("default.toml", "nowhere.toml")).unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_experiment"))
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .arg("experiment")
         .arg(&missing)
         .output()
         .unwrap();
@@ -206,5 +208,54 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
         !out.status.success() && err.contains("nowhere.toml"),
         "{err}"
     );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The report gives, per method, a `gscache render` line that renders one frame of it: that
+/// line must give the runner's own first 1-spp image, bit for bit (for a cache: after the same
+/// warm-up along the same orbit).
+#[test]
+fn the_reports_command_line_renders_the_runners_image() {
+    use gscache_cli::experiment::command::render_args;
+    use gscache_cli::experiment::measure::{Budget, run_method};
+    let dir = scratch("command");
+    let file = tiny_experiment(&dir);
+    let exp = gscache_cli::experiment::load_experiment(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&exp.scene).unwrap();
+    let (w, h) = exp.size.unwrap();
+    scene.camera.width = w;
+    scene.camera.height = h;
+    let (lo, hi) = scene.media.medium.bounds();
+    let seed = exp.seeds[1];
+    assert!(exp.methods.iter().any(|m| m.cache.is_some()));
+    for method in &exp.methods {
+        let (snaps, _) =
+            run_method(&scene, method, seed, &[Budget::Spp(1)], 0.5 * (lo + hi)).unwrap();
+        let exr = dir.join(format!("{}.exr", method.name.replace(' ', "_")));
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+            .args(render_args(&exp.scene, w, h, method, seed))
+            .args(["-q", "-o"])
+            .arg(&exr)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let got = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
+        let want = &snaps[0].image;
+        assert_eq!(got.len(), want.len());
+        let differing = got
+            .iter()
+            .zip(want)
+            .filter(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits))
+            .count();
+        assert_eq!(
+            differing, 0,
+            "method `{}`: {differing} pixels differ",
+            method.name
+        );
+    }
     std::fs::remove_dir_all(&dir).ok();
 }

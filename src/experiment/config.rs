@@ -130,11 +130,16 @@ impl TryFrom<toml::Table> for CacheDesc {
                 let x = v.as_float().or_else(|| v.as_integer().map(|n| n as f64));
                 match x {
                     Some(x) if x.is_finite() => x as f32,
-                    _ => return Err(format!("warmup_orbit_degrees = {v}: expected a finite angle")),
+                    _ => {
+                        return Err(format!(
+                            "warmup_orbit_degrees = {v}: expected a finite angle"
+                        ));
+                    }
                 }
             }
         };
-        let settings = CacheConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
+        let settings =
+            CacheConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
         Ok(Self {
             settings,
             warmup,
@@ -145,7 +150,8 @@ impl TryFrom<toml::Table> for CacheDesc {
 
 impl From<CacheDesc> for toml::Table {
     fn from(d: CacheDesc) -> toml::Table {
-        let mut t = toml::Table::try_from(d.settings).expect("cache settings are plain TOML values");
+        let mut t =
+            toml::Table::try_from(d.settings).expect("cache settings are plain TOML values");
         t.insert("warmup".into(), toml::Value::Integer(d.warmup.into()));
         t.insert(
             "warmup_orbit_degrees".into(),
@@ -536,7 +542,10 @@ mod tests {
         assert_eq!(e.baseline.as_deref(), Some("nee"));
         let size = &e.ablations[0];
         assert_eq!(size.variants.len(), 2);
-        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().settings.points, 2000);
+        assert_eq!(
+            size.variants[1].1.cache.as_ref().unwrap().settings.points,
+            2000
+        );
         assert_eq!(size.variants[1].1.cache.as_ref().unwrap().settings.c, 0.5);
         assert_eq!(size.variants[0].1.name, "cache [points=100]");
         let opt = &e.ablations[1];

@@ -5,10 +5,12 @@
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
 //! - [`reference`]: high-spp references, made once and kept on disk by a hash of their inputs.
 //! - [`measure`]: one method rendered progressively, snapshotted at every budget.
+//! - [`command`]: the `gscache render` line that renders one frame of a method, bit for bit.
 //! - [`flythrough`]: camera paths with scene edits; per-frame times and error.
 //! - [`run`]: all of it, with the metrics and their spread over seeds.
 //! - [`figures`] and [`report`]: the plots, CSV, JSON and Markdown.
 
+pub mod command;
 pub mod config;
 pub mod figures;
 pub mod flythrough;

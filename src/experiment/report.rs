@@ -189,6 +189,12 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
             )
         });
         let _ = writeln!(md, "- `{}`: {}{cache}", m.name, m.integrator);
+        let _ = writeln!(
+            md,
+            "  - one frame of it (seed {}): `{}`",
+            r.seeds[0],
+            super::command::render_command(&r.scene, r.width, r.height, m, r.seeds[0])
+        );
     }
     let _ = writeln!(md, "\n## Results\n");
     md.push_str(TABLE_HEAD);

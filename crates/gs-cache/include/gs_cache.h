@@ -11,16 +11,20 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+// `GsCacheConfig::lookup`: rasterise every level (the paper's lookup).
+#define GS_CACHE_LOOKUP_RASTER 0
+
+// `GsCacheConfig::lookup`: ray-trace every level stochastically (`rt_samples` per traversal).
+#define GS_CACHE_LOOKUP_RT 1
+
+// `GsCacheConfig::optimizer`: AdamW.
+#define GS_CACHE_OPTIMIZER_ADAMW 0
+
+// `GsCacheConfig::optimizer`: Adam (no weight decay).
+#define GS_CACHE_OPTIMIZER_ADAM 1
+
 // The most levels a cache may have (paths longer than this are never cached).
 #define GS_CACHE_MAX_LEVELS 8
-
-// How each frame reads the cache.
-typedef enum GsCacheLookup {
-  // Rasterise every level (the paper's lookup).
-  GS_CACHE_LOOKUP_RASTER = 0,
-  // Ray-trace every level stochastically (8 samples per traversal).
-  GS_CACHE_LOOKUP_RAY_TRACE = 1,
-} GsCacheLookup;
 
 // Outcome of a call.
 typedef enum GsCacheStatus {
@@ -40,26 +44,34 @@ typedef enum GsCacheStatus {
 // An opaque cache handle with its frame's training targets.
 typedef struct GsCacheHandle GsCacheHandle;
 
-// Every setting of a cache; start from `gs_cache_default_config()` and change fields.
+// Every setting of a cache; start from `gs_cache_default_config()` and change fields. The
+// fields are the Rust `CacheConfig`'s, with the same names and meanings (its documentation
+// says what each does); the two enums are `uint32_t` codes, checked when a cache is made.
 typedef struct GsCacheConfig {
   // Levels; level `i` (0-based) holds paths of length `i + 1`. 1..=8.
   uint32_t levels;
   // How many points the renderer should find for `gs_cache_new` (the GSCache paper: 300k). The
   // cache takes as many as it is given: level `i` has `count >> i` Gaussians.
   uint32_t points;
+  // `GS_CACHE_LOOKUP_RASTER` or `GS_CACHE_LOOKUP_RT`.
+  uint32_t lookup;
+  // Stochastic samples per traversal of the ray-traced lookup.
+  uint32_t rt_samples;
   // Algorithm 1's coefficient C.
-  float termination_coefficient;
+  float c;
   // Algorithm 1's threshold.
-  float termination_threshold;
-  bool early_termination;
-  bool natural_termination;
+  float threshold;
+  bool early;
+  bool natural;
+  // `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
+  uint32_t optimizer;
   float lr_position;
   float lr_color;
   float lr_rotation;
-  float lr_scale;
+  float lr_scales;
   float lr_opacity;
-  // false: Adam (no weight decay).
-  bool adamw;
+  // Multiplies every learning rate.
+  float lr_multiplier;
   float weight_decay;
   // Eq. 2's cap on the initial scales.
   bool size_cap;
@@ -71,7 +83,6 @@ typedef struct GsCacheConfig {
   // Learning rates relative to each level's mean radiance (see the crate docs); false for
   // the GSCache paper's absolute colours.
   bool normalized_radiance;
-  enum GsCacheLookup lookup;
 } GsCacheConfig;
 
 // A pinhole camera given as eye, target and up (world units), the vertical field of view and

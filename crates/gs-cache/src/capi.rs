@@ -357,8 +357,7 @@ pub unsafe extern "C" fn gs_cache_load(
         let (dir, config) = unsafe { (CStr::from_ptr(dir), &*config) };
         let dir = dir.to_str().map_err(|_| invalid("dir is not UTF-8"))?;
         let config = CacheConfig::try_from(config).map_err(invalid)?;
-        GsCache::load(Path::new(dir), config)
-            .map_err(|e| (GsCacheStatus::Io, e.to_string()))
+        GsCache::load(Path::new(dir), config).map_err(|e| (GsCacheStatus::Io, e.to_string()))
     })
 }
 
@@ -591,5 +590,15 @@ mod tests {
         assert!(h.is_null());
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert!(!msg.to_bytes().is_empty());
+        // An enum code out of range is refused by name, never read as an enum.
+        let bad = GsCacheConfig {
+            lookup: 7,
+            ..gs_cache_default_config()
+        };
+        let p = [0.0f32; 3 * 64];
+        let h = unsafe { gs_cache_new(p.as_ptr(), p.as_ptr(), 64, &bad) };
+        assert!(h.is_null());
+        let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
+        assert!(msg.to_str().unwrap().contains("lookup = 7"), "{msg:?}");
     }
 }

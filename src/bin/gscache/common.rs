@@ -76,8 +76,13 @@ pub fn prepare_output(path: &Path) -> Result<()> {
         Some(d) => d,
         None => Path::new("."),
     };
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("{}: cannot create the folder for {}", dir.display(), path.display()))?;
+    std::fs::create_dir_all(dir).with_context(|| {
+        format!(
+            "{}: cannot create the folder for {}",
+            dir.display(),
+            path.display()
+        )
+    })?;
     if path.is_dir() {
         bail!("{}: is a folder: expected a file name", path.display());
     }

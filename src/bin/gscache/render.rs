@@ -11,7 +11,9 @@ use indicatif::ProgressBar;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::scene::max_depth_from;
-use volume_pt::{Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points};
+use volume_pt::{
+    Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points,
+};
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
 #[derive(clap::Args, Debug)]
@@ -136,7 +138,10 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         .unwrap_or_else(|| exr_path.with_extension("png"));
     prepare_output(&exr_path)?;
     prepare_output(&png_path)?;
-    for dir in [&args.cache.save_cache, &args.cache.cache_images].into_iter().flatten() {
+    for dir in [&args.cache.save_cache, &args.cache.cache_images]
+        .into_iter()
+        .flatten()
+    {
         prepare_folder(dir)?;
     }
     if !args.cache.cache

@@ -2,10 +2,9 @@
 //! differentiable rasteriser, fit a cloud to a target EXR seen from a given camera, or ray-trace
 //! it with stochastic transparency (Sun et al., 2025).
 
-use anyhow::{Result, bail};
 use crate::common::{Global, prepare_output};
+use anyhow::{Result, bail};
 use clap::{Args as ClapArgs, Subcommand};
-use stochastic_rt::{DepthMode, RandomKind};
 use glam::Vec3;
 use hdr_image::{RgbImage, ToneMap};
 use splat_raster::adamw::{AdamW, AdamWConfig};
@@ -15,6 +14,7 @@ use splat_raster::stochastic::render_stochastic;
 use splat_raster::train::train_step;
 use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, RasterConfig, render};
 use std::path::PathBuf;
+use stochastic_rt::{DepthMode, RandomKind};
 
 #[derive(Subcommand, Debug)]
 pub enum SplatCommand {
@@ -369,7 +369,9 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
                 build * 1e3,
                 cam.width,
                 cam.height,
-                clap::ValueEnum::to_possible_value(&a.mode).expect("every mode has a name").get_name(),
+                clap::ValueEnum::to_possible_value(&a.mode)
+                    .expect("every mode has a name")
+                    .get_name(),
                 secs,
                 rays / secs / 1e6,
                 rayon::current_num_threads(),

@@ -74,8 +74,8 @@ fn small_config() -> CacheConfig {
 fn cache_without_termination_is_plain_nee() {
     let s = scene();
     let mut config = small_config();
-    config.termination.early = false;
-    config.termination.natural = false;
+    config.early = false;
+    config.natural = false;
     config.train = false;
     let mut cache = new_cache(&s, config);
     let a = cached(&s, &mut cache, 1, 1, 11);
@@ -93,7 +93,7 @@ fn natural_termination_bias_is_the_documented_one() {
     let mut s = scene();
     s.media.lights.environment = Vec3::ZERO;
     let mut config = small_config();
-    config.termination.early = false;
+    config.early = false;
     config.train = false;
     let base = plain(&s, 4, 3);
     let mut cache = new_cache(&s, config);
@@ -180,7 +180,7 @@ fn masks_keep_the_cache_bright_and_training_lowers_the_loss() {
     // fall is modest (19%, 19%, 10% when written); the seeds are fixed and the run
     // deterministic, and a cache that does not learn, or learns the wrong way, fails it.
     let mut still = lr;
-    still.termination.early = false;
+    still.early = false;
     let probe = |cache: &GsCache| -> Vec<f64> {
         let mut copy = cache.clone();
         let mut settings = s.settings;
@@ -260,7 +260,7 @@ fn persistence_and_ray_traced_lookup() {
     let mut rt = GsCache::load(
         &dir,
         CacheConfig {
-            lookup: Lookup::ray_traced(),
+            lookup: Lookup::Rt,
             ..small_config()
         },
     )

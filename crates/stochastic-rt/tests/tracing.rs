@@ -184,7 +184,7 @@ fn check_unbiased(
     let cam =
         Camera::look_at(Vec3::new(0.2, 0.1, -4.0), Vec3::ZERO, Vec3::Y, 45.0, 24, 18).unwrap();
     let bg = Vec3::new(0.2, 0.3, 0.4);
-    let (mut chi2, mut k, mut worst, mut mse) = (0.0f64, 0usize, 0.0f64, 0.0f64);
+    let (mut scores, mut mse) = (test_stats::ZScores::new(), 0.0f64);
     for p in 0..cam.width * cam.height {
         let r = TraceRay::through_pixel(&cam, p, DepthMode::Mean);
         let (m1, m2) = moments(&scene, &r, bg, pass_k);
@@ -198,21 +198,9 @@ fn check_unbiased(
         if var < 1e-9 {
             continue;
         }
-        let z = (mean - m1) / (var / n as f64).sqrt();
-        chi2 += z * z;
-        worst = worst.max(z.abs());
-        k += 1;
+        scores.add(mean - m1, var / n as f64);
     }
-    let a = 2.0 / (9.0 * k as f64);
-    let limit = k as f64 * (1.0 - a + 4.265 * a.sqrt()).powi(3);
-    eprintln!(
-        "{name}: chi2 {chi2:.1} over {k} pixels (limit {limit:.1}, false alarm 1e-5), max |z| {worst:.2}"
-    );
-    assert!(k > 200, "{name}: too few noisy pixels: {k}");
-    assert!(
-        chi2 < limit && worst < 5.5,
-        "{name}: chi2 {chi2} (limit {limit}), max |z| {worst}"
-    );
+    scores.assert_unbiased(name, 5.5, 200);
     mse / (cam.width * cam.height) as f64
 }
 

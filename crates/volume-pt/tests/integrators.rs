@@ -102,32 +102,16 @@ fn pixel_stats(
 /// Image-wide chi-square of per-pixel z-scores between two independent estimates; each pixel's
 /// |z| must stay below 5 and the sum below the 1e-5 upper quantile of chi-square.
 fn assert_agree(a: &[(f64, f64)], b: &[(f64, f64)], what: &str) {
-    let mut chi2 = 0.0;
-    let mut worst = 0.0f64;
-    let mut k = 0usize;
+    let mut scores = test_stats::ZScores::new();
     for (p, q) in a.iter().zip(b) {
         let v = p.1 + q.1;
         if v == 0.0 {
             assert_eq!(p.0, q.0, "{what}: noiseless pixels differ");
             continue;
         }
-        let z = (p.0 - q.0) / v.sqrt();
-        chi2 += z * z;
-        k += 1;
-        worst = worst.max(z.abs());
+        scores.add(p.0 - q.0, v);
     }
-    assert!(
-        k > a.len() / 2,
-        "{what}: most pixels are noiseless, the test sees nothing"
-    );
-    let limit = chi2_upper(k as f64, 4.265);
-    eprintln!(
-        "{what}: chi2 = {chi2:.1} over {k} noisy pixels (limit {limit:.1}), max |z| = {worst:.2}"
-    );
-    assert!(
-        chi2 < limit && worst < 5.0,
-        "{what}: chi2 {chi2} (limit {limit}), max |z| {worst}"
-    );
+    scores.assert_unbiased(what, 5.0, a.len() / 2 + 1);
 }
 
 fn lit_neghip() -> (SceneMedia, Camera) {

@@ -60,10 +60,3 @@ pub fn path_stats(
     let var_of_mean = [0, 1, 2].map(|c| ((s2[c] / nf - mean[c] * mean[c]).max(0.0)) / (nf - 1.0));
     (mean, var_of_mean)
 }
-
-/// Upper quantile of chi-square with `k` degrees of freedom at standard-normal quantile `z`
-/// (Wilson-Hilferty), e.g. z = 4.265 for a false-alarm rate of 1e-5.
-pub fn chi2_upper(k: f64, z: f64) -> f64 {
-    let a = 2.0 / (9.0 * k);
-    k * (1.0 - a + z * a.sqrt()).powi(3)
-}

@@ -187,20 +187,6 @@ impl GsCache {
         &self.config
     }
 
-    /// Changes the settings that can change while rendering (termination, learning rates,
-    /// lookup, training on/off). The number of levels and Gaussians stays.
-    pub fn set_config(&mut self, mut config: CacheConfig) -> Result<()> {
-        config.levels = self.levels.len();
-        config.points = self.levels[0].cloud.len();
-        config.validate()?;
-        let opt = adamw_config(&config);
-        for l in &mut self.levels {
-            l.optimizer.config = opt;
-        }
-        self.config = config;
-        Ok(())
-    }
-
     pub fn levels(&self) -> &[Level] {
         &self.levels
     }
@@ -223,11 +209,6 @@ impl GsCache {
     /// camera change is noticed by [`GsCache::begin_frame`]).
     pub fn reset_schedule(&mut self) {
         self.schedule.reset();
-    }
-
-    /// Training steps since the schedule was last reset.
-    pub fn frames_since_reset(&self) -> u32 {
-        self.schedule.frames()
     }
 
     /// Draws every level from `camera` for the coming pass. A camera different from the last

@@ -17,11 +17,6 @@ impl Schedule {
     pub fn reset(&mut self) {
         self.frames = 0;
     }
-
-    /// Training steps since the last reset.
-    pub fn frames(&self) -> u32 {
-        self.frames
-    }
 }
 
 #[cfg(test)]

@@ -57,11 +57,6 @@ impl TrainingTargets {
         }
     }
 
-    /// Samples gathered for `level`.
-    pub fn sample_count(&self, level: usize) -> u64 {
-        self.counts[level].iter().map(|&c| c as u64).sum()
-    }
-
     /// The mean target image of `level` and its mask (pixels with at least one sample). With
     /// `masked = false` every pixel is valid and pixels without samples target zero.
     pub fn level_target(&self, level: usize, masked: bool) -> (Vec<[f32; 3]>, Vec<bool>) {

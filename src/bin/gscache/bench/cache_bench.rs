@@ -5,14 +5,12 @@
 //! spp, at the scene camera) is compared with a high-spp `nee` reference made once and kept on
 //! disk.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
 pub use gscache_cli::camera_path::orbit;
-use gscache_cli::experiment::reference::{FNV_START, fnv1a};
 use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
-use hdr_image::RgbImage;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -43,7 +41,7 @@ pub struct CacheBenchArgs {
     #[arg(long, default_value_t = 256)]
     pub reference_spp: u32,
     /// Where references are kept between runs.
-    #[arg(long, default_value = "target/bench-cache")]
+    #[arg(long, default_value = "target/experiment-references")]
     pub references: PathBuf,
     /// Skip the ray-traced lookup.
     #[arg(long)]
@@ -110,46 +108,30 @@ fn plain(
     (film.mean(), stats.seconds)
 }
 
-/// FNV-1a of a file, so a reference is remade when its scene file changes.
-fn file_hash(path: &Path) -> Result<u64> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
-    Ok(fnv1a(&bytes, FNV_START))
-}
-
-/// The high-spp `nee` reference at the scene camera, rendered once and kept on disk.
+/// The high-spp `nee` reference at the scene camera: the experiment runner's, kept on disk under
+/// the same key (scene file, volume file, camera, size, spp), so either program reuses the
+/// other's.
 fn reference(path: &Path, scene: &Scene, args: &CacheBenchArgs) -> Result<Vec<Vec3>> {
-    let cam = &scene.camera;
     let name = path.file_stem().unwrap().to_string_lossy();
-    let file = args.references.join(format!(
-        "{name}_{}x{}_{}spp_{:016x}.exr",
-        cam.width,
-        cam.height,
-        args.reference_spp,
-        file_hash(path)?
-    ));
-    if file.exists() {
-        let img = RgbImage::read_exr(&file)?;
-        if (img.width(), img.height()) == (cam.width, cam.height) {
-            eprintln!("{name}: reference {}", file.display());
-            return Ok(img.into_pixels());
-        }
-    }
-    let (img, secs) = plain(
+    let r = gscache_cli::experiment::reference::reference(
+        &args.references,
+        path,
+        "",
         scene,
-        cam,
-        IntegratorKind::Nee,
+        &scene.camera,
         args.reference_spp,
-        0x005e_ed0f_5eed,
-    );
-    std::fs::create_dir_all(&args.references)
-        .with_context(|| format!("{}: cannot create", args.references.display()))?;
-    RgbImage::from_pixels(cam.width, cam.height, img.clone())?.write_exr(&file)?;
-    eprintln!(
-        "{name}: rendered the reference ({} spp) in {secs:.1} s: {}",
-        args.reference_spp,
-        file.display()
-    );
-    Ok(img)
+    )?;
+    if r.reused {
+        eprintln!("{name}: reference {}", r.file.display());
+    } else {
+        eprintln!(
+            "{name}: rendered the reference ({} spp) in {:.1} s: {}",
+            r.spp,
+            r.seconds,
+            r.file.display()
+        );
+    }
+    Ok(r.image)
 }
 
 /// Mean per-frame times (ms) of a fly-through and its last frame.

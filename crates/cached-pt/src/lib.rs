@@ -71,7 +71,7 @@ impl FrameCache for GsFrame<'_> {
         ))
     }
     fn path_ended(&self, path: GsPath<'_>, pixel: TilePixel, record: &mut TileTargets) {
-        record.add_path(pixel.in_tile, &path.0);
+        record.add_samples(pixel.in_tile, path.0.samples());
     }
 }
 

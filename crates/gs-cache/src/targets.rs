@@ -1,7 +1,6 @@
 //! Per-level training targets: each pixel's mean sample for each level this frame, and how many
 //! samples it had (no sample: the pixel takes no part in that level's loss).
 
-use crate::path::CachedPath;
 use glam::Vec3;
 
 /// Training samples of one frame, one image per level, row-major.
@@ -105,10 +104,15 @@ impl TileTargets {
         }
     }
 
-    /// Files the samples of `path`, which went through row-major tile pixel `in_tile`.
-    pub fn add_path(&mut self, in_tile: usize, path: &CachedPath) {
+    /// Files one path's `(level, value)` samples (what [`crate::CachedPath::samples`] gives);
+    /// the path went through row-major tile pixel `in_tile`.
+    pub fn add_samples(
+        &mut self,
+        in_tile: usize,
+        samples: impl IntoIterator<Item = (usize, Vec3)>,
+    ) {
         let tile_pixels = self.width as usize * self.height as usize;
-        for (level, value) in path.samples() {
+        for (level, value) in samples {
             let k = level * tile_pixels + in_tile;
             self.sums[k] += value;
             self.counts[k] += 1;

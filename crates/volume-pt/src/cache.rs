@@ -8,7 +8,7 @@
 //! `cached-pt` crate; any other cache (a neural radiance cache, a grid) implements the same two
 //! traits.
 
-use crate::integrator::SceneMedia;
+use crate::medium::Medium;
 use crate::sampling::{SampleStream, uniform_sphere};
 use crate::tracking::free_flight;
 use glam::Vec3;
@@ -98,8 +98,7 @@ impl FrameCache for NoCache {
 /// ray starts on a sphere around the volume and aims at a uniform point of the box; rays that
 /// pass through without scattering are replaced. Gives up (returning fewer points) after `64 n`
 /// rays, so an empty medium cannot hang it.
-pub fn sample_cache_points(media: &SceneMedia, n: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
-    let medium = &media.medium;
+pub fn sample_cache_points(medium: &Medium, n: usize, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
     let (lo, hi) = medium.bounds();
     let centre = 0.5 * (lo + hi);
     let radius = 0.5 * (hi - lo).length() * 1.01;

@@ -255,7 +255,7 @@ fn render_with_cache(
         Some(dir) => GsCache::load(dir, config)?,
         None => {
             let (points, albedo) =
-                sample_cache_points(&scene.media, config.points, scene.settings.seed);
+                sample_cache_points(&scene.media.medium, config.points, scene.settings.seed);
             if points.len() < config.points {
                 bail!(
                     "{}: only {} of {} cache points found: the transfer function leaves the volume almost empty",

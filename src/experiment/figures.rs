@@ -171,7 +171,7 @@ fn cache_levels(dir: &Path, r: &Results, scene: &Scene) -> Result<Vec<Figure>> {
     }
     let levels = rows.iter().map(|r| r.1.len()).max().unwrap_or(0);
     let cols: Vec<String> = (1..=levels)
-        .map(|l| format!("level {l} (length {l})"))
+        .map(|l| format!("paths of length {l}"))
         .collect();
     write_image_grid(
         &dir.join("cache_levels.png"),
@@ -197,7 +197,7 @@ fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             .unwrap_or(0);
         let series = (0..levels)
             .map(|l| Series {
-                name: format!("level {}", l + 1),
+                name: format!("length {}", l + 1),
                 points: c
                     .record
                     .level_mse

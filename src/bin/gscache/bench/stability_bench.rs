@@ -103,7 +103,7 @@ pub fn run(args: &StabilityArgs) -> Result<()> {
         args.cache.lr_scales
     );
     println!(
-        "| volume | frame | non-finite parameters / cache values / samples | largest scale / diagonal | farthest stray / diagonal | opacity range | largest cache value | level-1 MSE | ms per frame |"
+        "| volume | frame | non-finite parameters / cache values / samples | largest scale / diagonal | farthest stray / diagonal | opacity range | largest cache value | length-1 MSE | ms per frame |"
     );
     println!("|---|---|---|---|---|---|---|---|---|");
     let mut failures = Vec::new();

@@ -92,6 +92,7 @@ fn settings_written_as_flags_read_back_the_same() {
         levels: 2,
         points: 12_345,
         lookup: Lookup::Rt,
+        resolution_divisor: 2,
         rt_samples: 3,
         c: 0.25,
         threshold: 0.75,

@@ -55,6 +55,8 @@ typedef struct GsCacheConfig {
   uint32_t points;
   // `GS_CACHE_LOOKUP_RASTER` or `GS_CACHE_LOOKUP_RT`.
   uint32_t lookup;
+  // The levels are drawn and trained at 1 / this of the frame's resolution (1..=16).
+  uint32_t resolution_divisor;
   // Stochastic samples per traversal of the ray-traced lookup.
   uint32_t rt_samples;
   // Algorithm 1's coefficient C.

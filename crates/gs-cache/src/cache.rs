@@ -3,6 +3,7 @@
 use crate::config::{CacheConfig, Lookup, Optimizer};
 use crate::error::{CacheError, Result};
 use crate::init::{SH_C0, initial_levels};
+use crate::resolution::PixelMap;
 use crate::schedule::Schedule;
 use crate::targets::TrainingTargets;
 use glam::Vec3;
@@ -56,8 +57,14 @@ pub(crate) fn scale_colors(cloud: &mut GaussianCloud<f32>, factor: f32) {
 #[derive(Debug, Clone)]
 pub struct CacheFrame {
     camera: Camera,
-    /// Per level, the cached radiance per pixel (row-major).
+    /// The camera the levels were drawn from: the frame's at the cache's resolution.
+    cache_camera: Camera,
+    map: PixelMap,
+    /// Per level, the cached radiance per frame pixel (row-major).
     images: Vec<Vec<[f32; 3]>>,
+    /// Per level, the images as drawn at the cache's resolution, when it is not the frame's
+    /// (training compares these with the binned targets).
+    drawn: Option<Vec<Vec<[f32; 3]>>>,
     /// Per level, the rasteriser's state for the backward pass (raster lookup only, and only
     /// while the levels are unchanged since they were drawn).
     states: Vec<Option<ForwardState<f32>>>,
@@ -218,12 +225,14 @@ impl GsCache {
         if self.frame.as_ref().is_some_and(|f| f.camera != *camera) {
             self.schedule.reset();
         }
+        let (cache_camera, map) = PixelMap::new(camera, self.config.resolution_divisor);
+        let draw_camera = &cache_camera;
         let (images, states) = match self.config.lookup {
             Lookup::Raster => self
                 .levels
                 .iter()
                 .map(|l| {
-                    let (out, state) = render(&l.cloud, camera, &self.raster);
+                    let (out, state) = render(&l.cloud, draw_camera, &self.raster);
                     (out.color, Some(state))
                 })
                 .unzip(),
@@ -240,7 +249,7 @@ impl GsCache {
                     .iter()
                     .map(|l| {
                         let scene = GaussianScene::new(&l.cloud);
-                        let img = trace_image(&scene, camera, &settings);
+                        let img = trace_image(&scene, draw_camera, &settings);
                         (img.into_iter().map(|c| c.to_array()).collect(), None)
                     })
                     .unzip()
@@ -253,10 +262,21 @@ impl GsCache {
                 image.iter_mut().flatten().for_each(|v| *v *= s);
             }
         }
+        let (images, drawn) = if map.is_identity() {
+            (images, None)
+        } else {
+            (
+                images.iter().map(|i| map.upsample(i)).collect(),
+                Some(images),
+            )
+        };
         self.report.lookup_seconds = start.elapsed().as_secs_f64();
         self.frame.insert(CacheFrame {
             camera: *camera,
+            cache_camera,
+            map,
             images,
+            drawn,
             states,
         })
     }
@@ -278,10 +298,12 @@ impl GsCache {
                 "train() called before begin_frame(): the targets need the frame's camera".into(),
             ));
         };
-        let camera = frame.camera;
+        let camera = frame.cache_camera;
+        let map = frame.map;
+        let frame_camera = frame.camera;
         if targets.levels() != self.levels.len()
-            || targets.width() != camera.width
-            || targets.height() != camera.height
+            || targets.width() != frame_camera.width
+            || targets.height() != frame_camera.height
         {
             return Err(CacheError::Config(format!(
                 "training targets are {} levels of {}x{}: expected {} levels of {}x{}",
@@ -289,8 +311,8 @@ impl GsCache {
                 targets.width(),
                 targets.height(),
                 self.levels.len(),
-                camera.width,
-                camera.height
+                frame_camera.width,
+                frame_camera.height
             )));
         }
         if !self.config.train {
@@ -300,7 +322,7 @@ impl GsCache {
                     && level.radiance_scale.is_none()
                     && !level.absolute_colors
                 {
-                    let (target, mask) = targets.level_target(i, true);
+                    let (target, mask) = targets.level_target_binned(i, true, &map);
                     if mask.iter().any(|&m| m) {
                         level.set_radiance_scale(&target, &mask);
                     }
@@ -312,7 +334,7 @@ impl GsCache {
         let lr_scale = self.schedule.next_scale();
         self.report.lr_scale = lr_scale;
         for (i, level) in self.levels.iter_mut().enumerate() {
-            let (target, mask) = targets.level_target(i, self.config.masked_targets);
+            let (target, mask) = targets.level_target_binned(i, self.config.masked_targets, &map);
             if !mask.iter().any(|&m| m) {
                 continue;
             }
@@ -328,7 +350,14 @@ impl GsCache {
             // The lookup's forward pass is reused when it was the rasteriser's: the level has
             // not changed since it was drawn.
             let (mut prediction, state, drawn_scale) = match frame.states[i].take() {
-                Some(state) => (std::mem::take(&mut frame.images[i]), state, scale_before),
+                Some(state) => (
+                    match frame.drawn.as_mut() {
+                        Some(drawn) => std::mem::take(&mut drawn[i]),
+                        None => std::mem::take(&mut frame.images[i]),
+                    },
+                    state,
+                    scale_before,
+                ),
                 None => {
                     let (out, state) = render(&level.cloud, &camera, &self.raster);
                     (out.color, state, 1.0)
@@ -357,7 +386,15 @@ impl GsCache {
             level.optimizer.step(&mut level.cloud, &grads, lr_scale);
             self.report.losses[i] = Some(loss);
             self.report.mse[i] = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);
-            frame.images[i] = prediction;
+            match frame.drawn.as_mut() {
+                Some(drawn) => {
+                    if scale != scale_before {
+                        frame.images[i] = map.upsample(&prediction);
+                    }
+                    drawn[i] = prediction;
+                }
+                None => frame.images[i] = prediction,
+            }
         }
         self.report.train_seconds = start.elapsed().as_secs_f64();
         Ok(&self.report)

@@ -62,6 +62,8 @@ pub struct GsCacheConfig {
     pub points: u32,
     /// `GS_CACHE_LOOKUP_RASTER` or `GS_CACHE_LOOKUP_RT`.
     pub lookup: u32,
+    /// The levels are drawn and trained at 1 / this of the frame's resolution (1..=16).
+    pub resolution_divisor: u32,
     /// Stochastic samples per traversal of the ray-traced lookup.
     pub rt_samples: u32,
     /// Algorithm 1's coefficient C.
@@ -215,6 +217,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             levels: c.levels as usize,
             points: c.points as usize,
             lookup,
+            resolution_divisor: c.resolution_divisor,
             rt_samples: c.rt_samples,
             c: c.c,
             threshold: c.threshold,
@@ -255,6 +258,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
             Lookup::Raster => GS_CACHE_LOOKUP_RASTER,
             Lookup::Rt => GS_CACHE_LOOKUP_RT,
         },
+        resolution_divisor: d.resolution_divisor,
         rt_samples: d.rt_samples,
         c: d.c,
         threshold: d.threshold,

@@ -68,6 +68,10 @@ pub struct CacheConfig {
     /// How each frame draws the levels: `raster` or `rt`.
     #[cfg_attr(feature = "clap", arg(long = "cache-lookup", value_enum, default_value_t = DEFAULT.lookup))]
     pub lookup: Lookup,
+    /// The levels are drawn and trained at 1 / this of the frame's resolution and read back
+    /// bilinearly (1: the frame's own; see `resolution.rs`).
+    #[cfg_attr(feature = "clap", arg(long = "cache-resolution-divisor", default_value_t = DEFAULT.resolution_divisor))]
+    pub resolution_divisor: u32,
     /// Stochastic samples per BVH traversal of the `rt` lookup.
     #[cfg_attr(feature = "clap", arg(long = "cache-rt-samples", default_value_t = DEFAULT.rt_samples))]
     pub rt_samples: u32,
@@ -139,6 +143,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     levels: 3,
     points: 300_000,
     lookup: Lookup::Raster,
+    resolution_divisor: 1,
     rt_samples: 8,
     c: 0.5,
     threshold: 0.9,
@@ -194,6 +199,12 @@ impl CacheConfig {
             return bad(format!(
                 "threshold = {}: expected a value in [0, 1]",
                 self.threshold
+            ));
+        }
+        if !(1..=16).contains(&self.resolution_divisor) {
+            return bad(format!(
+                "resolution_divisor = {}: expected 1..=16",
+                self.resolution_divisor
             ));
         }
         if self.lookup == Lookup::Rt && !(1..=64).contains(&self.rt_samples) {

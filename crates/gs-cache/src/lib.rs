@@ -10,6 +10,7 @@
 //! - [`path`]: one path's bookkeeping: what to add, when to stop, what to train on.
 //! - [`termination`]: Algorithm 1's continuation probability.
 //! - [`targets`]: per-level training targets with masks.
+//! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
 //! - [`capi`]: the C ABI (header `include/gs_cache.h`; a C program using it in `c/`).
@@ -85,6 +86,7 @@ pub mod error;
 pub mod init;
 pub mod path;
 pub mod persist;
+pub mod resolution;
 pub mod schedule;
 pub mod targets;
 pub mod termination;

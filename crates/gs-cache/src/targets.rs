@@ -1,6 +1,7 @@
 //! Per-level training targets: each pixel's mean sample for each level this frame, and how many
 //! samples it had (no sample: the pixel takes no part in that level's loss).
 
+use crate::resolution::PixelMap;
 use glam::Vec3;
 
 /// Training samples of one frame, one image per level, row-major.
@@ -54,6 +55,44 @@ impl TrainingTargets {
         for c in &mut self.counts {
             c.fill(0);
         }
+    }
+
+    /// [`TrainingTargets::level_target`] at the cache's resolution: each cache pixel takes the
+    /// mean of the samples of the frame pixels binned into it by `map`.
+    pub fn level_target_binned(
+        &self,
+        level: usize,
+        masked: bool,
+        map: &PixelMap,
+    ) -> (Vec<[f32; 3]>, Vec<bool>) {
+        if map.is_identity() {
+            return self.level_target(level, masked);
+        }
+        let n = map.width as usize * map.height as usize;
+        let mut sums = vec![[0.0f64; 3]; n];
+        let mut counts = vec![0u64; n];
+        for y in 0..self.height {
+            for x in 0..self.width {
+                let i = (y * self.width + x) as usize;
+                let c = self.counts[level][i];
+                if c > 0 {
+                    let b = map.bin(x, y);
+                    for k in 0..3 {
+                        sums[b][k] += self.sums[level][i][k] as f64;
+                    }
+                    counts[b] += c as u64;
+                }
+            }
+        }
+        let mut target = vec![[0.0f32; 3]; n];
+        let mut mask = vec![!masked; n];
+        for b in 0..n {
+            if counts[b] > 0 {
+                target[b] = sums[b].map(|v| (v / counts[b] as f64) as f32);
+                mask[b] = true;
+            }
+        }
+        (target, mask)
     }
 
     /// The mean target image of `level` and its mask (pixels with at least one sample). With

@@ -99,6 +99,7 @@ fn settings_written_as_flags_read_back_the_same() {
         early: false,
         natural: false,
         optimizer: Optimizer::Adam,
+        decay: gs_cache::Decay::Off,
         lr_position: 1e-4,
         lr_color: 0.031,
         lr_rotation: 2e-3,

@@ -23,6 +23,15 @@
 // `GsCacheConfig::optimizer`: Adam (no weight decay).
 #define GS_CACHE_OPTIMIZER_ADAM 1
 
+// `GsCacheConfig::decay`: Eq. 5 from the first still frame (the paper's).
+#define GS_CACHE_DECAY_PAPER 0
+
+// `GsCacheConfig::decay`: Eq. 5 once the training error levels off.
+#define GS_CACHE_DECAY_PLATEAU 1
+
+// `GsCacheConfig::decay`: no decay.
+#define GS_CACHE_DECAY_OFF 2
+
 // The most levels a cache may have (paths longer than this are never cached).
 #define GS_CACHE_MAX_LEVELS 8
 
@@ -67,6 +76,8 @@ typedef struct GsCacheConfig {
   bool natural;
   // `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
   uint32_t optimizer;
+  // `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.
+  uint32_t decay;
   float lr_position;
   float lr_color;
   float lr_rotation;

@@ -183,7 +183,7 @@ impl GsCache {
         Ok(Self {
             config,
             levels,
-            schedule: Schedule::default(),
+            schedule: Schedule::new(config.decay),
             frame: None,
             report: FrameReport::default(),
             raster: RasterConfig::default(),
@@ -395,6 +395,12 @@ impl GsCache {
                 }
                 None => frame.images[i] = prediction,
             }
+        }
+        // The schedule watches the levels' summed HDR loss (relative to the prediction, so levels
+        // of any brightness weigh alike) to see when training levels off.
+        let losses: Vec<f64> = self.report.losses.iter().flatten().copied().collect();
+        if !losses.is_empty() {
+            self.schedule.observe(losses.iter().sum());
         }
         self.report.train_seconds = start.elapsed().as_secs_f64();
         Ok(&self.report)

@@ -13,7 +13,7 @@
 //! number of threads while it is not being called).
 
 use crate::cache::GsCache;
-use crate::config::{CacheConfig, Lookup, Optimizer, TerminationConfig};
+use crate::config::{CacheConfig, Decay, Lookup, Optimizer, TerminationConfig};
 use crate::targets::TrainingTargets;
 use crate::termination;
 use glam::Vec3;
@@ -49,6 +49,13 @@ pub const GS_CACHE_OPTIMIZER_ADAMW: u32 = 0;
 /// `GsCacheConfig::optimizer`: Adam (no weight decay).
 pub const GS_CACHE_OPTIMIZER_ADAM: u32 = 1;
 
+/// `GsCacheConfig::decay`: Eq. 5 from the first still frame (the paper's).
+pub const GS_CACHE_DECAY_PAPER: u32 = 0;
+/// `GsCacheConfig::decay`: Eq. 5 once the training error levels off.
+pub const GS_CACHE_DECAY_PLATEAU: u32 = 1;
+/// `GsCacheConfig::decay`: no decay.
+pub const GS_CACHE_DECAY_OFF: u32 = 2;
+
 /// Every setting of a cache; start from `gs_cache_default_config()` and change fields. The
 /// fields are the Rust `CacheConfig`'s, with the same names and meanings (its documentation
 /// says what each does); the two enums are `uint32_t` codes, checked when a cache is made.
@@ -74,6 +81,8 @@ pub struct GsCacheConfig {
     pub natural: bool,
     /// `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
     pub optimizer: u32,
+    /// `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.
+    pub decay: u32,
     pub lr_position: f32,
     pub lr_color: f32,
     pub lr_rotation: f32,
@@ -213,6 +222,16 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
                 ));
             }
         };
+        let decay = match c.decay {
+            GS_CACHE_DECAY_PAPER => Decay::Paper,
+            GS_CACHE_DECAY_PLATEAU => Decay::Plateau,
+            GS_CACHE_DECAY_OFF => Decay::Off,
+            other => {
+                return Err(format!(
+                    "decay = {other}: expected GS_CACHE_DECAY_PAPER (0), GS_CACHE_DECAY_PLATEAU (1) or GS_CACHE_DECAY_OFF (2)"
+                ));
+            }
+        };
         Ok(CacheConfig {
             levels: c.levels as usize,
             points: c.points as usize,
@@ -224,6 +243,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             early: c.early,
             natural: c.natural,
             optimizer,
+            decay,
             lr_position: c.lr_position,
             lr_color: c.lr_color,
             lr_rotation: c.lr_rotation,
@@ -267,6 +287,11 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         optimizer: match d.optimizer {
             Optimizer::AdamW => GS_CACHE_OPTIMIZER_ADAMW,
             Optimizer::Adam => GS_CACHE_OPTIMIZER_ADAM,
+        },
+        decay: match d.decay {
+            Decay::Paper => GS_CACHE_DECAY_PAPER,
+            Decay::Plateau => GS_CACHE_DECAY_PLATEAU,
+            Decay::Off => GS_CACHE_DECAY_OFF,
         },
         lr_position: d.lr_position,
         lr_color: d.lr_color,

@@ -1,6 +1,7 @@
 //! What a cache is asked to be: how many levels and Gaussians, how paths stop into it, how it
 //! learns, and how it is read.
 
+pub use crate::schedule::Decay;
 use serde::{Deserialize, Serialize};
 
 /// Per-parameter learning rates, before the schedule of Eq. 5: what training uses, built from
@@ -93,6 +94,10 @@ pub struct CacheConfig {
     /// `adamw` or `adam` (no weight decay).
     #[cfg_attr(feature = "clap", arg(long = "cache-optimizer", value_enum, default_value_t = DEFAULT.optimizer))]
     pub optimizer: Optimizer,
+    /// When Eq. 5's decay starts on a still view: `paper` (the first still frame), `plateau`
+    /// (once the training error levels off) or `off`.
+    #[cfg_attr(feature = "clap", arg(long = "cache-decay", value_enum, default_value_t = DEFAULT.decay))]
+    pub decay: Decay,
     /// Learning rate of the means (the GSCache paper's section 4.1).
     #[cfg_attr(feature = "clap", arg(long = "cache-lr-position", default_value_t = DEFAULT.lr_position))]
     pub lr_position: f32,
@@ -150,6 +155,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     early: true,
     natural: true,
     optimizer: Optimizer::AdamW,
+    decay: Decay::Paper,
     lr_position: 1.16e-3,
     lr_color: 1.25e-2,
     lr_rotation: 1e-3,

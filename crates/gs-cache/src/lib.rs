@@ -92,7 +92,9 @@ pub mod targets;
 pub mod termination;
 
 pub use cache::{CacheFrame, FrameReport, GsCache, Level};
-pub use config::{CacheConfig, LearningRates, Lookup, MAX_LEVELS, Optimizer, TerminationConfig};
+pub use config::{
+    CacheConfig, Decay, LearningRates, Lookup, MAX_LEVELS, Optimizer, TerminationConfig,
+};
 pub use error::{CacheError, Result};
 pub use path::CachedPath;
 pub use targets::{TileTargets, TrainingTargets};

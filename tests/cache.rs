@@ -36,6 +36,7 @@ fn plain(scene: &Scene, spp: u32, seed: u64) -> Vec<Vec3> {
 }
 
 fn new_cache(scene: &Scene, config: CacheConfig) -> GsCache {
+    let config = config.for_image(scene.camera.width, scene.camera.height);
     let (p, a) = sample_cache_points(&scene.media.medium, config.points, 7);
     GsCache::new(&p, &a, config).unwrap()
 }

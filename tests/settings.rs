@@ -110,6 +110,7 @@ fn settings_written_as_flags_read_back_the_same() {
         size_cap: false,
         initial_opacity: 0.3,
         train: false,
+        train_every: 3,
         masked_targets: false,
         normalized_radiance: false,
     };

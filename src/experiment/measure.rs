@@ -104,6 +104,7 @@ pub fn progressive(
 /// A new cache for `scene`, its points found with `seed`, and the seconds it took.
 pub fn new_cache(scene: &Scene, config: CacheConfig, seed: u64) -> Result<(GsCache, f64)> {
     let start = Instant::now();
+    let config = config.for_image(scene.camera.width, scene.camera.height);
     let (points, albedo) = sample_cache_points(&scene.media.medium, config.points, seed);
     let cache = GsCache::new(&points, &albedo, config)?;
     Ok((cache, start.elapsed().as_secs_f64()))

@@ -111,6 +111,8 @@ pub struct GsCache {
     config: CacheConfig,
     levels: Vec<Level>,
     schedule: Schedule,
+    /// Calls of [`GsCache::train`] so far (a step is taken on one in `train_every`).
+    train_calls: u64,
     frame: Option<CacheFrame>,
     report: FrameReport,
     raster: RasterConfig,
@@ -137,7 +139,8 @@ fn adamw_config(config: &CacheConfig) -> AdamWConfig {
 
 impl GsCache {
     /// A cache initialised from points and their albedos (the GSCache paper's section 3.2).
-    pub fn new(points: &[Vec3], albedo: &[Vec3], config: CacheConfig) -> Result<Self> {
+    pub fn new(points: &[Vec3], albedo: &[Vec3], mut config: CacheConfig) -> Result<Self> {
+        config.points = points.len();
         let levels = initial_levels(points, albedo, &config)?;
         let mut cache = Self::from_levels(levels, config)?;
         for l in &mut cache.levels {
@@ -184,6 +187,7 @@ impl GsCache {
             config,
             levels,
             schedule: Schedule::new(config.decay),
+            train_calls: 0,
             frame: None,
             report: FrameReport::default(),
             raster: RasterConfig::default(),
@@ -315,7 +319,9 @@ impl GsCache {
                 frame_camera.height
             )));
         }
-        if !self.config.train {
+        let step_now = self.train_calls % self.config.train_every.max(1) as u64 == 0;
+        self.train_calls += 1;
+        if !self.config.train || !step_now {
             // A frozen fresh cache still takes its radiance scale from its first samples.
             for (i, level) in self.levels.iter_mut().enumerate() {
                 if self.config.normalized_radiance

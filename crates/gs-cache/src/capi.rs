@@ -96,6 +96,8 @@ pub struct GsCacheConfig {
     pub initial_opacity: f32,
     /// false freezes the cache (`gs_cache_train` then only clears the samples).
     pub train: bool,
+    /// Train on one frame in this many.
+    pub train_every: u32,
     /// Per-level masks (see the crate docs); false only for ablations.
     pub masked_targets: bool,
     /// Learning rates relative to each level's mean radiance (see the crate docs); false for
@@ -254,6 +256,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             size_cap: c.size_cap,
             initial_opacity: c.initial_opacity,
             train: c.train,
+            train_every: c.train_every,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
         })
@@ -303,6 +306,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         size_cap: d.size_cap,
         initial_opacity: d.initial_opacity,
         train: d.train,
+        train_every: d.train_every,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,
     }

@@ -63,14 +63,17 @@ pub struct CacheConfig {
     /// Number of levels; level i (0-based) holds paths of length i + 1.
     #[cfg_attr(feature = "clap", arg(long = "cache-levels", default_value_t = DEFAULT.levels))]
     pub levels: usize,
-    /// Gaussians in the first level; level i has points / 2^i.
+    /// Gaussians in the first level; level i has points / 2^i. 0 chooses it from the image:
+    /// [`GAUSSIANS_PER_CACHE_PIXEL`] per pixel of the cache image ([`CacheConfig::for_image`]).
     #[cfg_attr(feature = "clap", arg(long = "cache-points", default_value_t = DEFAULT.points))]
     pub points: usize,
     /// How each frame draws the levels: `raster` or `rt`.
     #[cfg_attr(feature = "clap", arg(long = "cache-lookup", value_enum, default_value_t = DEFAULT.lookup))]
     pub lookup: Lookup,
     /// The levels are drawn and trained at 1 / this of the frame's resolution and read back
-    /// bilinearly (1: the frame's own; see `resolution.rs`).
+    /// bilinearly (1: the frame's own; see `resolution.rs`). 4 by measurement: at 320x180 it
+    /// cut the cache's cost from 2.3x to 0.3x of path tracing and lowered its error
+    /// (docs/results/cost_default, cost_headsq).
     #[cfg_attr(feature = "clap", arg(long = "cache-resolution-divisor", default_value_t = DEFAULT.resolution_divisor))]
     pub resolution_divisor: u32,
     /// Stochastic samples per BVH traversal of the `rt` lookup.
@@ -131,6 +134,10 @@ pub struct CacheConfig {
     /// Train after each frame; false freezes the cache (it is still read).
     #[cfg_attr(feature = "clap", arg(long = "cache-train", action = clap::ArgAction::Set, default_value_t = DEFAULT.train))]
     pub train: bool,
+    /// Take a training step on one frame in this many (1: every frame); the frames between
+    /// are read but not trained on, which divides the training time by it.
+    #[cfg_attr(feature = "clap", arg(long = "cache-train-every", default_value_t = DEFAULT.train_every))]
+    pub train_every: u32,
     /// Train each level only where a path reached it (the per-level masks); false treats pixels
     /// without a sample as zero targets and renders too dark (kept for the ablation; see the
     /// crate docs).
@@ -146,16 +153,16 @@ pub struct CacheConfig {
 /// The defaults, as a constant so the command line's defaults are these very values.
 const DEFAULT: CacheConfig = CacheConfig {
     levels: 3,
-    points: 300_000,
+    points: 0,
     lookup: Lookup::Raster,
-    resolution_divisor: 1,
+    resolution_divisor: 4,
     rt_samples: 8,
     c: 0.5,
     threshold: 0.9,
     early: true,
     natural: true,
     optimizer: Optimizer::AdamW,
-    decay: Decay::Paper,
+    decay: Decay::Plateau,
     lr_position: 1.16e-3,
     lr_color: 1.25e-2,
     lr_rotation: 1e-3,
@@ -166,6 +173,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     size_cap: true,
     initial_opacity: 0.5,
     train: true,
+    train_every: 1,
     masked_targets: true,
     normalized_radiance: true,
 };
@@ -175,6 +183,13 @@ impl Default for CacheConfig {
         DEFAULT
     }
 }
+
+/// The cache's size when `points` is 0: Gaussians per pixel of the cache image. The GSCache
+/// paper's 300k Gaussians served 1920x1080 frames (0.14 per pixel); our size sweeps found 20k
+/// best at 320x180 (0.35 per pixel) and the same density best at a quarter of the resolution
+/// (1.25k for 80x45: docs/results/cost_*). A cloud cannot show more detail than the image it is
+/// drawn into resolves, and each Gaussian more shares the same samples.
+pub const GAUSSIANS_PER_CACHE_PIXEL: f64 = 0.35;
 
 /// The most levels a cache may have (paths longer than this are never cached).
 pub const MAX_LEVELS: usize = 8;
@@ -189,7 +204,8 @@ impl CacheConfig {
                 self.levels
             ));
         }
-        if self.points >> (self.levels - 1) < 4 {
+        // 0 is "choose from the image" (`for_image`).
+        if self.points != 0 && self.points >> (self.levels - 1) < 4 {
             return bad(format!(
                 "points = {} is too few for {} levels: the last level needs at least 4 Gaussians",
                 self.points, self.levels
@@ -205,6 +221,12 @@ impl CacheConfig {
             return bad(format!(
                 "threshold = {}: expected a value in [0, 1]",
                 self.threshold
+            ));
+        }
+        if !(1..=1000).contains(&self.train_every) {
+            return bad(format!(
+                "train_every = {}: expected 1..=1000 frames",
+                self.train_every
             ));
         }
         if !(1..=16).contains(&self.resolution_divisor) {
@@ -260,6 +282,18 @@ impl CacheConfig {
             ));
         }
         Ok(())
+    }
+
+    /// These settings for frames of `width` x `height`: `points` chosen from the cache image's
+    /// pixel count when it is 0 (at least 4 Gaussians in the last level).
+    pub fn for_image(mut self, width: u32, height: u32) -> Self {
+        if self.points == 0 {
+            let map = crate::resolution::PixelMap::for_size(width, height, self.resolution_divisor);
+            let pixels = map.width as f64 * map.height as f64;
+            let least = 4usize << (self.levels.clamp(1, MAX_LEVELS) - 1);
+            self.points = ((GAUSSIANS_PER_CACHE_PIXEL * pixels).round() as usize).max(least);
+        }
+        self
     }
 
     /// What one path needs: Algorithm 1's settings and natural termination.

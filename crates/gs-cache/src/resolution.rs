@@ -31,7 +31,18 @@ impl PixelMap {
     /// The cache camera for `camera` at `1 / divisor` of its resolution, and the map between
     /// the two. `divisor` 1 gives the frame's own camera and the identity.
     pub fn new(camera: &Camera, divisor: u32) -> (Camera, Self) {
-        let (fw, fh) = (camera.width, camera.height);
+        let map = Self::for_size(camera.width, camera.height, divisor);
+        let cache_camera = Camera {
+            width: map.width,
+            height: map.height,
+            ..*camera
+        };
+        (cache_camera, map)
+    }
+
+    /// The map for frames of `frame_width` x `frame_height` pixels.
+    pub fn for_size(frame_width: u32, frame_height: u32, divisor: u32) -> Self {
+        let (fw, fh) = (frame_width.max(1), frame_height.max(1));
         let d = divisor.max(1);
         let height = fh.div_ceil(d).max(1);
         let width = if d == 1 {
@@ -40,20 +51,14 @@ impl PixelMap {
             ((fw as u64 * height as u64).div_ceil(fh as u64) as u32).max(1)
         };
         let scale = height as f32 / fh as f32;
-        let map = Self {
+        Self {
             frame_width: fw,
             frame_height: fh,
             width,
             height,
             scale,
             offset_x: 0.5 * width as f32 - scale * 0.5 * fw as f32,
-        };
-        let cache_camera = Camera {
-            width,
-            height,
-            ..*camera
-        };
-        (cache_camera, map)
+        }
     }
 
     /// Whether the cache image is the frame's own.

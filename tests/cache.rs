@@ -276,3 +276,43 @@ fn persistence_and_ray_traced_lookup() {
         "ray-traced / rasterised level brightness {ratio:.3}"
     );
 }
+
+/// `train_every = 3` takes a training step on frames 0, 3, 6 and none between: the levels are
+/// unchanged by the frames between, and changed by the frames with a step.
+#[test]
+fn train_every_steps_on_one_frame_in_k() {
+    let s = scene();
+    let mut cache = new_cache(
+        &s,
+        CacheConfig {
+            train_every: 3,
+            ..small_config()
+        },
+    );
+    let mut settings = s.settings;
+    settings.spp = 1;
+    let means = |c: &GsCache| c.levels()[0].cloud.colors.clone();
+    for f in 0..7u32 {
+        let before = means(&cache);
+        let stats = render_cached_frame(
+            &s.media,
+            &s.camera,
+            &settings,
+            f,
+            None,
+            &mut cache,
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        let stepped = f % 3 == 0;
+        assert_eq!(
+            cache.report().losses[0].is_some(),
+            stepped,
+            "frame {f}: a loss means a step"
+        );
+        assert_eq!(means(&cache) != before, stepped, "frame {f}");
+        if !stepped {
+            assert_eq!(stats.train_seconds, 0.0, "frame {f}");
+        }
+    }
+}

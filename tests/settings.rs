@@ -98,6 +98,7 @@ fn settings_written_as_flags_read_back_the_same() {
         threshold: 0.75,
         early: false,
         natural: false,
+        survivor_weights: true,
         optimizer: Optimizer::Adam,
         decay: gs_cache::Decay::Off,
         lr_position: 1e-4,

@@ -32,6 +32,13 @@
 // `GsCacheConfig::decay`: no decay.
 #define GS_CACHE_DECAY_OFF 2
 
+// The cache's size when `points` is 0: Gaussians per pixel of the cache image. The GSCache
+// paper's 300k Gaussians served 1920x1080 frames (0.14 per pixel); our size sweeps found 20k
+// best at 320x180 (0.35 per pixel) and the same density best at a quarter of the resolution
+// (1.25k for 80x45: docs/results/cost_*). A cloud cannot show more detail than the image it is
+// drawn into resolves, and each Gaussian more shares the same samples.
+#define GAUSSIANS_PER_CACHE_PIXEL 0.35
+
 // The most levels a cache may have (paths longer than this are never cached).
 #define GS_CACHE_MAX_LEVELS 8
 
@@ -74,6 +81,8 @@ typedef struct GsCacheConfig {
   float threshold;
   bool early;
   bool natural;
+  // Training samples weighted by 1 / (probability of going on).
+  bool survivor_weights;
   // `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
   uint32_t optimizer;
   // `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.
@@ -91,6 +100,8 @@ typedef struct GsCacheConfig {
   float initial_opacity;
   // false freezes the cache (`gs_cache_train` then only clears the samples).
   bool train;
+  // Train on one frame in this many.
+  uint32_t train_every;
   // Per-level masks (see the crate docs); false only for ablations.
   bool masked_targets;
   // Learning rates relative to each level's mean radiance (see the crate docs); false for

@@ -111,6 +111,9 @@ pub struct GsCache {
     config: CacheConfig,
     levels: Vec<Level>,
     schedule: Schedule,
+    /// Per level, the ray-traced lookup's scene, kept across frames and refitted after training
+    /// moves the Gaussians (rebuilt only when the refit tree degrades).
+    traced: Vec<Option<GaussianScene>>,
     /// Calls of [`GsCache::train`] so far (a step is taken on one in `train_every`).
     train_calls: u64,
     frame: Option<CacheFrame>,
@@ -188,6 +191,7 @@ impl GsCache {
             levels,
             schedule: Schedule::new(config.decay),
             train_calls: 0,
+            traced: Vec::new(),
             frame: None,
             report: FrameReport::default(),
             raster: RasterConfig::default(),
@@ -249,11 +253,19 @@ impl GsCache {
                     spp: 1,
                     ..Default::default()
                 };
+                self.traced.resize_with(self.levels.len(), || None);
                 self.levels
                     .iter()
-                    .map(|l| {
-                        let scene = GaussianScene::new(&l.cloud);
-                        let img = trace_image(&scene, draw_camera, &settings);
+                    .zip(self.traced.iter_mut())
+                    .map(|(l, traced)| {
+                        let scene = match traced {
+                            Some(scene) => {
+                                scene.update(&l.cloud);
+                                scene
+                            }
+                            None => traced.insert(GaussianScene::new(&l.cloud)),
+                        };
+                        let img = trace_image(scene, draw_camera, &settings);
                         (img.into_iter().map(|c| c.to_array()).collect(), None)
                     })
                     .unzip()
@@ -319,7 +331,9 @@ impl GsCache {
                 frame_camera.height
             )));
         }
-        let step_now = self.train_calls % self.config.train_every.max(1) as u64 == 0;
+        let step_now = self
+            .train_calls
+            .is_multiple_of(self.config.train_every.max(1) as u64);
         self.train_calls += 1;
         if !self.config.train || !step_now {
             // A frozen fresh cache still takes its radiance scale from its first samples.

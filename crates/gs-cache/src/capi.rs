@@ -79,6 +79,8 @@ pub struct GsCacheConfig {
     pub threshold: f32,
     pub early: bool,
     pub natural: bool,
+    /// Training samples weighted by 1 / (probability of going on).
+    pub survivor_weights: bool,
     /// `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
     pub optimizer: u32,
     /// `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.
@@ -244,6 +246,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             threshold: c.threshold,
             early: c.early,
             natural: c.natural,
+            survivor_weights: c.survivor_weights,
             optimizer,
             decay,
             lr_position: c.lr_position,
@@ -287,6 +290,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         threshold: d.threshold,
         early: d.early,
         natural: d.natural,
+        survivor_weights: d.survivor_weights,
         optimizer: match d.optimizer {
             Optimizer::AdamW => GS_CACHE_OPTIMIZER_ADAMW,
             Optimizer::Adam => GS_CACHE_OPTIMIZER_ADAM,
@@ -334,6 +338,7 @@ pub unsafe extern "C" fn gs_cache_continue_probability(
         threshold: config.threshold,
         early: config.early,
         natural: config.natural,
+        survivor_weights: config.survivor_weights,
     };
     termination::continue_probability(&t, Vec3::new(rgb[0], rgb[1], rgb[2]))
 }

@@ -27,6 +27,8 @@ pub struct TerminationConfig {
     pub early: bool,
     /// Natural termination on or off.
     pub natural: bool,
+    /// Training samples weighted by the inverse of the probability of going on.
+    pub survivor_weights: bool,
 }
 
 /// How the renderer reads the cache each frame.
@@ -94,6 +96,11 @@ pub struct CacheConfig {
     /// cached value of its length instead of zero.
     #[cfg_attr(feature = "clap", arg(long = "cache-natural", action = clap::ArgAction::Set, default_value_t = DEFAULT.natural))]
     pub natural: bool,
+    /// Weight each training sample by the inverse of the probability with which Algorithm 1
+    /// let its path go on at the level's vertex, so a level learns the mean over every path
+    /// that reached the vertex rather than over the survivors (see `CachedPath::samples`).
+    #[cfg_attr(feature = "clap", arg(long = "cache-survivor-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.survivor_weights))]
+    pub survivor_weights: bool,
     /// `adamw` or `adam` (no weight decay).
     #[cfg_attr(feature = "clap", arg(long = "cache-optimizer", value_enum, default_value_t = DEFAULT.optimizer))]
     pub optimizer: Optimizer,
@@ -161,6 +168,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     threshold: 0.9,
     early: true,
     natural: true,
+    survivor_weights: false,
     optimizer: Optimizer::AdamW,
     decay: Decay::Plateau,
     lr_position: 1.16e-3,
@@ -303,6 +311,7 @@ impl CacheConfig {
             threshold: self.threshold,
             early: self.early,
             natural: self.natural,
+            survivor_weights: self.survivor_weights,
         }
     }
 
@@ -316,5 +325,60 @@ impl CacheConfig {
             scale: self.lr_scales * m,
             opacity: self.lr_opacity * m,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_size_follows_the_cache_image() {
+        // 320x180 at 1/4 is 80x45 = 3600 pixels: 1260 Gaussians.
+        let c = CacheConfig::default().for_image(320, 180);
+        assert_eq!(c.points, 1260);
+        assert!(c.validate().is_ok());
+        // Four times the pixels, four times the Gaussians.
+        assert_eq!(CacheConfig::default().for_image(640, 360).points, 5040);
+        // A tiny image still leaves 4 Gaussians in the last level.
+        assert_eq!(CacheConfig::default().for_image(1, 1).points, 16);
+        // A size given is kept.
+        let given = CacheConfig {
+            points: 777,
+            ..Default::default()
+        };
+        assert_eq!(given.for_image(320, 180).points, 777);
+    }
+
+    #[test]
+    fn bad_settings_are_refused_by_name() {
+        let bad = |c: CacheConfig, key: &str| {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(key), "{e}");
+        };
+        let d = CacheConfig::default();
+        bad(
+            CacheConfig {
+                resolution_divisor: 0,
+                ..d
+            },
+            "resolution_divisor",
+        );
+        bad(
+            CacheConfig {
+                train_every: 0,
+                ..d
+            },
+            "train_every",
+        );
+        bad(CacheConfig { c: f32::NAN, ..d }, "c = NaN");
+        bad(
+            CacheConfig {
+                lr_multiplier: 1e30,
+                ..d
+            },
+            "learning rate",
+        );
+        bad(CacheConfig { points: 3, ..d }, "too few");
     }
 }

@@ -21,6 +21,8 @@ pub struct CachedPath<'a> {
     /// Vertices so far (the path length if it ended now).
     length: usize,
     albedo_product: Vec3,
+    /// Per level reached: the albedo product at its vertex (what Algorithm 1 saw there).
+    albedo_at: [Vec3; MAX_LEVELS],
     /// Per level reached: the renderer's throughput divided by its throughput at that level's
     /// vertex, kept as a product (never a division by a tiny throughput).
     relative: [Vec3; MAX_LEVELS],
@@ -40,6 +42,7 @@ impl<'a> CachedPath<'a> {
             termination,
             length: 0,
             albedo_product: Vec3::ONE,
+            albedo_at: [Vec3::ONE; MAX_LEVELS],
             relative: [Vec3::ZERO; MAX_LEVELS],
             sums: [Vec3::ZERO; MAX_LEVELS],
             sampled: [false; MAX_LEVELS],
@@ -66,6 +69,7 @@ impl<'a> CachedPath<'a> {
         if self.length <= self.frame.levels() {
             let n = self.length - 1;
             self.relative[n] = Vec3::ONE;
+            self.albedo_at[n] = self.albedo_product;
             self.sums[n] = Vec3::ZERO;
             self.sampled[n] = true;
         }
@@ -128,11 +132,21 @@ impl<'a> CachedPath<'a> {
         }
     }
 
-    /// The training samples the path produced: `(level, value)` for every level whose vertex it
-    /// reached and went on from.
-    pub fn samples(&self) -> impl Iterator<Item = (usize, Vec3)> + '_ {
-        (0..self.active())
-            .filter(|&m| self.sampled[m])
-            .map(|m| (m, self.sums[m]))
+    /// The training samples the path produced: `(level, value, weight)` for every level whose
+    /// vertex it reached and went on from. The weight is 1, or with
+    /// `survivor_weights` the inverse of the probability with which Algorithm 1 let the path go
+    /// on at that vertex: paths that go on are a selection of those that reach the vertex
+    /// (biased towards bright albedo products), and the weight makes the level's target the
+    /// mean over all of them, as the estimator assumes.
+    pub fn samples(&self) -> impl Iterator<Item = (usize, Vec3, f32)> + '_ {
+        (0..self.active()).filter(|&m| self.sampled[m]).map(|m| {
+            let w = if self.termination.survivor_weights {
+                let q = continue_probability(&self.termination, self.albedo_at[m]);
+                if q > 0.0 && q < 1.0 { 1.0 / q } else { 1.0 }
+            } else {
+                1.0
+            };
+            (m, self.sums[m], w)
+        })
     }
 }

@@ -125,7 +125,8 @@ pub struct TileTargets {
     height: u32,
     levels: usize,
     sums: Vec<Vec3>,
-    counts: Vec<u32>,
+    /// Summed sample weights (sample counts when every weight is 1).
+    weights: Vec<f32>,
 }
 
 impl TileTargets {
@@ -139,22 +140,26 @@ impl TileTargets {
             height,
             levels,
             sums: vec![Vec3::ZERO; n],
-            counts: vec![0; n],
+            weights: vec![0.0; n],
         }
     }
 
-    /// Files one path's `(level, value)` samples (what [`crate::CachedPath::samples`] gives);
-    /// the path went through row-major tile pixel `in_tile`.
+    /// Files one path's `(level, value, weight)` samples (what [`crate::CachedPath::samples`]
+    /// gives); the path went through row-major tile pixel `in_tile`.
     pub fn add_samples(
         &mut self,
         in_tile: usize,
-        samples: impl IntoIterator<Item = (usize, Vec3)>,
+        samples: impl IntoIterator<Item = (usize, Vec3, f32)>,
     ) {
         let tile_pixels = self.width as usize * self.height as usize;
-        for (level, value) in samples {
+        for (level, value, weight) in samples {
             let k = level * tile_pixels + in_tile;
-            self.sums[k] += value;
-            self.counts[k] += 1;
+            if weight == 1.0 {
+                self.sums[k] += value;
+            } else {
+                self.sums[k] += value * weight;
+            }
+            self.weights[k] += weight;
         }
     }
 }
@@ -169,9 +174,9 @@ impl TrainingTargets {
             for j in 0..h {
                 for i in 0..w {
                     let k = level * tile_pixels + (j * w + i) as usize;
-                    if tile.counts[k] > 0 {
+                    if tile.weights[k] > 0.0 {
                         let pixel = ((tile.y0 + j) * self.width + tile.x0 + i) as usize;
-                        let mean = tile.sums[k] / tile.counts[k] as f32;
+                        let mean = tile.sums[k] / tile.weights[k];
                         self.add(level, pixel, mean.to_array());
                     }
                 }

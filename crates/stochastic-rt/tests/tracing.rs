@@ -311,3 +311,49 @@ fn degenerate_gaussians_never_produce_nan() {
         );
     }
 }
+
+/// A refitted BVH after the Gaussians moved finds exactly the hits brute force finds, and a
+/// move large enough to spoil the tree (or a Gaussian fading out) makes it rebuild.
+#[test]
+fn a_refitted_bvh_finds_every_hit_after_the_gaussians_move() {
+    let mut rng = StdRng::seed_from_u64(9);
+    let mut cloud = random_cloud(400, 4);
+    let mut scene = GaussianScene::new(&cloud);
+    // Small moves, as a training step makes: refitted, not rebuilt.
+    for m in cloud.means.iter_mut() {
+        *m += rng.random_range(-0.02..0.02);
+    }
+    assert!(
+        !scene.update(&cloud),
+        "a small move must refit, not rebuild"
+    );
+    let g = &scene.gaussians;
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for i in 0..g.len() {
+        lo = lo.min(g.means[i]);
+        hi = hi.max(g.means[i]);
+    }
+    let mut total = 0;
+    for k in 0..2000 {
+        let d = Vec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        )
+        .normalize();
+        let o = lo + (hi - lo) * Vec3::new(rng.random(), rng.random(), rng.random())
+            - d * (hi - lo).length();
+        let a = bvh_hits(&scene, o, d);
+        assert_eq!(a, brute_hits(&scene, o, d), "ray {k}");
+        total += a.len();
+    }
+    assert!(total > 2000, "too few hits to test ({total})");
+    // Scatter the Gaussians far apart: the old topology is poor, so the tree is rebuilt.
+    for m in cloud.means.iter_mut() {
+        *m = rng.random_range(-20.0..20.0);
+    }
+    assert!(scene.update(&cloud), "a scattered cloud must be rebuilt");
+    // A Gaussian that fades below 1/255 leaves the traceable set: rebuilt.
+    cloud.opacity_logits[0] = -20.0;
+    assert!(scene.update(&cloud));
+}

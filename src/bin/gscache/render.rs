@@ -248,7 +248,9 @@ fn render_with_cache(
     cancel: &AtomicBool,
     bar: &ProgressBar,
 ) -> Result<RenderStats> {
-    let config = a.settings.for_image(scene.camera.width, scene.camera.height);
+    let config = a
+        .settings
+        .for_image(scene.camera.width, scene.camera.height);
     config.validate()?;
     let t0 = std::time::Instant::now();
     let mut cache = match &a.load_cache {

@@ -66,7 +66,7 @@ pub struct CacheConfig {
     #[cfg_attr(feature = "clap", arg(long = "cache-levels", default_value_t = DEFAULT.levels))]
     pub levels: usize,
     /// Gaussians in the first level; level i has points / 2^i. 0 chooses it from the image:
-    /// [`GAUSSIANS_PER_CACHE_PIXEL`] per pixel of the cache image ([`CacheConfig::for_image`]).
+    /// 0.35 per pixel of the cache image (`GAUSSIANS_PER_CACHE_PIXEL`, applied by `for_image`).
     #[cfg_attr(feature = "clap", arg(long = "cache-points", default_value_t = DEFAULT.points))]
     pub points: usize,
     /// How each frame draws the levels: `raster` or `rt`.

@@ -154,11 +154,8 @@ impl TileTargets {
         let tile_pixels = self.width as usize * self.height as usize;
         for (level, value, weight) in samples {
             let k = level * tile_pixels + in_tile;
-            if weight == 1.0 {
-                self.sums[k] += value;
-            } else {
-                self.sums[k] += value * weight;
-            }
+            // Multiplying by a weight of 1 is exact: unweighted sums are unchanged.
+            self.sums[k] += value * weight;
             self.weights[k] += weight;
         }
     }

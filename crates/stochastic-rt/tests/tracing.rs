@@ -77,6 +77,26 @@ fn bvh_hits(scene: &GaussianScene, o: Vec3, d: Vec3) -> Vec<(u32, u32)> {
     v
 }
 
+/// The box of the traceable Gaussians' means.
+fn mean_bounds(g: &stochastic_rt::gaussians::TraceGaussians) -> (Vec3, Vec3) {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for m in &g.means {
+        lo = lo.min(*m);
+        hi = hi.max(*m);
+    }
+    (lo, hi)
+}
+
+/// A random unit direction (not uniform on the sphere; any spread of directions will do).
+fn random_direction(rng: &mut StdRng) -> Vec3 {
+    Vec3::new(
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+    )
+    .normalize()
+}
+
 #[test]
 fn bvh_and_brute_force_report_identical_hit_sets() {
     let mut rng = StdRng::seed_from_u64(3);
@@ -87,19 +107,10 @@ fn bvh_and_brute_force_report_identical_hit_sets() {
     for (name, cloud) in clouds {
         let scene = GaussianScene::new(&cloud);
         let g = &scene.gaussians;
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for i in 0..g.len() {
-            lo = lo.min(g.means[i]);
-            hi = hi.max(g.means[i]);
-        }
+        let (lo, hi) = mean_bounds(g);
         let (mut total, mut inside) = (0, 0);
         for k in 0..3000 {
-            let d = Vec3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            )
-            .normalize();
+            let d = random_direction(&mut rng);
             // A third of the rays start at a Gaussian's mean: inside its bounds.
             let o = if k % 3 == 0 {
                 inside += 1;
@@ -328,19 +339,10 @@ fn a_refitted_bvh_finds_every_hit_after_the_gaussians_move() {
         "a small move must refit, not rebuild"
     );
     let g = &scene.gaussians;
-    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for i in 0..g.len() {
-        lo = lo.min(g.means[i]);
-        hi = hi.max(g.means[i]);
-    }
+    let (lo, hi) = mean_bounds(g);
     let mut total = 0;
     for k in 0..2000 {
-        let d = Vec3::new(
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        )
-        .normalize();
+        let d = random_direction(&mut rng);
         let o = lo + (hi - lo) * Vec3::new(rng.random(), rng.random(), rng.random())
             - d * (hi - lo).length();
         let a = bvh_hits(&scene, o, d);

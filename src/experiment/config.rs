@@ -274,8 +274,7 @@ pub struct Ablation {
 
 /// Reads and checks an experiment file.
 pub fn load_experiment(path: &Path) -> Result<Experiment> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read the experiment file", path.display()))?;
+    let text = volume_pt::io::read_text_file(path, "an experiment file")?;
     let file: ExperimentFile = toml::from_str(&text)
         .with_context(|| format!("{}: not a valid experiment file", path.display()))?;
     build(path, file).with_context(|| format!("{}", path.display()))
@@ -348,8 +347,26 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         for m in &fly.methods {
             find(m, &format!("flythrough `{}`", fly.name))?;
         }
+        if !fly.orbit_degrees.is_finite() {
+            bail!(
+                "flythrough `{}`: orbit_degrees = {}: expected a finite angle",
+                fly.name,
+                fly.orbit_degrees
+            );
+        }
+        let last_frame = fly.warmup.saturating_add(fly.frames);
         for e in &fly.events {
             check_event(e, &fly.name)?;
+            if e.frame >= last_frame {
+                bail!(
+                    "flythrough `{}`: the event at frame {} is past the last frame ({} warm-up + \
+                     {} frames, counted from 0): it would never happen",
+                    fly.name,
+                    e.frame,
+                    fly.warmup,
+                    fly.frames
+                );
+            }
         }
         if !fly.keys.is_empty() {
             check_keyframes(&fly.keys).with_context(|| format!("flythrough `{}`", fly.name))?;
@@ -469,6 +486,14 @@ fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
     if n != 1 {
         bail!(
             "flythrough `{fly}`: the event at frame {} must have exactly one of light_offset, light_scale, density_scale, scene",
+            e.frame
+        );
+    }
+    if let Some(o) = e.light_offset
+        && !o.iter().all(|v| v.is_finite())
+    {
+        bail!(
+            "flythrough `{fly}`: event at frame {}: light_offset = {o:?}: expected finite values",
             e.frame
         );
     }

@@ -62,6 +62,12 @@ int main(int argc, char **argv) {
     CHECK(gs_cache_level_image(cache, 0) == NULL, "an image before the first frame");
     CHECK(gs_cache_train(cache, NULL) == GS_CACHE_STATUS_NO_FRAME, "train before a frame");
 
+    /* A camera too large to allocate for is refused with a status, not an abort of this program. */
+    GsCacheCamera huge = {{0.0f, 0.0f, -2.5f}, {0.0f, 0.0f, 0.0f}, {0.0f, 1.0f, 0.0f}, 40.0f, 100000, 100000};
+    CHECK(gs_cache_begin_frame(cache, &huge) == GS_CACHE_STATUS_INVALID_ARGUMENT, "a 100000x100000 camera");
+    CHECK(strstr(gs_cache_last_error(), "too large") != NULL, "message: %s", gs_cache_last_error());
+    CHECK(gs_cache_level_image(cache, 0) == NULL, "a refused frame left an image");
+
     GsCacheCamera camera = {{0.0f, 0.0f, -2.5f}, {0.0f, 0.0f, 0.0f}, {0.0f, 1.0f, 0.0f}, 40.0f, SIZE, SIZE};
     CHECK(gs_cache_begin_frame(cache, &camera) == GS_CACHE_STATUS_OK, "begin_frame");
     const int centre = (SIZE / 2) * SIZE + SIZE / 2;

@@ -55,6 +55,8 @@ typedef enum GsCacheStatus {
   GS_CACHE_STATUS_NO_FRAME = 4,
   // A bug inside the library; the handle may only be freed.
   GS_CACHE_STATUS_PANIC = 5,
+  // The memory a call needs could not be allocated (see the last error); nothing changed.
+  GS_CACHE_STATUS_OUT_OF_MEMORY = 6,
 } GsCacheStatus;
 
 // An opaque cache handle with its frame's training targets.

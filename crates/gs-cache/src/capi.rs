@@ -38,6 +38,32 @@ pub enum GsCacheStatus {
     NoFrame = 4,
     /// A bug inside the library; the handle may only be freed.
     Panic = 5,
+    /// The memory a call needs could not be allocated (see the last error); nothing changed.
+    OutOfMemory = 6,
+}
+
+/// Bytes a frame's buffers take per pixel and level, rounded up: the training targets (16), the
+/// drawn image (12) and the rasteriser's per-pixel state (at most 20).
+const FRAME_BYTES_PER_PIXEL_LEVEL: u64 = 48;
+
+/// Tries to allocate what a `width` x `height` frame of `levels` levels needs before any of it is
+/// built. A failed allocation inside Rust aborts the host program (it is not a panic, so
+/// `catch_unwind` cannot catch it); a failed `try_reserve` here is a status instead.
+fn reserve_frame(levels: usize, width: u32, height: u32) -> Result<(), (GsCacheStatus, String)> {
+    let bytes = u64::from(width) * u64::from(height) * levels as u64 * FRAME_BYTES_PER_PIXEL_LEVEL;
+    let refuse = || {
+        (
+            GsCacheStatus::OutOfMemory,
+            format!(
+                "camera: a {width}x{height} frame of {levels} levels needs about {bytes} bytes, \
+                 which cannot be allocated"
+            ),
+        )
+    };
+    let bytes = usize::try_from(bytes).map_err(|_| refuse())?;
+    Vec::<u8>::new()
+        .try_reserve_exact(bytes)
+        .map_err(|_| refuse())
 }
 
 /// `GsCacheConfig::lookup`: rasterise every level (the paper's lookup).
@@ -468,6 +494,7 @@ pub unsafe extern "C" fn gs_cache_begin_frame(
         )
         .map_err(|e| invalid(format!("camera: {e}")))?;
         let levels = h.cache.levels().len();
+        reserve_frame(levels, c.width, c.height)?;
         match &mut h.targets {
             Some(t) if t.width() == c.width && t.height() == c.height => t.clear(),
             t => *t = Some(TrainingTargets::new(levels, c.width, c.height)),
@@ -638,5 +665,14 @@ mod tests {
         assert!(h.is_null());
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert!(msg.to_str().unwrap().contains("lookup = 7"), "{msg:?}");
+    }
+
+    #[test]
+    fn a_frame_that_cannot_be_allocated_is_a_status() {
+        // 100000 levels of 32768^2 pixels: petabytes, past any address space.
+        let (status, message) = reserve_frame(100_000, 32_768, 32_768).unwrap_err();
+        assert_eq!(status, GsCacheStatus::OutOfMemory);
+        assert!(message.contains("cannot be allocated"), "{message}");
+        assert!(reserve_frame(3, 64, 64).is_ok());
     }
 }

@@ -202,6 +202,13 @@ pub const GAUSSIANS_PER_CACHE_PIXEL: f64 = 0.35;
 /// The most levels a cache may have (paths longer than this are never cached).
 pub const MAX_LEVELS: usize = 8;
 
+/// The most Gaussians the first level may hold (16.8 M): far past what any image needs (the
+/// automatic size is 0.35 per cache pixel), and a bound on memory a typo can ask for.
+pub const MAX_POINTS: usize = 1 << 24;
+
+/// Bytes one trained Gaussian takes: 14 parameters, their gradients and Adam's two moments, f32.
+pub const BYTES_PER_TRAINED_GAUSSIAN: u64 = 14 * 4 * 4;
+
 impl CacheConfig {
     /// Checks the settings, naming the one at fault.
     pub fn validate(&self) -> Result<(), crate::CacheError> {
@@ -210,6 +217,14 @@ impl CacheConfig {
             return bad(format!(
                 "levels = {}: expected 1..={MAX_LEVELS}",
                 self.levels
+            ));
+        }
+        if self.points > MAX_POINTS {
+            return bad(format!(
+                "points = {}: expected at most {MAX_POINTS} Gaussians in the first level (about \
+                 {} GB with the optimiser's state)",
+                self.points,
+                MAX_POINTS as u64 * BYTES_PER_TRAINED_GAUSSIAN / 1_000_000_000
             ));
         }
         // 0 is "choose from the image" (`for_image`).

@@ -47,6 +47,18 @@ impl GsCache {
                     ),
                 });
             }
+            // A cache this crate saved has none; training from one would spread NaN.
+            let unusable = cloud.count_unusable();
+            if unusable > 0 {
+                return Err(CacheError::Format {
+                    path,
+                    message: format!(
+                        "{unusable} of {} Gaussians have a non-finite parameter or a zero \
+                         quaternion: expected a cache level saved by gs-cache",
+                        cloud.len()
+                    ),
+                });
+            }
             clouds.push(cloud);
         }
         if clouds.is_empty() {

@@ -17,7 +17,17 @@ pub enum CameraError {
     BadFieldOfView(f32),
     /// Eye and target coincide, or `up` is parallel to the viewing direction, or a value is not finite.
     DegenerateFrame,
+    /// Width or height is more than [`MAX_IMAGE_SIDE`].
+    ImageTooLarge { width: u32, height: u32 },
 }
+
+/// The largest image side a camera accepts: 32768 pixels (a 1-gigapixel square). Larger sizes are
+/// far more often a typo than an intent, and every per-pixel buffer is sized from them.
+pub const MAX_IMAGE_SIDE: u32 = 32_768;
+
+/// The smallest angle, in degrees, between `up` and the viewing direction: closer than this, the
+/// image's roll is set by rounding error rather than by `up`.
+pub const MIN_UP_ANGLE_DEGREES: f32 = 0.1;
 
 impl std::fmt::Display for CameraError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -33,13 +43,29 @@ impl std::fmt::Display for CameraError {
             CameraError::DegenerateFrame => write!(
                 f,
                 "camera frame is degenerate: eye, target and up must be finite, eye != target, \
-                 and up must not be parallel to the viewing direction"
+                 and up must be at least {MIN_UP_ANGLE_DEGREES} degrees from the viewing direction"
+            ),
+            CameraError::ImageTooLarge { width, height } => write!(
+                f,
+                "image size {width}x{height} is too large: width and height must be at most \
+                 {MAX_IMAGE_SIDE}"
             ),
         }
     }
 }
 
 impl std::error::Error for CameraError {}
+
+/// Refuses an empty image and one with a side over [`MAX_IMAGE_SIDE`].
+fn check_image_size(width: u32, height: u32) -> Result<(), CameraError> {
+    if width == 0 || height == 0 {
+        return Err(CameraError::ZeroImageSize { width, height });
+    }
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(CameraError::ImageTooLarge { width, height });
+    }
+    Ok(())
+}
 
 /// A pinhole camera: position, orientation (camera-to-world rotation of the OpenCV frame),
 /// vertical field of view and image size in pixels. Pixels are square.
@@ -64,9 +90,7 @@ impl Camera {
         width: u32,
         height: u32,
     ) -> Result<Self, CameraError> {
-        if width == 0 || height == 0 {
-            return Err(CameraError::ZeroImageSize { width, height });
-        }
+        check_image_size(width, height)?;
         // Written so that NaN fails the test.
         if !(fov_y_degrees > 0.0 && fov_y_degrees < 180.0) {
             return Err(CameraError::BadFieldOfView(fov_y_degrees));
@@ -78,6 +102,12 @@ impl Camera {
         let forward = forward
             .try_normalize()
             .ok_or(CameraError::DegenerateFrame)?;
+        let up = up.try_normalize().ok_or(CameraError::DegenerateFrame)?;
+        let sin_angle = forward.cross(up).length();
+        // Written so that NaN fails.
+        if !(sin_angle >= MIN_UP_ANGLE_DEGREES.to_radians().sin()) {
+            return Err(CameraError::DegenerateFrame);
+        }
         let right = forward
             .cross(up)
             .try_normalize()
@@ -90,6 +120,17 @@ impl Camera {
             fov_y_degrees,
             width,
             height,
+        })
+    }
+
+    /// The same camera with another image size (the field of view is kept), checked as
+    /// [`Camera::look_at`] checks it.
+    pub fn with_size(&self, width: u32, height: u32) -> Result<Self, CameraError> {
+        check_image_size(width, height)?;
+        Ok(Self {
+            width,
+            height,
+            ..*self
         })
     }
 

@@ -86,6 +86,27 @@ impl<F: Real> GaussianCloud<F> {
         self.opacity_logits.push(opacity_logit);
     }
 
+    /// How many Gaussians no renderer can use: a non-finite parameter, or a zero quaternion
+    /// (no orientation). Renderers skip them; a program that loads a file says how many.
+    pub fn count_unusable(&self) -> usize {
+        let stride = self.color_stride();
+        (0..self.len())
+            .filter(|&g| {
+                let q = &self.rotations[4 * g..4 * g + 4];
+                let q_norm2 = q.iter().fold(F::zero(), |a, &v| a + v * v);
+                let finite = self.means[3 * g..3 * g + 3]
+                    .iter()
+                    .chain(&self.log_scales[3 * g..3 * g + 3])
+                    .chain(q)
+                    .chain(&self.colors[g * stride..(g + 1) * stride])
+                    .chain(std::iter::once(&self.opacity_logits[g]))
+                    .all(|v| v.is_finite());
+                // Written so that NaN counts as unusable.
+                !(finite && q_norm2 > F::zero() && q_norm2.is_finite())
+            })
+            .count()
+    }
+
     /// Checks the array lengths agree (a cloud built field by field can be inconsistent).
     pub fn check(&self) -> Result<(), String> {
         let n = self.len();

@@ -92,12 +92,24 @@ impl Scalar {
     }
 }
 
-/// Reads a 3DGS PLY file (binary, either byte order).
-pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::Io {
+/// Reads a whole regular file; a directory, device or FIFO has no size and may never end.
+fn read_regular(path: &Path) -> Result<Vec<u8>, IoError> {
+    let io = |e| IoError::Io {
         path: path.into(),
         source: e,
-    })?;
+    };
+    if !std::fs::metadata(path).map_err(io)?.is_file() {
+        return Err(fmt_err(
+            path,
+            "is not a regular file (a directory, device, FIFO or socket): expected a cloud file",
+        ));
+    }
+    std::fs::read(path).map_err(io)
+}
+
+/// Reads a 3DGS PLY file (binary, either byte order).
+pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
+    let bytes = read_regular(path)?;
     let end = bytes
         .windows(11)
         .position(|w| w == b"end_header\n")
@@ -165,13 +177,26 @@ pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
     let mut offset = end + 11;
     for (name, count, props) in &elements {
         let stride: usize = props.iter().map(|p| p.1.size()).sum();
+        // Counts come from the header: checked, so a huge count cannot wrap into a small one.
+        let end = count
+            .checked_mul(stride)
+            .and_then(|len| offset.checked_add(len))
+            .filter(|&end| end <= bytes.len())
+            .ok_or_else(|| {
+                fmt_err(
+                    path,
+                    format!(
+                        "file is truncated: element `{name}` has {count} records of {stride} \
+                         bytes, more than the {} bytes after its start",
+                        bytes.len() - offset
+                    ),
+                )
+            })?;
         if name != "vertex" {
-            offset += count * stride;
+            offset = end;
             continue;
         }
-        let data = bytes.get(offset..offset + count * stride).ok_or_else(|| {
-            fmt_err(path, format!("file is truncated: {count} vertices of {stride} bytes need {} bytes after the header, found {}", count * stride, bytes.len() - offset))
-        })?;
+        let data = &bytes[offset..end];
         let find = |n: &str| -> Option<(usize, Scalar)> {
             let mut off = 0;
             for (pn, s) in props {
@@ -313,10 +338,7 @@ pub fn write_ply(path: &Path, cloud: &GaussianCloud<f32>) -> Result<(), IoError>
 /// Reads an antimatter15 `.splat` file: 32-byte records of position (3 f32), linear scale
 /// (3 f32), RGBA (4 u8) and quaternion (4 u8, `(q - 128) / 128`, first byte w).
 pub fn read_splat(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::Io {
-        path: path.into(),
-        source: e,
-    })?;
+    let bytes = read_regular(path)?;
     if bytes.len() % 32 != 0 {
         return Err(fmt_err(
             path,

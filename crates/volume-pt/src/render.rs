@@ -43,6 +43,9 @@ fn pass_size(spp: u32, pixels: u64) -> u32 {
 
 /// Renders samples `samples` of every pixel of `tile` into it, reading `cache` and filing each
 /// path's record in `record`. Returns the number of samples that came out NaN or infinite.
+/// `cancel` is read before every sample, so a tile of very long paths (a dense medium, a huge
+/// image) still stops promptly; each pixel keeps the samples it finished.
+#[allow(clippy::too_many_arguments)] // one tile's job: plain references, no per-call struct
 fn render_tile<C: FrameCache>(
     tile: &mut Tile,
     scene: &SceneMedia,
@@ -51,6 +54,7 @@ fn render_tile<C: FrameCache>(
     samples: std::ops::Range<u32>,
     cache: &C,
     record: &mut C::TileRecord,
+    cancel: &AtomicBool,
 ) -> u64 {
     let mut nonfinite = 0;
     for j in 0..tile.height {
@@ -61,7 +65,12 @@ fn render_tile<C: FrameCache>(
                 in_tile: (j * tile.width + i) as usize,
             };
             let mut sum = DVec3::ZERO;
+            let mut taken = 0u32;
             for s in samples.clone() {
+                if cancel.load(Ordering::Relaxed) {
+                    break;
+                }
+                taken += 1;
                 let mut rng = SampleStream::new(settings.seed, pixel.pixel, s as u64);
                 let (jx, jy) = rng.next_2d();
                 let dir = camera.ray_direction(x as f32 + jx, y as f32 + jy);
@@ -83,7 +92,7 @@ fn render_tile<C: FrameCache>(
                 }
             }
             tile.sum[pixel.in_tile] += sum;
-            tile.count[pixel.in_tile] += samples.len() as u32;
+            tile.count[pixel.in_tile] += taken;
         }
     }
     nonfinite
@@ -103,7 +112,7 @@ pub struct CachedFrame<R> {
 /// accumulated into `film`. Frame `f` draws sample indices `f * spp .. (f + 1) * spp`, so
 /// successive frames have independent noise (a cache must never be trained twice on the same
 /// random paths) and a film accumulated over frames is a progressive render. Setting `cancel`
-/// stops it between tiles.
+/// stops it before the next sample.
 pub fn render_frame_with<C: FrameCache>(
     scene: &SceneMedia,
     camera: &Camera,
@@ -132,6 +141,7 @@ pub fn render_frame_with<C: FrameCache>(
                 first_sample..first_sample + settings.spp,
                 cache,
                 &mut record,
+                cancel,
             );
             nonfinite.fetch_add(bad, Ordering::Relaxed);
             Some((tile.rect(), record))
@@ -148,7 +158,7 @@ pub fn render_frame_with<C: FrameCache>(
 }
 
 /// Renders `settings.spp` samples per pixel into `film`, calling `progress(samples_done)` after
-/// each tile. Setting `cancel` stops the render between tiles; the film keeps what it has.
+/// each tile. Setting `cancel` stops the render before the next sample; the film keeps what it has.
 pub fn render(
     scene: &SceneMedia,
     camera: &Camera,
@@ -169,7 +179,16 @@ pub fn render(
             if cancel.load(Ordering::Relaxed) {
                 return;
             }
-            let bad = render_tile(tile, scene, camera, settings, s0..s1, &NoCache, &mut ());
+            let bad = render_tile(
+                tile,
+                scene,
+                camera,
+                settings,
+                s0..s1,
+                &NoCache,
+                &mut (),
+                cancel,
+            );
             nonfinite.fetch_add(bad, Ordering::Relaxed);
             progress((tile.width * tile.height * (s1 - s0)) as u64);
         });

@@ -144,7 +144,8 @@ pub struct Scene {
     pub camera: Camera,
     pub settings: RenderSettings,
     pub output: OutputDesc,
-    /// What the readers reported but the renderer does not use.
+    /// What the readers reported but the renderer does not use, and warnings (prefixed
+    /// `warning: `) about settings that are legal but likely mistakes.
     pub notes: Vec<String>,
     pub volume_path: PathBuf,
 }
@@ -165,8 +166,12 @@ fn vec3(a: [f32; 3]) -> Vec3 {
 }
 
 /// Reads and builds the scene at `path`.
+/// Optical depths across a whole volume (the box's diagonal at the densest majorant) beyond this
+/// draw a warning. The bundled scenes reach 66 to 177; this is over 100 times the densest.
+pub const MAX_PLAUSIBLE_OPTICAL_DEPTH: f64 = 2e4;
+
 pub fn load_scene(path: &Path) -> Result<Scene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_text_file(path, "a scene file")?;
     let desc: SceneFile = toml::from_str(&text).map_err(|e| Error::Scene {
         path: path.into(),
         message: e.to_string(),
@@ -267,6 +272,7 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
             "environment radiance {env} invalid: expected finite values >= 0"
         )));
     }
+    let tf_density_scale = tf.density_scale();
     let medium = Medium::new(grid, v.filter, origin, spacing, tf, v.macrocell)
         .map_err(|e| scene_err(e.to_string()))?;
     let c = &desc.camera;
@@ -282,6 +288,20 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
     let r = &desc.render;
     let max_depth = max_depth_from(r.max_depth).map_err(scene_err)?;
     let mut notes = loaded.notes;
+    // The densest path across the box: a huge optical depth is almost always a units mistake
+    // (a density scale per voxel given per world unit, a spacing in micrometres read as metres),
+    // and it makes every path a random walk of millions of steps.
+    let (lo, hi) = medium.bounds();
+    let optical_depth = medium.majorants().global_max() as f64 * (hi - lo).length() as f64;
+    if optical_depth > MAX_PLAUSIBLE_OPTICAL_DEPTH {
+        notes.push(format!(
+            "warning: the optical depth across the volume reaches {optical_depth:.3e} (density_scale \
+             {} per world unit x a box {:.3e} units across): paths will take millions of steps; \
+             check density_scale and the voxel spacing",
+            tf_density_scale,
+            (hi - lo).length()
+        ));
+    }
     if desc.lights.is_empty() && env.max_element() == 0.0 {
         notes.push("the scene has no light: the image will be black".into());
     }

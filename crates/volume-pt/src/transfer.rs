@@ -163,9 +163,12 @@ impl TransferFunction {
         density_scale: f32,
     ) -> Result<Self> {
         let (lo, hi) = window;
-        if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        // The width must be finite too: [-3e38, 3e38] has an infinite width, which would map
+        // every value to 0 and leave the volume silently empty.
+        if !(lo.is_finite() && hi.is_finite() && hi > lo && (hi - lo).is_finite()) {
             return Err(Error::TransferFunction(format!(
-                "window [{lo}, {hi}] is invalid: expected finite values with lo < hi"
+                "window [{lo}, {hi}] is invalid: expected finite values with lo < hi and a \
+                 finite width hi - lo"
             )));
         }
         if !(density_scale >= 0.0 && density_scale.is_finite()) {
@@ -174,7 +177,8 @@ impl TransferFunction {
             )));
         }
         for (x, c) in albedo.points() {
-            if !(c.min_element() >= 0.0 && c.max_element() <= 1.0) {
+            // Per component, so that NaN fails (glam's min/max skip NaN).
+            if !(c.cmpge(Vec3::ZERO).all() && c.cmple(Vec3::ONE).all()) {
                 return Err(Error::TransferFunction(format!(
                     "albedo {c} at {x} is outside [0, 1]: a scattering albedo above 1 creates energy"
                 )));
@@ -268,7 +272,7 @@ pub fn read_paraview_preset(
     name: Option<&str>,
 ) -> Result<(PiecewiseLinear<Vec3>, Option<PiecewiseLinear<f32>>)> {
     let bad = |m: String| Error::format(path, m);
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::io::read_text_file(path, "a colour-map preset")?;
     let json: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| bad(format!("not valid JSON: {e}")))?;
     let presets: Vec<&serde_json::Value> = match &json {

@@ -97,3 +97,52 @@ pub fn prepare_output(path: &Path) -> Result<()> {
 pub fn prepare_folder(dir: &Path) -> Result<()> {
     prepare_output(&dir.join("probe"))
 }
+
+/// A command-line number that must be finite: NaN and infinities are refused where they are
+/// typed, not found later as a black image.
+pub fn finite_f32(s: &str) -> std::result::Result<f32, String> {
+    let v: f32 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("`{s}` is not finite: expected a finite number"))
+    }
+}
+
+/// A finite number > 0.
+pub fn positive_f32(s: &str) -> std::result::Result<f32, String> {
+    let v = finite_f32(s)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("`{s}`: expected a number > 0"))
+    }
+}
+
+/// A number in [0, 1].
+pub fn unit_f32(s: &str) -> std::result::Result<f32, String> {
+    let v = finite_f32(s)?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("`{s}`: expected a number in [0, 1]"))
+    }
+}
+
+/// A count of at least 1 (clap's ranged parsers give only u64 and smaller).
+pub fn at_least_one(s: &str) -> std::result::Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err(format!("`{s}`: expected at least 1")),
+        Ok(v) => Ok(v),
+        Err(e) => Err(format!("`{s}`: {e}")),
+    }
+}
+
+/// Three finite numbers `x,y,z`.
+pub fn finite_vec3(s: &str) -> std::result::Result<glam::Vec3, String> {
+    let v: Vec<f32> = s.split(',').map(finite_f32).collect::<std::result::Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] => Ok(glam::Vec3::new(x, y, z)),
+        _ => Err(format!("`{s}`: expected three numbers `x,y,z`")),
+    }
+}

@@ -1,7 +1,9 @@
 //! `gscache render SCENE.toml`: path-trace a volume scene to EXR and PNG, optionally reading
 //! and training the GSCache radiance cache.
 
-use crate::common::{Global, INTERRUPTED, cancellation, prepare_folder, prepare_output};
+use crate::common::{
+    Global, INTERRUPTED, cancellation, finite_f32, prepare_folder, prepare_output,
+};
 use anyhow::{Context, Result, bail};
 use cached_pt::render_cached_frame;
 use gs_cache::{CacheConfig, GsCache};
@@ -22,7 +24,7 @@ pub struct RenderArgs {
     /// Scene file (TOML).
     scene: PathBuf,
     /// Samples per pixel (overrides the scene); with the cache, per frame.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     spp: Option<u32>,
     /// `uniform` (phase sampling only) or `nee` (light sampling + phase sampling, MIS).
     #[arg(long, value_enum)]
@@ -49,7 +51,7 @@ pub struct RenderArgs {
     #[arg(long)]
     png: Option<PathBuf>,
     /// PNG exposure in stops (overrides the scene).
-    #[arg(long)]
+    #[arg(long, value_parser = finite_f32)]
     exposure: Option<f32>,
     /// PNG tone map (overrides the scene).
     #[arg(long, value_enum)]
@@ -68,14 +70,14 @@ pub struct CacheRun {
     #[command(flatten)]
     settings: CacheConfig,
     /// Frames of `--spp` samples each, trained between them; the image is their mean.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     frames: u32,
     /// Frames rendered and trained on before the image starts accumulating.
     #[arg(long, default_value_t = 0)]
     warmup: u32,
     /// Degrees of orbit about the volume's centre over the warm-up frames, ending at the
     /// scene's camera (the experiment runner's warm-up); 0 keeps the camera still.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_f32)]
     warmup_orbit: f32,
     /// Write the trained levels as 3DGS PLY files into this folder.
     #[arg(long)]
@@ -92,7 +94,10 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
     let mut scene = load_scene(&args.scene)?;
     for n in &scene.notes {
-        eprintln!("note: {}: {n}", scene.volume_path.display());
+        let (kind, text) = n
+            .strip_prefix("warning: ")
+            .map_or(("note", n.as_str()), |w| ("warning", w));
+        eprintln!("{kind}: {}: {text}", scene.volume_path.display());
     }
     if let Some(s) = args.spp {
         scene.settings.spp = s;
@@ -115,12 +120,12 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             args.width.unwrap_or(c.width),
             args.height.unwrap_or(c.height),
         );
-        if w == 0 || h == 0 {
-            bail!("image size {w}x{h} is empty: width and height must both be at least 1");
-        }
-        scene.camera.width = w;
-        scene.camera.height = h;
+        scene.camera = scene
+            .camera
+            .with_size(w, h)
+            .map_err(|e| anyhow::anyhow!("--width/--height: {e}"))?;
     }
+    check_image_memory(scene.camera.width, scene.camera.height)?;
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
     let stem = args
@@ -152,9 +157,6 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             || args.cache.cache_images.is_some())
     {
         bail!("--frames, --warmup and the cache's files need the cache: add --cache");
-    }
-    if args.cache.frames == 0 {
-        bail!("--frames 0: expected at least 1 frame");
     }
     if scene.settings.spp == 0 {
         bail!("--spp 0: expected at least 1 sample per pixel");
@@ -237,6 +239,25 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         png_path.display()
     );
     Ok(if stats.cancelled { INTERRUPTED } else { 0 })
+}
+
+/// Bytes a rendered pixel takes: the film's f64 sums and count (28), the f32 image (12) and the
+/// PNG's bytes (4), plus slack for the tiles' bookkeeping.
+const IMAGE_BYTES_PER_PIXEL: u64 = 48;
+
+/// Refuses an image whose buffers would not fit in the memory available, before any is made.
+fn check_image_memory(width: u32, height: u32) -> Result<()> {
+    let need = u64::from(width) * u64::from(height) * IMAGE_BYTES_PER_PIXEL;
+    let available = volume_pt::io::available_memory();
+    if need > available {
+        bail!(
+            "a {width}x{height} image needs about {} of memory, but {} is available: render a \
+             smaller image",
+            volume_pt::io::human_bytes(need),
+            volume_pt::io::human_bytes(available)
+        );
+    }
+    Ok(())
 }
 
 /// Initialises (or loads) the cache, renders the warm-up and the accumulated frames, prints

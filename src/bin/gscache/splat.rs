@@ -2,7 +2,9 @@
 //! differentiable rasteriser, fit a cloud to a target EXR seen from a given camera, or ray-trace
 //! it with stochastic transparency (Sun et al., 2025).
 
-use crate::common::{Global, prepare_output};
+use crate::common::{
+    Global, at_least_one, finite_f32, finite_vec3, positive_f32, prepare_output, unit_f32,
+};
 use anyhow::{Result, bail};
 use clap::{Args as ClapArgs, Subcommand};
 use glam::Vec3;
@@ -48,16 +50,16 @@ pub struct TraceArgs {
     #[arg(long, value_enum, default_value_t = TraceMode::Stochastic)]
     mode: TraceMode,
     /// Samples per traversal for `stochastic` (Sun et al., section 3.5).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     samples_per_traversal: u32,
     /// Hits per pass for `kbuffer` and `stochastic-pass`.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = at_least_one)]
     k: usize,
     /// `kbuffer` stops once transmittance falls below this (0: never).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = unit_f32)]
     min_transmittance: f32,
     /// Estimates per pixel.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
     spp: u32,
     /// Where a hit sits along the ray: `mean` (the 1D Gaussian's mean) or `center` (the
     /// rasteriser's depth).
@@ -69,7 +71,7 @@ pub struct TraceArgs {
     #[arg(long, default_value_t = 0)]
     seed: u32,
     /// Background colour `r,g,b`.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,0,0")]
+    #[arg(long, value_parser = finite_vec3, default_value = "0,0,0")]
     background: Vec3,
     #[arg(short = 'o', long, default_value = "out/trace.exr")]
     output: PathBuf,
@@ -81,25 +83,25 @@ pub struct TraceArgs {
 #[derive(ClapArgs, Clone, Debug)]
 struct CameraArgs {
     /// Camera position `x,y,z` (with --target; otherwise an orbit around the cloud).
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = finite_vec3)]
     eye: Option<Vec3>,
     /// Point at the image centre `x,y,z` (default: the cloud's median).
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = finite_vec3)]
     target: Option<Vec3>,
     /// Image up direction `x,y,z`; 3DGS captures made with COLMAP are usually `0,-1,0`.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,-1,0", allow_hyphen_values = true)]
+    #[arg(long, value_parser = finite_vec3, default_value = "0,-1,0", allow_hyphen_values = true)]
     up: Vec3,
     /// Orbit azimuth in degrees (orbit preset: around the cloud's median, at --distance).
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = finite_f32)]
     orbit: f32,
     /// Orbit elevation in degrees.
-    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true, value_parser = finite_f32)]
     elevation: f32,
     /// Orbit distance in units of the cloud's extent.
-    #[arg(long, default_value_t = 1.6)]
+    #[arg(long, default_value_t = 1.6, value_parser = positive_f32)]
     distance: f32,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 50.0)]
+    #[arg(long, default_value_t = 50.0, value_parser = positive_f32)]
     fov: f32,
     #[arg(long, default_value_t = 1280)]
     width: u32,
@@ -113,13 +115,13 @@ pub struct RenderArgs {
     #[command(flatten)]
     camera: CameraArgs,
     /// Background colour `r,g,b`.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,0,0")]
+    #[arg(long, value_parser = finite_vec3, default_value = "0,0,0")]
     background: Vec3,
     /// Mip-splatting low-pass (0.1 px^2 with opacity compensation) instead of 0.3 px^2.
     #[arg(long)]
     mip: bool,
     /// Stochastic splatting with this many samples per pixel instead of sorted compositing.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     stochastic: Option<u32>,
     /// Per-pixel kernel of sorted compositing: `auto` (the widest SIMD lanes this CPU runs),
     /// `lanes8` (AVX2 + FMA), `lanes4` (SSE2 / NEON) or `scalar` (the reference).
@@ -142,9 +144,9 @@ pub struct FitArgs {
     #[arg(long)]
     init: Option<PathBuf>,
     /// Random Gaussians to start from when there is no --init.
-    #[arg(long, default_value_t = 20_000)]
+    #[arg(long, default_value_t = 20_000, value_parser = at_least_one)]
     points: usize,
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u32).range(1..))]
     iterations: u32,
     /// `hdr` (the GSCache paper's Eq. 4), `l1` or `l2`.
     #[arg(long, value_enum, default_value_t = Loss::L1)]
@@ -153,16 +155,19 @@ pub struct FitArgs {
     output: PathBuf,
 }
 
-fn parse_vec3(s: &str) -> Result<Vec3, String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|t| t.trim().parse::<f32>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("`{s}`: {e}"))?;
-    match v[..] {
-        [x, y, z] => Ok(Vec3::new(x, y, z)),
-        _ => Err(format!("`{s}`: expected three numbers `x,y,z`")),
+/// Reads a cloud and says how many of its Gaussians no renderer can use (they are skipped).
+fn load_cloud(path: &std::path::Path) -> Result<GaussianCloud<f32>> {
+    let cloud = read_cloud(path)?;
+    let unusable = cloud.count_unusable();
+    if unusable > 0 {
+        eprintln!(
+            "warning: {}: {unusable} of {} Gaussians have a non-finite parameter or a zero \
+             quaternion and are skipped",
+            path.display(),
+            cloud.len()
+        );
     }
+    Ok(cloud)
 }
 
 fn median_and_extent(cloud: &GaussianCloud<f32>) -> (Vec3, f32) {
@@ -225,7 +230,7 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             if let Some(png) = &a.png {
                 prepare_output(png)?;
             }
-            let cloud = read_cloud(&a.asset)?;
+            let cloud = load_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
             let cfg = RasterConfig {
                 low_pass: if a.mip {
@@ -284,7 +289,7 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
                 );
             }
             let loss = a.loss;
-            let init = a.init.as_ref().map(|p| read_cloud(p)).transpose()?;
+            let init = a.init.as_deref().map(load_cloud).transpose()?;
             let cam = make_camera(&a.camera, init.as_ref())?;
             let mut cloud = match init {
                 Some(c) => c,
@@ -325,18 +330,18 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
                 prepare_output(png)?;
             }
             use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image};
-            let cloud = read_cloud(&a.asset)?;
+            let cloud = load_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
             let estimator = match a.mode {
                 TraceMode::Exact => Estimator::Exact,
                 TraceMode::Kbuffer => Estimator::KBuffer {
-                    k: a.k.max(1),
+                    k: a.k,
                     min_transmittance: a.min_transmittance,
                 },
                 TraceMode::Stochastic => Estimator::Stochastic {
-                    samples_per_traversal: a.samples_per_traversal.clamp(1, 64),
+                    samples_per_traversal: a.samples_per_traversal,
                 },
-                TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k.max(1) },
+                TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k },
             };
             let (depth_mode, random) = (a.depth, a.random);
             let t0 = std::time::Instant::now();
@@ -345,7 +350,7 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             let settings = TraceSettings {
                 estimator,
                 depth_mode,
-                spp: a.spp.max(1),
+                spp: a.spp,
                 seed: a.seed,
                 background: a.background,
                 random,

@@ -4,11 +4,16 @@
 //! spacing the file states (if any) and notes about what was read but not used. Bad input is an
 //! [`Error`](crate::Error) naming the file, the fault and what was expected.
 
+mod budget;
 mod nifti_reader;
 mod nrrd;
 mod raw;
 mod vtk;
 
+pub use budget::{
+    GRID_BYTES_PER_VOXEL, MAX_TEXT_FILE_BYTES, VolumeSize, available_memory, check_volume_size,
+    human_bytes, read_text_file,
+};
 pub use raw::{RawLayout, parse_raw_file_name};
 
 use crate::error::{Error, Result};
@@ -148,12 +153,8 @@ pub fn read_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
             ));
         }
     };
-    if !path.exists() {
-        return Err(Error::io(
-            path,
-            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
-        ));
-    }
+    // Refuse a missing file, a directory, a device or a FIFO before any reader opens it.
+    budget::open_regular(path)?;
     match format {
         Format::Raw => raw::read(path, &hints.raw),
         Format::Nrrd => nrrd::read(path),
@@ -195,6 +196,8 @@ pub(crate) fn grid_for(path: &Path, dims: UVec3, values: Vec<f32>) -> Result<Sca
     ScalarGrid::new(dims, values).map_err(|e| Error::format(path, e.to_string()))
 }
 
+/// Reads a whole file whose header (or name) has not yet said how big it should be: bounded by
+/// the memory available, refused if it is not a regular file.
 pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|e| Error::io(path, e))
+    budget::read_regular(path, available_memory(), "a volume file")
 }

@@ -1,95 +1,161 @@
-//! NIfTI-1 (`.nii`, `.nii.gz`, and `.hdr`/`.img` pairs) through the nifti crate. The intensity
+//! NIfTI-1 (`.nii`, `.nii.gz`, and `.hdr`/`.img` pairs): the header through the nifti crate, the
+//! voxels read here. The intensity
 //! scaling `scl_slope`/`scl_inter` is applied; `pixdim` gives the spacing; the affine (qform and
 //! sform) is reported, not applied: the scene places the volume.
 
-use super::{LoadedVolume, grid_for};
+use super::budget::check_volume_size;
+use super::{ByteOrder, DType, LoadedVolume, decode_samples, grid_for, read_file};
 use crate::error::{Error, Result};
-use glam::{UVec3, Vec3};
-use nifti::{NiftiObject, NiftiType, ReaderOptions};
-use std::path::Path;
+use flate2::read::GzDecoder;
+use glam::Vec3;
+use nifti::{Endianness, NiftiHeader, NiftiType};
+use std::io::Read;
+use std::path::{Path, PathBuf};
 
+/// Bytes in a NIfTI-1 header; the data of a single `.nii` file start at `vox_offset` >= 352
+/// (the header plus the 4-byte extender and any extensions or padding).
+const HEADER_BYTES: usize = 348;
+const SINGLE_FILE_MIN_OFFSET: usize = 352;
+
+fn dtype_of(t: NiftiType) -> Option<DType> {
+    Some(match t {
+        NiftiType::Uint8 => DType::U8,
+        NiftiType::Int8 => DType::I8,
+        NiftiType::Uint16 => DType::U16,
+        NiftiType::Int16 => DType::I16,
+        NiftiType::Uint32 => DType::U32,
+        NiftiType::Int32 => DType::I32,
+        NiftiType::Float32 => DType::F32,
+        NiftiType::Float64 => DType::F64,
+        _ => return None,
+    })
+}
+
+/// A stream over a file's bytes, inflated if they are gzip (whatever the file's name says).
+fn maybe_gzip(bytes: &[u8]) -> Box<dyn Read + '_> {
+    if bytes.starts_with(&[0x1f, 0x8b]) {
+        Box::new(GzDecoder::new(bytes))
+    } else {
+        Box::new(bytes)
+    }
+}
+
+/// The `.img` (or `.img.gz`) beside a `.hdr`.
+fn image_file_for(header_path: &Path) -> Option<PathBuf> {
+    let name = header_path.file_name()?.to_str()?;
+    let stem = name
+        .strip_suffix(".hdr")
+        .or_else(|| name.strip_suffix(".hdr.gz"))?;
+    ["img", "img.gz"]
+        .iter()
+        .map(|ext| header_path.with_file_name(format!("{stem}.{ext}")))
+        .find(|p| p.exists())
+}
+
+/// Reads the header with the nifti crate, then the voxels from `vox_offset` itself: the crate
+/// reads a single file's data from byte 352 unless the extender flags extensions, which shifts
+/// every voxel of a file padded to a larger offset. Reading here also bounds every size and
+/// every inflation by what the header promises.
 pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let bad = |m: String| Error::format(path, m);
-    let obj = ReaderOptions::new()
-        .read_file(path)
+    let file = read_file(path)?;
+    let mut stream = maybe_gzip(&file);
+    let mut head = [0u8; HEADER_BYTES];
+    stream.read_exact(&mut head).map_err(|e| {
+        bad(format!(
+            "cannot read a NIfTI-1 header ({HEADER_BYTES} bytes): {e}"
+        ))
+    })?;
+    let header = NiftiHeader::from_reader(&head[..])
         .map_err(|e| bad(format!("cannot read NIfTI file: {e}")))?;
-    let header = obj.header().clone();
+    if header.sizeof_hdr != HEADER_BYTES as i32 {
+        return Err(bad(format!(
+            "NIfTI sizeof_hdr is {}: expected {HEADER_BYTES} (a NIfTI-1 file)",
+            header.sizeof_hdr
+        )));
+    }
     let rank = header.dim[0] as usize;
     let d = header.dim;
-    let dims = match rank {
-        3 => UVec3::new(d[1] as u32, d[2] as u32, d[3] as u32),
-        4.. if d[4..=rank].iter().all(|&x| x == 1) => {
-            UVec3::new(d[1] as u32, d[2] as u32, d[3] as u32)
-        }
-        _ => {
-            return Err(bad(format!(
-                "NIfTI image has {rank} dimensions {:?}: expected a 3D scalar volume",
-                &d[1..=rank.min(7)]
-            )));
-        }
-    };
+    if !(3..=7).contains(&rank) || d[4..=rank].iter().any(|&x| x != 1) {
+        return Err(bad(format!(
+            "NIfTI image has {rank} dimensions {:?}: expected a 3D scalar volume",
+            &d[1..=rank.clamp(1, 7)]
+        )));
+    }
     let datatype = header.data_type().map_err(|e| {
         bad(format!(
             "NIfTI datatype {} is unknown: {e}",
             header.datatype
         ))
     })?;
-    let volume = obj.into_volume();
-    let typed = |e: nifti::NiftiError| bad(format!("NIfTI voxel data cannot be decoded: {e}"));
-    let mut values: Vec<f32> = match datatype {
-        NiftiType::Uint8 => volume
-            .into_nifti_typed_data::<u8>()
-            .map_err(typed)?
-            .into_iter()
-            .map(f32::from)
-            .collect(),
-        NiftiType::Int8 => volume
-            .into_nifti_typed_data::<i8>()
-            .map_err(typed)?
-            .into_iter()
-            .map(f32::from)
-            .collect(),
-        NiftiType::Uint16 => volume
-            .into_nifti_typed_data::<u16>()
-            .map_err(typed)?
-            .into_iter()
-            .map(f32::from)
-            .collect(),
-        NiftiType::Int16 => volume
-            .into_nifti_typed_data::<i16>()
-            .map_err(typed)?
-            .into_iter()
-            .map(f32::from)
-            .collect(),
-        NiftiType::Uint32 => volume
-            .into_nifti_typed_data::<u32>()
-            .map_err(typed)?
-            .into_iter()
-            .map(|v| v as f32)
-            .collect(),
-        NiftiType::Int32 => volume
-            .into_nifti_typed_data::<i32>()
-            .map_err(typed)?
-            .into_iter()
-            .map(|v| v as f32)
-            .collect(),
-        NiftiType::Float32 => volume.into_nifti_typed_data::<f32>().map_err(typed)?,
-        NiftiType::Float64 => volume
-            .into_nifti_typed_data::<f64>()
-            .map_err(typed)?
-            .into_iter()
-            .map(|v| v as f32)
-            .collect(),
-        other => {
-            return Err(bad(format!(
-                "NIfTI datatype {other:?} is not supported: expected a scalar integer or float type"
-            )));
-        }
+    let dtype = dtype_of(datatype).ok_or_else(|| {
+        bad(format!(
+            "NIfTI datatype {datatype:?} is not supported: expected a scalar integer or float type"
+        ))
+    })?;
+    // NIfTI-1 stores dims as signed 16-bit integers.
+    let signed = |i: usize| i64::from(d[i] as i16);
+    let size = check_volume_size(path, [signed(1), signed(2), signed(3)], dtype)?;
+    let single_file = &header.magic == b"n+1\0";
+    let offset = header.vox_offset;
+    let min_offset = if single_file { SINGLE_FILE_MIN_OFFSET } else { 0 };
+    if !(offset.is_finite() && offset >= min_offset as f32 && offset.fract() == 0.0) {
+        return Err(bad(format!(
+            "NIfTI vox_offset {offset} is not a whole number of bytes from {min_offset} on"
+        )));
+    }
+    let offset = offset as usize; // a finite f32 >= 0 saturates, never wraps
+    let order = match header.endianness {
+        Endianness::Little => ByteOrder::Little,
+        Endianness::Big => ByteOrder::Big,
     };
-    let n = dims.x as usize * dims.y as usize * dims.z as usize;
-    values.truncate(n.min(values.len()));
-    let (slope, inter) = (header.scl_slope, header.scl_inter);
     let mut notes = Vec::new();
+    // The bytes before the voxels: the extender, extensions and padding of a single file (the
+    // header is already read), or vox_offset bytes of a separate image file.
+    let (mut source, skip, data_path): (Box<dyn Read + '_>, usize, PathBuf) = if single_file {
+        (stream, offset - HEADER_BYTES, path.to_path_buf())
+    } else {
+        let img = image_file_for(path).ok_or_else(|| {
+            bad("NIfTI header (magic `ni1`) has no `.img` or `.img.gz` file beside it".into())
+        })?;
+        let bytes = read_file(&img)?;
+        let stream: Box<dyn Read> = Box::new(std::io::Cursor::new(bytes));
+        let stream: Box<dyn Read> = if img.extension().is_some_and(|e| e == "gz") {
+            Box::new(GzDecoder::new(stream))
+        } else {
+            stream
+        };
+        (stream, offset, img)
+    };
+    let read_err = |e: std::io::Error| Error::format(&data_path, format!("NIfTI data cannot be read: {e}"));
+    let skipped = std::io::copy(&mut source.by_ref().take(skip as u64), &mut std::io::sink())
+        .map_err(read_err)?;
+    let mut data = Vec::new();
+    if skipped == skip as u64 {
+        source
+            .by_ref()
+            .take(size.payload_bytes as u64)
+            .read_to_end(&mut data)
+            .map_err(read_err)?;
+    }
+    if source.read(&mut [0u8; 1]).is_ok_and(|n| n > 0) {
+        notes.push("bytes after the last voxel were ignored".to_string());
+    }
+    if data.len() != size.payload_bytes {
+        return Err(bad(format!(
+            "NIfTI data are truncated: {} bytes from vox_offset {offset}, expected {} ({}x{}x{} \
+             voxels of {dtype})",
+            data.len(),
+            size.payload_bytes,
+            size.dims.x,
+            size.dims.y,
+            size.dims.z
+        )));
+    }
+    let dims = size.dims;
+    let mut values = decode_samples(&data, dtype, order);
+    drop(data);
+    let (slope, inter) = (header.scl_slope, header.scl_inter);
     if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0) {
         for v in &mut values {
             *v = slope * *v + inter;

@@ -6,12 +6,14 @@
 //! a rotation in `space origin` / `space directions` is reported as a note, not applied: the
 //! scene places the volume.
 
-use super::{ByteOrder, DType, LoadedVolume, decode_samples, grid_for, read_file};
+use super::budget::read_bounded;
+use super::{
+    ByteOrder, DType, LoadedVolume, check_volume_size, decode_samples, grid_for, read_file,
+};
 use crate::error::{Error, Result};
 use flate2::read::GzDecoder;
-use glam::{UVec3, Vec3};
+use glam::Vec3;
 use std::collections::HashMap;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 fn nrrd_type(s: &str) -> Option<DType> {
@@ -97,7 +99,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let dimension: usize = need("dimension")?
         .parse()
         .map_err(|_| bad("NRRD `dimension` is not an integer".into()))?;
-    let sizes: Vec<u32> = need("sizes")?
+    let sizes: Vec<i64> = need("sizes")?
         .split_whitespace()
         .map(|s| s.parse().ok())
         .collect::<Option<_>>()
@@ -109,16 +111,16 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
         )));
     }
     // A leading axis of size 1 (a scalar "component" axis) is accepted.
-    let spatial: Vec<u32> = match sizes[..] {
-        [x, y, z] => vec![x, y, z],
-        [1, x, y, z] => vec![x, y, z],
+    let spatial = match sizes[..] {
+        [x, y, z] | [1, x, y, z] => [x, y, z],
         _ => {
             return Err(bad(format!(
                 "NRRD volume has sizes {sizes:?}: expected a 3D scalar volume (3 axes)"
             )));
         }
     };
-    let dims = UVec3::new(spatial[0], spatial[1], spatial[2]);
+    let size = check_volume_size(path, spatial, dtype)?;
+    let dims = size.dims;
     let order = match field("endian") {
         Some("little") => ByteOrder::Little,
         Some("big") => ByteOrder::Big,
@@ -193,45 +195,76 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             })?
             .to_vec(),
     };
-    let line_skip: usize = field("line skip")
-        .or(field("lineskip"))
-        .map(|s| s.parse().unwrap_or(0))
-        .unwrap_or(0);
-    let mut payload = &payload[..];
-    for _ in 0..line_skip {
-        let p = payload.iter().position(|&b| b == b'\n').map(|p| p + 1);
-        payload = &payload[p.unwrap_or(payload.len())..];
+    let skip = |names: [&str; 2]| -> Result<i64> {
+        match field(names[0]).or(field(names[1])) {
+            None => Ok(0),
+            Some(v) => v.parse().map_err(|_| {
+                bad(format!(
+                    "NRRD `{}: {v}` is not an integer: expected a count of {}",
+                    names[0],
+                    if names[0] == "line skip" { "lines" } else { "bytes, or -1" }
+                ))
+            }),
+        }
+    };
+    let line_skip = skip(["line skip", "lineskip"])?;
+    if line_skip < 0 {
+        return Err(bad(format!(
+            "NRRD `line skip: {line_skip}` is negative: expected a count of lines"
+        )));
     }
-    let byte_skip: i64 = field("byte skip")
-        .or(field("byteskip"))
-        .map(|s| s.parse().unwrap_or(0))
-        .unwrap_or(0);
+    let mut payload = &payload[..];
+    // Bounded by the payload: each step consumes a line or fails.
+    for skipped in 0..line_skip {
+        let next = payload.iter().position(|&b| b == b'\n').ok_or_else(|| {
+            bad(format!(
+                "NRRD `line skip: {line_skip}` passes the end of the data after {skipped} lines"
+            ))
+        })?;
+        payload = &payload[next + 1..];
+    }
+    let byte_skip = skip(["byte skip", "byteskip"])?;
+    if byte_skip < -1 {
+        return Err(bad(format!(
+            "NRRD `byte skip: {byte_skip}` is negative: expected a count of bytes, or -1"
+        )));
+    }
 
-    let n = dims.x as usize * dims.y as usize * dims.z as usize;
-    let want = n * dtype.size();
+    let n = size.voxels;
+    let want = size.payload_bytes;
     let decoded: Vec<u8>;
     let data: &[u8] = match encoding.as_str() {
         "raw" => payload,
         "gzip" | "gz" => {
-            let mut out = Vec::with_capacity(want);
-            GzDecoder::new(payload)
-                .read_to_end(&mut out)
-                .map_err(|e| bad(format!("NRRD gzip data cannot be decompressed: {e}")))?;
-            decoded = out;
+            if byte_skip < 0 {
+                return Err(bad(
+                    "NRRD `byte skip: -1` is allowed only with raw encoding (teem's rule)".into(),
+                ));
+            }
+            // Never inflate past the skipped bytes plus the voxels the header promises.
+            let limit = (byte_skip as usize).saturating_add(want);
+            decoded = read_bounded(path, GzDecoder::new(payload), limit, "NRRD gzip data")?;
             &decoded
         }
         "ascii" | "text" | "txt" => {
-            let values: Vec<f32> = std::str::from_utf8(payload)
-                .map_err(|_| bad("NRRD ascii data is not text".into()))?
+            let mut values: Vec<f32> = Vec::new();
+            let text =
+                std::str::from_utf8(payload).map_err(|_| bad("NRRD ascii data is not text".into()))?;
+            let mut tokens = text
                 .split(|c: char| c.is_whitespace() || c == ',')
-                .filter(|t| !t.is_empty())
-                .map(|t| t.parse::<f64>().map(|v| v as f32))
-                .collect::<std::result::Result<_, _>>()
-                .map_err(|e| bad(format!("NRRD ascii data holds a non-number: {e}")))?;
+                .filter(|t| !t.is_empty());
+            // One more than expected is enough to call the data oversized.
+            for token in tokens.by_ref().take(n + 1) {
+                let v: f64 = token.parse().map_err(|e| {
+                    bad(format!("NRRD ascii data holds a non-number `{token}`: {e}"))
+                })?;
+                values.push(v as f32);
+            }
             if values.len() != n {
                 return Err(bad(format!(
-                    "NRRD ascii data has {} values, expected {n} ({}x{}x{})",
-                    values.len(),
+                    "NRRD ascii data has {}{} values, expected {n} ({}x{}x{})",
+                    if values.len() > n { "more than " } else { "" },
+                    values.len().min(n),
                     dims.x,
                     dims.y,
                     dims.z

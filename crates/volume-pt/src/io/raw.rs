@@ -1,7 +1,7 @@
 //! Headerless raw voxels. The layout comes from the scene, or from the Open SciVis file-name
 //! convention `name_XxYxZ_dtype.raw` (for example `neghip_64x64x64_uint8.raw`).
 
-use super::{ByteOrder, DType, LoadedVolume, decode_samples, grid_for, read_file};
+use super::{ByteOrder, DType, LoadedVolume, check_volume_size, decode_samples, grid_for};
 use crate::error::{Error, Result};
 use glam::UVec3;
 use std::path::Path;
@@ -48,27 +48,29 @@ pub(super) fn read(path: &Path, layout: &RawLayout) -> Result<LoadedVolume> {
              int32, float32, float64) in the scene or name the file like `name_64x64x64_uint8.raw`",
         )
     })?;
-    let bytes = read_file(path)?;
-    let voxels = dims.x as u64 * dims.y as u64 * dims.z as u64;
-    let want = layout.header_bytes + voxels * dtype.size() as u64;
-    if bytes.len() as u64 != want {
-        let what = if (bytes.len() as u64) < want {
-            "truncated"
-        } else {
-            "oversized"
-        };
+    let size = check_volume_size(
+        path,
+        [dims.x as i64, dims.y as i64, dims.z as i64],
+        dtype,
+    )?;
+    // The file's length is known before it is read: compare it with the layout first, so a
+    // wrong layout costs no read and a huge file is never loaded.
+    let (_, len) = super::budget::open_regular(path)?;
+    let want = layout.header_bytes.saturating_add(size.payload_bytes as u64);
+    if len != want {
+        let what = if len < want { "truncated" } else { "oversized" };
         return Err(Error::format(
             path,
             format!(
-                "raw file is {what}: it has {} bytes, expected {want} ({}x{}x{} voxels of {dtype} \
+                "raw file is {what}: it has {len} bytes, expected {want} ({}x{}x{} voxels of {dtype} \
                  after {} header bytes); check dims, dtype and header_bytes",
-                bytes.len(),
-                dims.x,
-                dims.y,
-                dims.z,
-                layout.header_bytes
+                dims.x, dims.y, dims.z, layout.header_bytes
             ),
         ));
+    }
+    let bytes = super::budget::read_regular(path, want, "a raw volume")?;
+    if bytes.len() as u64 != want {
+        return Err(Error::format(path, "raw file changed while it was being read"));
     }
     let values = decode_samples(
         &bytes[layout.header_bytes as usize..],

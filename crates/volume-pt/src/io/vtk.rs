@@ -8,9 +8,9 @@
 //! writes 32 KiB blocks) is decoded and any larger array is dropped without an error; such arrays
 //! are decoded here from the file's text instead ([`decode_compressed_array`]).
 
-use super::{LoadedVolume, grid_for};
+use super::{DType, LoadedVolume, check_volume_size, grid_for};
 use crate::error::{Error, Result};
-use glam::{UVec3, Vec3};
+use glam::Vec3;
 use std::path::Path;
 use vtkio::model::{Attribute, DataSet, Extent, IOBuffer, Piece};
 
@@ -65,11 +65,14 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let is_legacy = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("vtk"));
+    let bytes = super::read_file(path)?;
+    // The size the file states is checked before vtkio allocates anything for it.
+    let (stated, dtype) = stated_size(&bytes, is_legacy).map_err(bad)?;
+    let size = check_volume_size(path, stated, dtype)?;
     let vtk = if is_legacy {
-        let bytes = super::read_file(path)?;
         vtkio::Vtk::parse_legacy_be(&tidy_legacy_header(&bytes)[..])
     } else {
-        vtkio::Vtk::import(path)
+        vtkio::Vtk::parse_xml(&bytes[..])
     }
     .map_err(|e| bad(format!("cannot parse VTK file: {e}")))?;
     let DataSet::ImageData {
@@ -85,14 +88,16 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
                 .into(),
         ));
     };
-    let dims = match extent {
-        Extent::Dims(d) => UVec3::from_array(d),
-        Extent::Ranges(r) => UVec3::new(
-            (r[0].end() - r[0].start() + 1) as u32,
-            (r[1].end() - r[1].start() + 1) as u32,
-            (r[2].end() - r[2].start() + 1) as u32,
-        ),
+    let parsed = match extent {
+        Extent::Dims(d) => d.map(i64::from),
+        Extent::Ranges(r) => [0, 1, 2].map(|i| i64::from(*r[i].end()) - i64::from(*r[i].start()) + 1),
     };
+    if parsed != stated {
+        return Err(bad(format!(
+            "VTK extent {parsed:?} differs from the header's {stated:?}"
+        )));
+    }
+    let dims = size.dims;
     if pieces.len() != 1 {
         return Err(bad(format!(
             "VTK image data has {} pieces: expected exactly one inline piece",
@@ -119,12 +124,13 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             (name, values)
         }
         None if !is_legacy => {
-            let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-            decode_compressed_array(&text).map_err(bad)?
+            let text = std::str::from_utf8(&bytes)
+                .map_err(|_| bad("VTK XML file is not UTF-8 text".into()))?;
+            decode_compressed_array(text, size.voxels * 8).map_err(bad)?
         }
         None => return Err(bad("VTK file has no one-component point-data array".into())),
     };
-    let n = dims.x as usize * dims.y as usize * dims.z as usize;
+    let n = size.voxels;
     if values.len() != n {
         return Err(bad(format!(
             "VTK array `{name}` has {} values, expected {n} for dims {}x{}x{}",
@@ -147,6 +153,45 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     })
 }
 
+/// The dims (and element type, where the text says it) that a VTK file's text states, read
+/// before the file is parsed so that a huge claim is refused before anything is allocated.
+fn stated_size(bytes: &[u8], legacy: bool) -> std::result::Result<([i64; 3], DType), String> {
+    let ints = |s: &str| -> Option<Vec<i64>> {
+        s.split_whitespace().map(|t| t.parse().ok()).collect()
+    };
+    // The header is text; binary data follow it. 64 KiB holds any real header.
+    let head = String::from_utf8_lossy(&bytes[..bytes.len().min(1 << 16)]);
+    if legacy {
+        let line = head
+            .lines()
+            .find(|l| l.trim_start().to_ascii_uppercase().starts_with("DIMENSIONS"))
+            .ok_or("VTK file has no DIMENSIONS line: expected STRUCTURED_POINTS")?;
+        let dims = ints(line.trim_start()["DIMENSIONS".len()..].trim())
+            .filter(|v| v.len() == 3)
+            .ok_or_else(|| format!("VTK line `{}` is not `DIMENSIONS x y z`", line.trim()))?;
+        let dtype = head
+            .lines()
+            .find_map(|l| {
+                let mut w = l.split_whitespace();
+                (w.next()?.eq_ignore_ascii_case("SCALARS"))
+                    .then(|| DType::parse(w.nth(1)?))
+                    .flatten()
+            })
+            .unwrap_or(DType::F64);
+        Ok(([dims[0], dims[1], dims[2]], dtype))
+    } else {
+        let start = head.find("<ImageData").ok_or("VTK XML file has no <ImageData> element")?;
+        let tag = &head[start..start + head[start..].find('>').unwrap_or(head.len() - start)];
+        let extent = xml_attr(tag, "WholeExtent")
+            .ok_or("VTK <ImageData> has no WholeExtent attribute")?;
+        let e = ints(extent)
+            .filter(|v| v.len() == 6)
+            .ok_or_else(|| format!("VTK WholeExtent `{extent}` is not six integers"))?;
+        let axis = |i: usize| e[2 * i + 1].saturating_sub(e[2 * i]).saturating_add(1);
+        Ok(([axis(0), axis(1), axis(2)], DType::F64))
+    }
+}
+
 /// The value of `name="..."` in an XML start tag.
 fn xml_attr<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
     let key = format!(" {name}=\"");
@@ -158,7 +203,10 @@ fn xml_attr<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
 /// Decodes the first one-component point-data array of a `.vti` whose data are inline, base64,
 /// zlib-compressed in blocks: header `[blocks, block size, last block size, compressed sizes...]`
 /// of `header_type` integers, then the compressed blocks, all base64-encoded together.
-fn decode_compressed_array(text: &str) -> std::result::Result<(String, Vec<f32>), String> {
+fn decode_compressed_array(
+    text: &str,
+    max_bytes: usize,
+) -> std::result::Result<(String, Vec<f32>), String> {
     use std::io::Read;
     let root_start = text.find("<VTKFile").ok_or("no <VTKFile> element")?;
     let root =
@@ -221,7 +269,11 @@ fn decode_compressed_array(text: &str) -> std::result::Result<(String, Vec<f32>)
                 u64::from_le_bytes(a) as usize
             }
         };
-        let header_len = (3 + read_int(&first[..hsize])) * hsize;
+        let header_len = read_int(&first[..hsize])
+            .checked_add(3)
+            .and_then(|n| n.checked_mul(hsize))
+            .filter(|&n| n <= b64.len())
+            .ok_or_else(|| format!("VTK array `{name}`: block count is larger than the file"))?;
         let split = header_len.div_ceil(3) * 4;
         let header = base64::decode(b64.get(..split).ok_or("VTK array header is truncated")?)
             .map_err(b64_err)?;
@@ -233,18 +285,27 @@ fn decode_compressed_array(text: &str) -> std::result::Result<(String, Vec<f32>)
             Ok(read_int(b))
         };
         let blocks = int(0)?;
-        let mut offset = 0;
+        let mut offset: usize = 0;
         let mut raw = Vec::new();
         for b in 0..blocks {
             let len = int(3 + b)?;
-            let chunk = bytes
-                .get(offset..offset + len)
+            let chunk = offset
+                .checked_add(len)
+                .and_then(|end| bytes.get(offset..end))
                 .ok_or_else(|| format!("VTK array `{name}`: block {b} is truncated"))?;
+            // No block may inflate the array past the size the extent promises.
+            let room = (max_bytes - raw.len()) as u64;
             flate2::read::ZlibDecoder::new(chunk)
+                .take(room + 1)
                 .read_to_end(&mut raw)
                 .map_err(|e| {
                     format!("VTK array `{name}`: block {b} cannot be decompressed: {e}")
                 })?;
+            if raw.len() > max_bytes {
+                return Err(format!(
+                    "VTK array `{name}` inflates past the {max_bytes} bytes its extent allows"
+                ));
+            }
             offset += len;
         }
         let order = if big {

@@ -1,0 +1,212 @@
+//! Sizes a file states are checked before anything is allocated for them.
+//!
+//! A header can claim any size: `sizes: 100000 100000 100000` in a 300-byte NRRD, dims whose
+//! product wraps past 2^64, a gzip stream that inflates to gigabytes. Every reader turns such a
+//! claim into a [`VolumeSize`] first: the voxel count is computed with checked arithmetic, and
+//! the memory the load will take (the payload as stored plus the f32 grid) is compared with the
+//! memory this machine has available before a byte is reserved. Only then is the payload read,
+//! through [`read_bounded`], which never takes more than the size the header promised.
+
+use super::DType;
+use crate::error::{Error, Result};
+use glam::UVec3;
+use std::io::Read;
+use std::path::Path;
+
+/// Bytes the renderer keeps per voxel: the scalar grid stores f32.
+pub const GRID_BYTES_PER_VOXEL: u64 = 4;
+
+/// A volume size that has passed the checks: its voxel and payload byte counts fit in memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VolumeSize {
+    pub dims: UVec3,
+    pub voxels: usize,
+    /// Bytes of the payload as stored in the file (voxels x the element size).
+    pub payload_bytes: usize,
+}
+
+/// Memory available to this process, in bytes: Linux's `MemAvailable` (free memory plus what the
+/// kernel can reclaim), or, where that cannot be read, 8 GiB as a cautious guess.
+pub fn available_memory() -> u64 {
+    const FALLBACK: u64 = 8 << 30;
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| {
+            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            kib.checked_mul(1024)
+        })
+        .unwrap_or(FALLBACK)
+}
+
+/// `bytes` for people: "3.2 GiB".
+pub fn human_bytes(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB"];
+    let mut v = bytes as f64;
+    let mut unit = 0;
+    while v >= 1024.0 && unit + 1 < UNITS.len() {
+        v /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} bytes")
+    } else {
+        format!("{v:.1} {}", UNITS[unit])
+    }
+}
+
+/// Checks dims a file states (as the file's own integers, so negative or huge values are caught
+/// here, not wrapped by a cast) and the memory loading them would take.
+pub fn check_volume_size(path: &Path, dims: [i64; 3], dtype: DType) -> Result<VolumeSize> {
+    let bad = |m: String| Error::format(path, m);
+    let shown = format!("{}x{}x{}", dims[0], dims[1], dims[2]);
+    let mut d = [0u32; 3];
+    for (axis, (&n, out)) in dims.iter().zip(&mut d).enumerate() {
+        *out = u32::try_from(n).ok().filter(|&n| n >= 1).ok_or_else(|| {
+            bad(format!(
+                "volume dims {shown}: axis {axis} has {n} voxels, expected 1 to {}",
+                u32::MAX
+            ))
+        })?;
+    }
+    let voxels = (d[0] as u64)
+        .checked_mul(d[1] as u64)
+        .and_then(|n| n.checked_mul(d[2] as u64));
+    let too_many = || bad(format!("volume dims {shown} hold more voxels than memory can address"));
+    let voxels = voxels.ok_or_else(too_many)?;
+    let payload = voxels
+        .checked_mul(dtype.size() as u64)
+        .ok_or_else(too_many)?;
+    let needed = voxels
+        .checked_mul(GRID_BYTES_PER_VOXEL)
+        .and_then(|g| g.checked_add(payload))
+        .ok_or_else(too_many)?;
+    let available = available_memory();
+    if needed > available {
+        return Err(bad(format!(
+            "volume {shown} of {dtype} needs about {} to load ({} as stored + {} as f32 voxels), \
+             but this machine has {} available",
+            human_bytes(needed),
+            human_bytes(payload),
+            human_bytes(voxels * GRID_BYTES_PER_VOXEL),
+            human_bytes(available)
+        )));
+    }
+    Ok(VolumeSize {
+        dims: UVec3::from_array(d),
+        voxels: usize::try_from(voxels).map_err(|_| too_many())?,
+        payload_bytes: usize::try_from(payload).map_err(|_| too_many())?,
+    })
+}
+
+/// Opens `path` for reading, refusing anything that is not a regular file (a FIFO, a device such
+/// as `/dev/zero`, a directory): those have no size to check and may never end.
+pub fn open_regular(path: &Path) -> Result<(std::fs::File, u64)> {
+    let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => Error::format(path, "no such file"),
+        _ => Error::io(path, e),
+    })?;
+    if !meta.is_file() {
+        return Err(Error::format(
+            path,
+            "is not a regular file (a directory, device, FIFO or socket): expected a file",
+        ));
+    }
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    Ok((file, meta.len()))
+}
+
+/// Reads a whole regular file whose size is at most `max_bytes`.
+pub fn read_regular(path: &Path, max_bytes: u64, what: &str) -> Result<Vec<u8>> {
+    let (file, len) = open_regular(path)?;
+    if len > max_bytes {
+        return Err(Error::format(
+            path,
+            format!(
+                "is {} long, more than the {} expected for {what}",
+                human_bytes(len),
+                human_bytes(max_bytes)
+            ),
+        ));
+    }
+    read_bounded(path, file, max_bytes as usize, what)
+}
+
+/// The largest text file (scene, experiment, colour-map preset) the readers take: real ones are
+/// a few kilobytes.
+pub const MAX_TEXT_FILE_BYTES: u64 = 16 << 20;
+
+/// Reads a text file (a scene, an experiment, a preset): a regular file of at most
+/// [`MAX_TEXT_FILE_BYTES`], in UTF-8.
+pub fn read_text_file(path: &Path, what: &str) -> Result<String> {
+    let bytes = read_regular(path, MAX_TEXT_FILE_BYTES, what)?;
+    String::from_utf8(bytes).map_err(|e| {
+        Error::format(
+            path,
+            format!("{what} is not UTF-8 text (byte {} is not)", e.utf8_error().valid_up_to()),
+        )
+    })
+}
+
+/// Reads `source` to its end, failing as soon as it yields more than `max_bytes`: a compressed
+/// stream cannot inflate past the size its header promised.
+pub fn read_bounded(
+    path: &Path,
+    source: impl Read,
+    max_bytes: usize,
+    what: &str,
+) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    source
+        .take(max_bytes as u64 + 1)
+        .read_to_end(&mut out)
+        .map_err(|e| Error::format(path, format!("{what} cannot be read: {e}")))?;
+    if out.len() > max_bytes {
+        return Err(Error::format(
+            path,
+            format!(
+                "{what} holds more than the {max_bytes} bytes the header promises: \
+                 expected exactly that many"
+            ),
+        ));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_that_wrap_or_do_not_fit_are_refused() {
+        let p = Path::new("v.nrrd");
+        // 2^22 cubed = 2^66 voxels: wraps a u64.
+        let e = check_volume_size(p, [1 << 22, 1 << 22, 1 << 22], DType::U8).unwrap_err();
+        assert!(e.to_string().contains("more voxels than memory"), "{e}");
+        // 1e15 voxels fit in a u64 but not in any memory.
+        let e = check_volume_size(p, [100_000; 3], DType::U8).unwrap_err();
+        assert!(e.to_string().contains("available"), "{e}");
+        for bad in [0, -1, 1 << 33] {
+            let e = check_volume_size(p, [8, bad, 8], DType::U8).unwrap_err();
+            assert!(e.to_string().contains("axis 1"), "{e}");
+        }
+        let ok = check_volume_size(p, [8, 8, 2], DType::U16).unwrap();
+        assert_eq!((ok.voxels, ok.payload_bytes), (128, 256));
+    }
+
+    #[test]
+    fn bounded_reads_stop_past_the_promise() {
+        let p = Path::new("x");
+        assert_eq!(read_bounded(p, &[1u8; 10][..], 10, "data").unwrap().len(), 10);
+        let e = read_bounded(p, std::io::repeat(0), 1000, "data").unwrap_err();
+        assert!(e.to_string().contains("more than the 1000 bytes"), "{e}");
+    }
+
+    #[test]
+    fn devices_are_not_volumes() {
+        if Path::new("/dev/zero").exists() {
+            let e = read_regular(Path::new("/dev/zero"), 1 << 20, "a volume").unwrap_err();
+            assert!(e.to_string().contains("not a regular file"), "{e}");
+        }
+    }
+}

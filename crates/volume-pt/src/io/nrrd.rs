@@ -121,10 +121,14 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     };
     let size = check_volume_size(path, spatial, dtype)?;
     let dims = size.dims;
+    let encoding = need("encoding")?.to_ascii_lowercase();
     let order = match field("endian") {
         Some("little") => ByteOrder::Little,
         Some("big") => ByteOrder::Big,
-        None if dtype.size() == 1 => ByteOrder::Little,
+        // Text and single bytes have no byte order.
+        None if dtype.size() == 1 || matches!(encoding.as_str(), "ascii" | "text" | "txt") => {
+            ByteOrder::Little
+        }
         None => {
             return Err(bad(
                 "NRRD header has no `endian:` field, needed for multi-byte voxels".into(),
@@ -136,7 +140,6 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             )));
         }
     };
-    let encoding = need("encoding")?.to_ascii_lowercase();
 
     let mut notes = Vec::new();
     let mut spacing = None;
@@ -195,7 +198,9 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             })?
             .to_vec(),
     };
-    let skip = |names: [&str; 2]| -> Result<i64> {
+    // i128 holds every count a header can write, so a huge one is reported as too large below
+    // instead of as "not an integer".
+    let skip = |names: [&str; 2]| -> Result<i128> {
         match field(names[0]).or(field(names[1])) {
             None => Ok(0),
             Some(v) => v.parse().map_err(|_| {
@@ -242,7 +247,9 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
                 ));
             }
             // Never inflate past the skipped bytes plus the voxels the header promises.
-            let limit = (byte_skip as usize).saturating_add(want);
+            let limit = usize::try_from(byte_skip)
+                .unwrap_or(usize::MAX)
+                .saturating_add(want);
             decoded = read_bounded(path, GzDecoder::new(payload), limit, "NRRD gzip data")?;
             &decoded
         }
@@ -290,7 +297,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             &data[data.len() - want..]
         }
     } else {
-        &data[(byte_skip as usize).min(data.len())..]
+        &data[usize::try_from(byte_skip).map_or(data.len(), |b| b.min(data.len()))..]
     };
     if data.len() != want {
         let what = if data.len() < want {

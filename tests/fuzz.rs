@@ -1,0 +1,381 @@
+//! A mutation fuzzer over every reader, on stable Rust: volumes (raw, NRRD, NIfTI, VTK legacy and
+//! XML), scene and experiment TOML, Gaussian clouds (PLY, `.splat`) and saved caches.
+//!
+//! Each bundled file is a seed. Case `i` of a seed applies mutations drawn from a counter-based
+//! hash of `(seed file, i)`: bit flips, "interesting" integers written over header bytes, numbers
+//! in text replaced by huge, negative or non-finite ones, truncation, repeated or deleted
+//! chunks; gzip files are mutated inside the stream and recompressed, so the header behind the
+//! compression is reached. A reader passes a case when it returns (a value or an error) without
+//! panicking, within [`CASE_TIME_LIMIT`]; an allocation failure would abort the whole test
+//! binary, which fails the test too.
+//!
+//! First every file in `tests/fuzz-corpus/` is replayed (the hostile inputs found so far, kept
+//! as a regression corpus), then fuzz cases run until `GSCACHE_FUZZ_SECONDS` (default 20) is
+//! spent, shared among the seeds. A failing case is written to `target/fuzz-failures/` with its
+//! seed file and case number in the name; copy it into `tests/fuzz-corpus/` once it is fixed.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// One case may take this long; a reader that is still busy is taken to hang.
+const CASE_TIME_LIMIT: Duration = Duration::from_secs(10);
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// SplitMix64 over a counter: the numbers of case `i` are the same on every run and thread.
+struct Numbers(u64);
+
+impl Numbers {
+    fn new(seed: &str, case: u64) -> Self {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        for b in seed.bytes() {
+            h = (h ^ b as u64).wrapping_mul(0x100_0000_01b3);
+        }
+        Numbers(h ^ case.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+    }
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+const INTERESTING_INTEGERS: [u64; 10] = [
+    0,
+    1,
+    0x7f,
+    0xff,
+    0x7fff,
+    0xffff,
+    0x7fff_ffff,
+    0xffff_ffff,
+    0x8000_0000_0000_0000,
+    u64::MAX,
+];
+
+const INTERESTING_NUMBERS: [&str; 12] = [
+    "0",
+    "-1",
+    "18446744073709551615",
+    "4294967296",
+    "2147483648",
+    "100000",
+    "nan",
+    "inf",
+    "-inf",
+    "1e30",
+    "1e-45",
+    "",
+];
+
+/// One mutation of `bytes`, in place. Most land in the first 1 KiB: headers live there.
+fn mutate(bytes: &mut Vec<u8>, n: &mut Numbers) {
+    let hot = bytes.len().clamp(1, 1024);
+    match n.below(6) {
+        0 => {
+            for _ in 0..1 + n.below(8) {
+                if !bytes.is_empty() {
+                    let i = n.below(hot.min(bytes.len()));
+                    bytes[i] ^= 1 << n.below(8);
+                }
+            }
+        }
+        1 => {
+            let v = INTERESTING_INTEGERS[n.below(INTERESTING_INTEGERS.len())];
+            let width = [1, 2, 4, 8][n.below(4)];
+            let at = n.below(hot.min(bytes.len()).saturating_sub(width).max(1));
+            let le = v.to_le_bytes();
+            for k in 0..width {
+                if let Some(b) = bytes.get_mut(at + k) {
+                    *b = le[k];
+                }
+            }
+        }
+        2 => {
+            // A number in the text replaced.
+            let digits: Vec<usize> = (0..bytes.len().min(4096))
+                .filter(|&i| bytes[i].is_ascii_digit() && (i == 0 || !bytes[i - 1].is_ascii_digit()))
+                .collect();
+            if !digits.is_empty() {
+                let start = digits[n.below(digits.len())];
+                let end = (start..bytes.len())
+                    .find(|&i| !(bytes[i].is_ascii_digit() || bytes[i] == b'.'))
+                    .unwrap_or(bytes.len());
+                let with = INTERESTING_NUMBERS[n.below(INTERESTING_NUMBERS.len())];
+                bytes.splice(start..end, with.bytes());
+            }
+        }
+        3 => {
+            let len = n.below(bytes.len() + 1);
+            bytes.truncate(len);
+        }
+        4 => {
+            // A chunk repeated.
+            if !bytes.is_empty() {
+                let at = n.below(bytes.len());
+                let len = 1 + n.below(64.min(bytes.len() - at));
+                let chunk = bytes[at..at + len].to_vec();
+                let to = n.below(hot.min(bytes.len()));
+                bytes.splice(to..to, chunk);
+            }
+        }
+        _ => {
+            // A chunk deleted.
+            if !bytes.is_empty() {
+                let at = n.below(hot.min(bytes.len()));
+                let len = 1 + n.below(64.min(bytes.len() - at));
+                bytes.drain(at..at + len);
+            }
+        }
+    }
+}
+
+fn is_gzip(bytes: &[u8]) -> bool {
+    bytes.starts_with(&[0x1f, 0x8b])
+}
+
+/// A mutated copy of `seed`: mutated inside the gzip stream when it is one (most of the time).
+fn mutant(seed: &[u8], n: &mut Numbers) -> Vec<u8> {
+    use std::io::{Read, Write};
+    let mutations = 1 + n.below(4);
+    if is_gzip(seed) && n.below(4) != 0 {
+        let mut inner = Vec::new();
+        flate2::read::GzDecoder::new(seed)
+            .read_to_end(&mut inner)
+            .expect("seed gzip decodes");
+        for _ in 0..mutations {
+            mutate(&mut inner, n);
+        }
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        e.write_all(&inner).unwrap();
+        return e.finish().unwrap();
+    }
+    let mut out = seed.to_vec();
+    for _ in 0..mutations {
+        mutate(&mut out, n);
+    }
+    out
+}
+
+/// The readers, by what a seed file is.
+#[derive(Clone, Copy, Debug)]
+enum Reader {
+    Volume,
+    Scene,
+    Experiment,
+    Cloud,
+    SavedCache,
+}
+
+/// Runs `reader` on `path` on its own thread: Err(why) on a panic or a hang.
+fn run_reader(reader: Reader, path: &Path) -> Result<(), String> {
+    let path = path.to_path_buf();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let outcome = catch_unwind(AssertUnwindSafe(|| match reader {
+            Reader::Volume => {
+                let _ = volume_pt::io::read_volume(&path, &Default::default());
+            }
+            Reader::Scene => {
+                let _ = volume_pt::load_scene(&path);
+            }
+            Reader::Experiment => {
+                let _ = gscache_cli::experiment::config::load_experiment(&path);
+            }
+            Reader::Cloud => {
+                if let Ok(cloud) = splat_raster::io::read_cloud(&path) {
+                    let _ = cloud.count_unusable();
+                }
+            }
+            Reader::SavedCache => {
+                let dir = path.parent().unwrap();
+                let _ = gs_cache::GsCache::load(dir, gs_cache::CacheConfig::default());
+            }
+        }));
+        let _ = tx.send(outcome.map_err(|p| {
+            p.downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_default()
+        }));
+    });
+    match rx.recv_timeout(CASE_TIME_LIMIT) {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(panic)) => Err(format!("panicked: {panic}")),
+        Err(_) => Err(format!("still running after {CASE_TIME_LIMIT:?}")),
+    }
+}
+
+/// The seeds: (file, reader, the name the mutant is written under, files it needs beside it).
+fn seeds() -> Vec<(PathBuf, Reader, String)> {
+    let data = repo().join("data");
+    let mut out = Vec::new();
+    for dir in ["fixtures", "volumes/original"] {
+        for e in std::fs::read_dir(data.join(dir)).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            // The detached raw is read through its .nhdr.
+            if name != "neghip_detached.raw" {
+                out.push((p, Reader::Volume, name));
+            }
+        }
+    }
+    // Raw files: a small one, its layout from the name.
+    out.push((
+        data.join("volumes/neghip_64x64x64_uint8.raw"),
+        Reader::Volume,
+        "neghip_64x64x64_uint8.raw".into(),
+    ));
+    for e in std::fs::read_dir(data.join("scenes")).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        out.push((p, Reader::Scene, name));
+    }
+    out.push((
+        repo().join("experiments/default.toml"),
+        Reader::Experiment,
+        "experiment.toml".into(),
+    ));
+    out.push((
+        data.join("splats/fruit_drops_minimal_inria.ply"),
+        Reader::Cloud,
+        "fruit.ply".into(),
+    ));
+    // A saved cache level is a PLY file too, read through `GsCache::load`.
+    out.push((
+        data.join("splats/fruit_drops_minimal_inria.ply"),
+        Reader::SavedCache,
+        "length_1.ply".into(),
+    ));
+    out.retain(|(p, ..)| p.exists());
+    out
+}
+
+/// Writes `bytes` as `name` in a fresh folder `dir`, with what a reader needs beside it: the
+/// volumes a scene names, the detached data of an `.nhdr`.
+fn stage(dir: &Path, reader: Reader, name: &str, bytes: &[u8]) -> PathBuf {
+    let _ = std::fs::remove_dir_all(dir);
+    std::fs::create_dir_all(dir).unwrap();
+    let data = repo().join("data");
+    match reader {
+        Reader::Scene => {
+            // Scenes name `../volumes/...`: give them a sibling `volumes` folder.
+            let scenes = dir.join("scenes");
+            std::fs::create_dir_all(&scenes).unwrap();
+            let vols = dir.join("volumes");
+            std::fs::create_dir_all(&vols).unwrap();
+            for e in std::fs::read_dir(data.join("volumes")).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_file() {
+                    let _ = std::fs::hard_link(&p, vols.join(p.file_name().unwrap()))
+                        .or_else(|_| std::fs::copy(&p, vols.join(p.file_name().unwrap())).map(|_| ()));
+                }
+            }
+            let path = scenes.join(name);
+            std::fs::write(&path, bytes).unwrap();
+            return path;
+        }
+        Reader::Volume if name.ends_with(".nhdr") => {
+            std::fs::copy(
+                data.join("fixtures/neghip_detached.raw"),
+                dir.join("neghip_detached.raw"),
+            )
+            .unwrap();
+        }
+        Reader::SavedCache => {
+            let path = dir.join("length_1.ply");
+            std::fs::write(&path, bytes).unwrap();
+            return path;
+        }
+        _ => {}
+    }
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+fn reader_for_corpus_file(name: &str) -> Reader {
+    if name.ends_with(".ply") || name.ends_with(".splat") {
+        Reader::Cloud
+    } else if name.ends_with(".toml") {
+        if name.starts_with("experiment") {
+            Reader::Experiment
+        } else {
+            Reader::Scene
+        }
+    } else {
+        Reader::Volume
+    }
+}
+
+#[test]
+fn the_regression_corpus_is_refused_cleanly() {
+    let corpus = repo().join("tests/fuzz-corpus");
+    let mut failures = Vec::new();
+    let mut count = 0;
+    for e in std::fs::read_dir(&corpus).expect("tests/fuzz-corpus exists") {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        if name == "README.md" {
+            continue;
+        }
+        count += 1;
+        let reader = reader_for_corpus_file(&name);
+        let dir = std::env::temp_dir().join(format!("gscache-corpus-{}", std::process::id()));
+        let staged = stage(&dir, reader, &name, &std::fs::read(&p).unwrap());
+        if let Err(why) = run_reader(reader, &staged) {
+            failures.push(format!("{name}: {why}"));
+        }
+    }
+    assert!(count >= 8, "the corpus has only {count} files");
+    assert!(failures.is_empty(), "corpus failures:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn mutated_files_never_panic_or_hang() {
+    let seconds: f64 = std::env::var("GSCACHE_FUZZ_SECONDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(20.0);
+    let seeds = seeds();
+    assert!(seeds.len() >= 12, "only {} seed files", seeds.len());
+    let per_seed = Duration::from_secs_f64(seconds / seeds.len() as f64);
+    let failures_dir = repo().join("target/fuzz-failures");
+    let mut failures = Vec::new();
+    let mut total = 0u64;
+    for (seed_path, reader, name) in &seeds {
+        let seed = std::fs::read(seed_path).unwrap();
+        let dir = std::env::temp_dir().join(format!(
+            "gscache-fuzz-{}-{}",
+            std::process::id(),
+            name.replace('.', "_")
+        ));
+        let start = Instant::now();
+        let mut case = 0u64;
+        while start.elapsed() < per_seed || case < 8 {
+            let mut n = Numbers::new(name, case);
+            let bytes = mutant(&seed, &mut n);
+            let staged = stage(&dir, *reader, name, &bytes);
+            if let Err(why) = run_reader(*reader, &staged) {
+                std::fs::create_dir_all(&failures_dir).unwrap();
+                let kept = failures_dir.join(format!("{name}.case{case}"));
+                std::fs::write(&kept, &bytes).unwrap();
+                failures.push(format!("{name} case {case} ({}): {why}", kept.display()));
+            }
+            case += 1;
+        }
+        total += case;
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    eprintln!("fuzz: {total} cases over {} seed files", seeds.len());
+    assert!(failures.is_empty(), "{} failures:\n{}", failures.len(), failures.join("\n"));
+}

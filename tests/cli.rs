@@ -156,3 +156,245 @@ fn an_unwritable_output_is_refused_before_rendering() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--cache"), "{err}");
 }
+
+fn gscache() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_gscache"))
+}
+
+/// Numbers that used to give a black image, a NaN image or an exploded cache with exit status 0
+/// are refused before any work, with a message naming the flag or the fault.
+#[test]
+fn numbers_that_would_spoil_an_image_are_refused() {
+    let d = scratch("numbers");
+    let scene = repo().join("data/scenes/default.toml");
+    let splats = repo().join("data/splats/fruit_drops_minimal_inria.ply");
+    let out = |name: &str| d.join(name).to_string_lossy().into_owned();
+    let scene = scene.to_string_lossy().into_owned();
+    let splats = splats.to_string_lossy().into_owned();
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec!["render".into(), scene.clone(), "--spp".into(), "0".into()],
+            "--spp",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--cache".into(),
+                "--frames".into(),
+                "0".into(),
+            ],
+            "--frames",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--exposure".into(),
+                "nan".into(),
+            ],
+            "not finite",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--cache".into(),
+                "--warmup-orbit".into(),
+                "inf".into(),
+            ],
+            "not finite",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--width".into(),
+                "100000".into(),
+            ],
+            "too large",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--width".into(),
+                "30000".into(),
+                "--height".into(),
+                "30000".into(),
+            ],
+            "memory",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--cache".into(),
+                "--cache-points".into(),
+                "18446744073709551615".into(),
+            ],
+            "at most",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--cache".into(),
+                "--cache-lr-multiplier".into(),
+                "1e30".into(),
+            ],
+            "at most 10",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "render".into(),
+                splats.clone(),
+                "--background".into(),
+                "nan,0,0".into(),
+            ],
+            "not finite",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "render".into(),
+                splats.clone(),
+                "--stochastic".into(),
+                "0".into(),
+            ],
+            "--stochastic",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "trace".into(),
+                splats.clone(),
+                "--spp".into(),
+                "0".into(),
+            ],
+            "--spp",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "trace".into(),
+                splats.clone(),
+                "--min-transmittance".into(),
+                "nan".into(),
+            ],
+            "not finite",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "render".into(),
+                splats.clone(),
+                "--eye".into(),
+                "0,0,5".into(),
+                "--target".into(),
+                "0,0,0".into(),
+                "--up".into(),
+                "0,0.000001,1".into(),
+            ],
+            "degenerate",
+        ),
+    ];
+    for (args, needle) in cases {
+        let started = std::time::Instant::now();
+        let o = gscache()
+            .args(&args)
+            .args(["-q", "-o", &out("x.exr")])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} was accepted: {err}");
+        assert!(
+            err.contains(needle),
+            "{args:?}: `{err}` does not mention `{needle}`"
+        );
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert!(
+            started.elapsed().as_secs() < 20,
+            "{args:?} worked before refusing"
+        );
+    }
+}
+
+/// Gaussians no renderer can use are skipped with a count, not silently.
+#[test]
+fn unusable_gaussians_are_counted() {
+    use splat_raster::{ColorModel, GaussianCloud};
+    let d = scratch("unusable");
+    let mut cloud = GaussianCloud::<f32>::new(ColorModel::Sh(0));
+    cloud.push([0.0; 3], [-2.0; 3], [1.0, 0.0, 0.0, 0.0], &[0.5; 3], 2.0);
+    cloud.push(
+        [f32::NAN, 0.0, 0.0],
+        [-2.0; 3],
+        [1.0, 0.0, 0.0, 0.0],
+        &[0.5; 3],
+        2.0,
+    );
+    cloud.push([0.1; 3], [-2.0; 3], [0.0; 4], &[0.5; 3], 2.0);
+    let ply = d.join("c.ply");
+    splat_raster::io::write_ply(&ply, &cloud).unwrap();
+    let o = gscache()
+        .args(["splat", "render"])
+        .arg(&ply)
+        .args(["--width", "16", "--height", "16", "-q", "-o"])
+        .arg(d.join("c.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("2 of 3 Gaussians"), "{err}");
+}
+
+/// A scene whose paths are very long (a density scale 10^4 too large) still stops promptly on
+/// an interrupt: cancellation is read before every sample, not only between 16x16 tiles.
+#[test]
+fn an_interrupt_stops_inside_a_slow_tile() {
+    let d = scratch("slow-tile");
+    let text = std::fs::read_to_string(repo().join("data/scenes/headsq.toml")).unwrap();
+    let dense: String = text
+        .lines()
+        .map(|l| {
+            if l.trim_start().starts_with("density_scale") {
+                "density_scale = 3000.0".to_string()
+            } else if l.trim_start().starts_with("file") {
+                l.replace("../volumes", &repo().join("data/volumes").to_string_lossy())
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let scene = d.join("dense.toml");
+    std::fs::write(&scene, dense).unwrap();
+    // One tile: before, nothing was checked until all of its samples were done.
+    let child = render()
+        .arg(&scene)
+        .args([
+            "--spp", "100000", "--width", "16", "--height", "16", "-q", "-o",
+        ])
+        .arg(d.join("dense.exr"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let signalled = std::time::Instant::now();
+    Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(err.contains("optical depth"), "no units warning: {err}");
+    assert!(
+        signalled.elapsed().as_secs_f64() < 5.0,
+        "took {:?} to stop",
+        signalled.elapsed()
+    );
+}

@@ -103,7 +103,9 @@ fn mutate(bytes: &mut Vec<u8>, n: &mut Numbers) {
         2 => {
             // A number in the text replaced.
             let digits: Vec<usize> = (0..bytes.len().min(4096))
-                .filter(|&i| bytes[i].is_ascii_digit() && (i == 0 || !bytes[i - 1].is_ascii_digit()))
+                .filter(|&i| {
+                    bytes[i].is_ascii_digit() && (i == 0 || !bytes[i - 1].is_ascii_digit())
+                })
                 .collect();
             if !digits.is_empty() {
                 let start = digits[n.below(digits.len())];
@@ -276,8 +278,10 @@ fn stage(dir: &Path, reader: Reader, name: &str, bytes: &[u8]) -> PathBuf {
             for e in std::fs::read_dir(data.join("volumes")).unwrap() {
                 let p = e.unwrap().path();
                 if p.is_file() {
-                    let _ = std::fs::hard_link(&p, vols.join(p.file_name().unwrap()))
-                        .or_else(|_| std::fs::copy(&p, vols.join(p.file_name().unwrap())).map(|_| ()));
+                    let _ =
+                        std::fs::hard_link(&p, vols.join(p.file_name().unwrap())).or_else(|_| {
+                            std::fs::copy(&p, vols.join(p.file_name().unwrap())).map(|_| ())
+                        });
                 }
             }
             let path = scenes.join(name);
@@ -337,7 +341,11 @@ fn the_regression_corpus_is_refused_cleanly() {
         }
     }
     assert!(count >= 8, "the corpus has only {count} files");
-    assert!(failures.is_empty(), "corpus failures:\n{}", failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "corpus failures:\n{}",
+        failures.join("\n")
+    );
 }
 
 #[test]
@@ -377,5 +385,10 @@ fn mutated_files_never_panic_or_hang() {
         let _ = std::fs::remove_dir_all(&dir);
     }
     eprintln!("fuzz: {total} cases over {} seed files", seeds.len());
-    assert!(failures.is_empty(), "{} failures:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} failures:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }

@@ -621,4 +621,23 @@ mod tests {
         assert!(e.contains("one camera path"), "{e}");
         assert!(parse(&format!("{METHODS}\n{fly}{}{}", key(0), key(2))).is_ok());
     }
+
+    #[test]
+    fn events_and_angles_that_could_never_apply_are_refused() {
+        let err = |t: &str| format!("{:#}", parse(t).unwrap_err());
+        let fly = "[[flythrough]]\nname = \"f\"\nframes = 3\nwarmup = 2\n";
+        let event = |body: &str| format!("{METHODS}\n{fly}[[flythrough.event]]\n{body}");
+        // Frames 0..5 exist (2 warm-up + 3); an event at 5 would never happen.
+        let e = err(&event("frame = 5\nlight_scale = 2.0"));
+        assert!(e.contains("past the last frame"), "{e}");
+        assert!(parse(&event("frame = 4\nlight_scale = 2.0")).is_ok());
+        let e = err(&event("frame = 1\nlight_offset = [nan, 0.0, 0.0]"));
+        assert!(e.contains("light_offset") && e.contains("finite"), "{e}");
+        let e = err(&format!("{METHODS}\n{fly}orbit_degrees = nan"));
+        assert!(e.contains("orbit_degrees"), "{e}");
+        let e = err(&format!(
+            "{METHODS}\n[[method]]\nname = \"w\"\ncache = {{ warmup_orbit_degrees = inf }}"
+        ));
+        assert!(e.contains("finite angle"), "{e}");
+    }
 }

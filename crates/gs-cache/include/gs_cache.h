@@ -42,6 +42,10 @@
 // The most levels a cache may have (paths longer than this are never cached).
 #define GS_CACHE_MAX_LEVELS 8
 
+// The most Gaussians the first level may hold (16.8 M): far past what any image needs (the
+// automatic size is 0.35 per cache pixel), and a bound on memory a typo can ask for.
+#define GS_CACHE_MAX_POINTS (1 << 24)
+
 // Outcome of a call.
 typedef enum GsCacheStatus {
   GS_CACHE_STATUS_OK = 0,

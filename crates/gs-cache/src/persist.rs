@@ -72,3 +72,37 @@ impl GsCache {
         GsCache::from_levels(clouds, config)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use splat_raster::{ColorModel, GaussianCloud};
+
+    /// `GsCache::new` refuses non-finite points; a saved level holding them is refused the same
+    /// way, naming the file, instead of spreading NaN through training.
+    #[test]
+    fn a_level_with_nan_gaussians_is_refused() {
+        let dir = std::env::temp_dir().join(format!("gs-cache-nan-level-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut cloud = GaussianCloud::<f32>::new(ColorModel::Sh(0));
+        for i in 0..8 {
+            let x = if i == 3 { f32::NAN } else { i as f32 };
+            cloud.push(
+                [x, 0.0, 0.0],
+                [-2.0; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                &[0.1; 3],
+                0.0,
+            );
+        }
+        write_ply(&level_path(&dir, 1), &cloud).unwrap();
+        let e = match GsCache::load(&dir, CacheConfig::default()) {
+            Ok(_) => panic!("a NaN level was loaded"),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            e.contains("length_1.ply") && e.contains("1 of 8 Gaussians"),
+            "{e}"
+        );
+    }
+}

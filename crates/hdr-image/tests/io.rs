@@ -61,11 +61,15 @@ fn a_failed_write_names_the_file_and_leaves_the_old_one() {
     let err = img.write_exr(&blocked).unwrap_err();
     assert!(matches!(err, ImageError::Write { .. }));
     assert!(err.to_string().contains("blocked.exr"), "{err}");
-    // No temporary file is left behind.
+    // No temporary file is left behind (only this file's: the other tests write beside it
+    // at the same time).
     let leftovers: Vec<_> = std::fs::read_dir(blocked.parent().unwrap())
         .unwrap()
         .filter_map(|e| e.ok())
-        .filter(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+        .filter(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.starts_with(".blocked.exr") && name.ends_with(".partial")
+        })
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
     assert_eq!(std::fs::read(&path).unwrap(), before);

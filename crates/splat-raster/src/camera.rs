@@ -9,7 +9,7 @@ use glam::{Mat3, Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
 /// Why a camera could not be built.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum CameraError {
     /// Width or height was zero.
     ZeroImageSize { width: u32, height: u32 },
@@ -175,6 +175,46 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frames_set_by_rounding_and_absurd_sizes_are_refused() {
+        let (eye, target) = (Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO);
+        // `up` 1e-6 radians from the view: not exactly parallel, but the roll is noise.
+        let up = Vec3::new(0.0, 1e-6, -1.0);
+        assert_eq!(
+            Camera::look_at(eye, target, up, 40.0, 8, 8),
+            Err(CameraError::DegenerateFrame)
+        );
+        // 0.2 degrees away is a legitimate (if odd) frame.
+        let up = Vec3::new(0.0, 0.2f32.to_radians().sin(), -1.0);
+        assert!(Camera::look_at(eye, target, up, 40.0, 8, 8).is_ok());
+        for up in [Vec3::NAN, Vec3::new(f32::NAN, 1.0, 0.0), Vec3::ZERO] {
+            assert!(
+                Camera::look_at(eye, target, up, 40.0, 8, 8).is_err(),
+                "{up}"
+            );
+        }
+        let big = CameraError::ImageTooLarge {
+            width: 100_000,
+            height: 8,
+        };
+        assert_eq!(
+            Camera::look_at(eye, target, Vec3::Y, 40.0, 100_000, 8),
+            Err(big)
+        );
+        assert_eq!(cam().with_size(100_000, 8), Err(big));
+        assert!(
+            cam()
+                .with_size(32, 0)
+                .unwrap_err()
+                .to_string()
+                .contains("empty")
+        );
+        assert_eq!(
+            cam().with_size(32, 16).map(|c| (c.width, c.height)),
+            Ok((32, 16))
+        );
+    }
 
     fn cam() -> Camera {
         Camera::look_at(

@@ -122,3 +122,49 @@ fn bad_files_are_clear_errors() {
         .to_string();
     assert!(e.contains("missing.ply"), "{e}");
 }
+
+/// Element counts come from the header: a count whose byte size wraps past 2^64 must not turn
+/// into a small one (which made the reader take vertices from the header), and a huge count must
+/// be refused before anything is reserved for it.
+#[test]
+fn counts_that_wrap_or_exceed_the_file_are_refused() {
+    let dir = std::env::temp_dir().join(format!("splat-io-counts-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let props: String = [
+        "x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+        "rot_0", "rot_1", "rot_2", "rot_3",
+    ]
+    .iter()
+    .map(|n| format!("property float {n}\n"))
+    .collect();
+    let head = "ply\nformat binary_little_endian 1.0\n";
+    for (name, elements, needle) in [
+        // 2^58 vertices of 56 bytes: 2^63.8 bytes.
+        (
+            "huge.ply",
+            format!("element vertex 288230376151711744\n{props}"),
+            "288230376151711744 records",
+        ),
+        // 2^62 records of 16 bytes wrap to 0 bytes.
+        (
+            "wrap.ply",
+            format!(
+                "element junk 4611686018427387904\nproperty float a\nproperty float b\nproperty float c\nproperty float d\nelement vertex 1\n{props}"
+            ),
+            "element `junk`",
+        ),
+    ] {
+        let path = dir.join(name);
+        let mut bytes = format!("{head}{elements}end_header\n").into_bytes();
+        bytes.extend_from_slice(&[0u8; 56]);
+        std::fs::write(&path, bytes).unwrap();
+        let e = read_ply(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(name) && e.contains("truncated") && e.contains(needle),
+            "{e}"
+        );
+    }
+    // A directory is not a cloud.
+    let e = read_ply(&dir).unwrap_err().to_string();
+    assert!(e.contains("not a regular file"), "{e}");
+}

@@ -34,7 +34,11 @@ fn refused(path: &Path, needles: &[&str], limit: Duration) -> String {
     let result = read_volume(path, &ReadHints::default());
     let elapsed = t.elapsed();
     let e = match result {
-        Ok(v) => panic!("{}: expected an error, read {:?}", path.display(), v.grid.dims()),
+        Ok(v) => panic!(
+            "{}: expected an error, read {:?}",
+            path.display(),
+            v.grid.dims()
+        ),
         Err(e) => e.to_string(),
     };
     let name = path.file_name().unwrap().to_string_lossy();
@@ -147,7 +151,10 @@ fn streams_are_bounded_by_what_the_header_promises() {
         )
         .unwrap();
         let e = load_scene(&scene).unwrap_err().to_string();
-        assert!(e.contains("/dev/zero") && e.contains("not a regular file"), "{e}");
+        assert!(
+            e.contains("/dev/zero") && e.contains("not a regular file"),
+            "{e}"
+        );
         let e = load_scene(Path::new("/dev/zero")).unwrap_err().to_string();
         assert!(e.contains("not a regular file"), "{e}");
     }
@@ -204,9 +211,12 @@ fn padded_nifti(gap: usize, extension: bool) -> Vec<u8> {
 #[test]
 fn nifti_voxels_are_read_at_vox_offset() {
     let d = scratch("nifti");
-    let reference = read_volume(&data_dir().join("fixtures/hydrogen.nii"), &ReadHints::default())
-        .unwrap()
-        .grid;
+    let reference = read_volume(
+        &data_dir().join("fixtures/hydrogen.nii"),
+        &ReadHints::default(),
+    )
+    .unwrap()
+    .grid;
     // The raw file the fixture was written from, read by another reader.
     let raw = read_volume(
         &data_dir().join("volumes/hydrogen_orbital_64x64x64_float32.raw"),
@@ -296,7 +306,8 @@ fn truncated_and_malformed_headers() {
     }
 }
 
-const CAMERA: &str = "[camera]\neye = [0, 0, 30]\ntarget = [0, 0, 0]\nfov_y = 30\nwidth = 8\nheight = 8\n";
+const CAMERA: &str =
+    "[camera]\neye = [0, 0, 30]\ntarget = [0, 0, 0]\nfov_y = 30\nwidth = 8\nheight = 8\n";
 
 fn scene_with(d: &Path, transfer: &str) -> PathBuf {
     std::fs::write(d.join("v_4x4x4_uint8.raw"), (0..64u8).collect::<Vec<_>>()).unwrap();
@@ -349,7 +360,11 @@ fn an_implausible_optical_depth_is_warned_about() {
     };
     // A 4-voxel box, diagonal 6.9 units: 1e3 per unit is 6.9e3 across (plausible), 1e4 is 6.9e4.
     let quiet = load_scene(&scene_with(&d, &tf("1e3"))).unwrap();
-    assert!(!quiet.notes.iter().any(|n| n.contains("optical depth")), "{:?}", quiet.notes);
+    assert!(
+        !quiet.notes.iter().any(|n| n.contains("optical depth")),
+        "{:?}",
+        quiet.notes
+    );
     let loud = load_scene(&scene_with(&d, &tf("1e4"))).unwrap();
     assert!(
         loud.notes

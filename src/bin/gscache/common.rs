@@ -140,7 +140,10 @@ pub fn at_least_one(s: &str) -> std::result::Result<usize, String> {
 
 /// Three finite numbers `x,y,z`.
 pub fn finite_vec3(s: &str) -> std::result::Result<glam::Vec3, String> {
-    let v: Vec<f32> = s.split(',').map(finite_f32).collect::<std::result::Result<_, _>>()?;
+    let v: Vec<f32> = s
+        .split(',')
+        .map(finite_f32)
+        .collect::<std::result::Result<_, _>>()?;
     match v[..] {
         [x, y, z] => Ok(glam::Vec3::new(x, y, z)),
         _ => Err(format!("`{s}`: expected three numbers `x,y,z`")),

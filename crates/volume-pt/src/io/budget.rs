@@ -72,7 +72,11 @@ pub fn check_volume_size(path: &Path, dims: [i64; 3], dtype: DType) -> Result<Vo
     let voxels = (d[0] as u64)
         .checked_mul(d[1] as u64)
         .and_then(|n| n.checked_mul(d[2] as u64));
-    let too_many = || bad(format!("volume dims {shown} hold more voxels than memory can address"));
+    let too_many = || {
+        bad(format!(
+            "volume dims {shown} hold more voxels than memory can address"
+        ))
+    };
     let voxels = voxels.ok_or_else(too_many)?;
     let payload = voxels
         .checked_mul(dtype.size() as u64)
@@ -143,7 +147,10 @@ pub fn read_text_file(path: &Path, what: &str) -> Result<String> {
     String::from_utf8(bytes).map_err(|e| {
         Error::format(
             path,
-            format!("{what} is not UTF-8 text (byte {} is not)", e.utf8_error().valid_up_to()),
+            format!(
+                "{what} is not UTF-8 text (byte {} is not)",
+                e.utf8_error().valid_up_to()
+            ),
         )
     })
 }
@@ -197,7 +204,10 @@ mod tests {
     #[test]
     fn bounded_reads_stop_past_the_promise() {
         let p = Path::new("x");
-        assert_eq!(read_bounded(p, &[1u8; 10][..], 10, "data").unwrap().len(), 10);
+        assert_eq!(
+            read_bounded(p, &[1u8; 10][..], 10, "data").unwrap().len(),
+            10
+        );
         let e = read_bounded(p, std::io::repeat(0), 1000, "data").unwrap_err();
         assert!(e.to_string().contains("more than the 1000 bytes"), "{e}");
     }

@@ -98,7 +98,11 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let size = check_volume_size(path, [signed(1), signed(2), signed(3)], dtype)?;
     let single_file = &header.magic == b"n+1\0";
     let offset = header.vox_offset;
-    let min_offset = if single_file { SINGLE_FILE_MIN_OFFSET } else { 0 };
+    let min_offset = if single_file {
+        SINGLE_FILE_MIN_OFFSET
+    } else {
+        0
+    };
     if !(offset.is_finite() && offset >= min_offset as f32 && offset.fract() == 0.0) {
         return Err(bad(format!(
             "NIfTI vox_offset {offset} is not a whole number of bytes from {min_offset} on"
@@ -127,7 +131,8 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
         };
         (stream, offset, img)
     };
-    let read_err = |e: std::io::Error| Error::format(&data_path, format!("NIfTI data cannot be read: {e}"));
+    let read_err =
+        |e: std::io::Error| Error::format(&data_path, format!("NIfTI data cannot be read: {e}"));
     let skipped = std::io::copy(&mut source.by_ref().take(skip as u64), &mut std::io::sink())
         .map_err(read_err)?;
     let mut data = Vec::new();

@@ -207,7 +207,11 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
                 bad(format!(
                     "NRRD `{}: {v}` is not an integer: expected a count of {}",
                     names[0],
-                    if names[0] == "line skip" { "lines" } else { "bytes, or -1" }
+                    if names[0] == "line skip" {
+                        "lines"
+                    } else {
+                        "bytes, or -1"
+                    }
                 ))
             }),
         }
@@ -255,8 +259,8 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
         }
         "ascii" | "text" | "txt" => {
             let mut values: Vec<f32> = Vec::new();
-            let text =
-                std::str::from_utf8(payload).map_err(|_| bad("NRRD ascii data is not text".into()))?;
+            let text = std::str::from_utf8(payload)
+                .map_err(|_| bad("NRRD ascii data is not text".into()))?;
             let mut tokens = text
                 .split(|c: char| c.is_whitespace() || c == ',')
                 .filter(|t| !t.is_empty());

@@ -48,15 +48,13 @@ pub(super) fn read(path: &Path, layout: &RawLayout) -> Result<LoadedVolume> {
              int32, float32, float64) in the scene or name the file like `name_64x64x64_uint8.raw`",
         )
     })?;
-    let size = check_volume_size(
-        path,
-        [dims.x as i64, dims.y as i64, dims.z as i64],
-        dtype,
-    )?;
+    let size = check_volume_size(path, [dims.x as i64, dims.y as i64, dims.z as i64], dtype)?;
     // The file's length is known before it is read: compare it with the layout first, so a
     // wrong layout costs no read and a huge file is never loaded.
     let (_, len) = super::budget::open_regular(path)?;
-    let want = layout.header_bytes.saturating_add(size.payload_bytes as u64);
+    let want = layout
+        .header_bytes
+        .saturating_add(size.payload_bytes as u64);
     if len != want {
         let what = if len < want { "truncated" } else { "oversized" };
         return Err(Error::format(
@@ -70,7 +68,10 @@ pub(super) fn read(path: &Path, layout: &RawLayout) -> Result<LoadedVolume> {
     }
     let bytes = super::budget::read_regular(path, want, "a raw volume")?;
     if bytes.len() as u64 != want {
-        return Err(Error::format(path, "raw file changed while it was being read"));
+        return Err(Error::format(
+            path,
+            "raw file changed while it was being read",
+        ));
     }
     let values = decode_samples(
         &bytes[layout.header_bytes as usize..],

@@ -90,7 +90,9 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     };
     let parsed = match extent {
         Extent::Dims(d) => d.map(i64::from),
-        Extent::Ranges(r) => [0, 1, 2].map(|i| i64::from(*r[i].end()) - i64::from(*r[i].start()) + 1),
+        Extent::Ranges(r) => {
+            [0, 1, 2].map(|i| i64::from(*r[i].end()) - i64::from(*r[i].start()) + 1)
+        }
     };
     if parsed != stated {
         return Err(bad(format!(
@@ -156,15 +158,18 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
 /// The dims (and element type, where the text says it) that a VTK file's text states, read
 /// before the file is parsed so that a huge claim is refused before anything is allocated.
 fn stated_size(bytes: &[u8], legacy: bool) -> std::result::Result<([i64; 3], DType), String> {
-    let ints = |s: &str| -> Option<Vec<i64>> {
-        s.split_whitespace().map(|t| t.parse().ok()).collect()
-    };
+    let ints =
+        |s: &str| -> Option<Vec<i64>> { s.split_whitespace().map(|t| t.parse().ok()).collect() };
     // The header is text; binary data follow it. 64 KiB holds any real header.
     let head = String::from_utf8_lossy(&bytes[..bytes.len().min(1 << 16)]);
     if legacy {
         let line = head
             .lines()
-            .find(|l| l.trim_start().to_ascii_uppercase().starts_with("DIMENSIONS"))
+            .find(|l| {
+                l.trim_start()
+                    .to_ascii_uppercase()
+                    .starts_with("DIMENSIONS")
+            })
             .ok_or("VTK file has no DIMENSIONS line: expected STRUCTURED_POINTS")?;
         let dims = ints(line.trim_start()["DIMENSIONS".len()..].trim())
             .filter(|v| v.len() == 3)
@@ -180,10 +185,12 @@ fn stated_size(bytes: &[u8], legacy: bool) -> std::result::Result<([i64; 3], DTy
             .unwrap_or(DType::F64);
         Ok(([dims[0], dims[1], dims[2]], dtype))
     } else {
-        let start = head.find("<ImageData").ok_or("VTK XML file has no <ImageData> element")?;
+        let start = head
+            .find("<ImageData")
+            .ok_or("VTK XML file has no <ImageData> element")?;
         let tag = &head[start..start + head[start..].find('>').unwrap_or(head.len() - start)];
-        let extent = xml_attr(tag, "WholeExtent")
-            .ok_or("VTK <ImageData> has no WholeExtent attribute")?;
+        let extent =
+            xml_attr(tag, "WholeExtent").ok_or("VTK <ImageData> has no WholeExtent attribute")?;
         let e = ints(extent)
             .filter(|v| v.len() == 6)
             .ok_or_else(|| format!("VTK WholeExtent `{extent}` is not six integers"))?;

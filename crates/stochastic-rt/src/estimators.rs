@@ -113,9 +113,13 @@ pub fn k_closest_after(
 ) {
     buf.clear();
     let g = &scene.gaussians;
-    let t_min = after.map_or(0.0, |a| a.0.next_down().max(0.0));
-    scene.traverse(r.o, r.d, t_min, f32::INFINITY, |i, t_max| {
-        if let Some(h) = g.intersect(i, r.o, r.d, t_min, t_max, r.mode, r.forward) {
+    let margin = g.traversal_margin(r.mode, r.d, r.forward);
+    // `key_min` orders hits; the traversal starts `margin` earlier, where a box can end and its
+    // centre depth still come after `after`.
+    let key_min = after.map_or(0.0, |a| a.0.next_down().max(0.0));
+    let traverse_from = after.map_or(0.0, |a| (a.0 - margin).max(0.0));
+    scene.traverse(r.o, r.d, traverse_from, f32::INFINITY, |i, t_max| {
+        if let Some(h) = g.intersect(i, r.o, r.d, key_min, t_max, r.mode, r.forward) {
             let key = (h.t, g.ids[i]);
             if after.is_none_or(|a| key.0 > a.0 || (key.0 == a.0 && key.1 > a.1)) {
                 let pos = buf.partition_point(|e| (e.0, g.ids[e.2]) < key);
@@ -126,7 +130,7 @@ pub fn k_closest_after(
             }
         }
         if buf.len() == k {
-            buf[k - 1].0.next_up()
+            buf[k - 1].0.next_up() + margin
         } else {
             f32::INFINITY
         }
@@ -189,6 +193,7 @@ pub fn trace_stochastic(
     let n = n.max(1) as usize;
     let mut slots = [(f32::INFINITY, usize::MAX); 64];
     let slots = &mut slots[..n.min(64)];
+    let margin = g.traversal_margin(r.mode, r.d, r.forward);
     scene.traverse(r.o, r.d, 0.0, f32::INFINITY, |i, t_max| {
         if let Some(h) = g.intersect(i, r.o, r.d, 0.0, t_max, r.mode, r.forward) {
             let p = r.o + h.t * r.d;
@@ -198,7 +203,8 @@ pub fn trace_stochastic(
                 }
             }
         }
-        slots.iter().fold(0.0f32, |m, s| m.max(s.0))
+        // Past the farthest slot's hit (plus the margin) nothing can replace any slot's.
+        slots.iter().fold(0.0f32, |m, s| m.max(s.0)) + margin
     });
     let sum: Vec3 = slots
         .iter()

@@ -40,17 +40,23 @@ impl SampleKey {
 }
 
 #[inline]
-fn fract(x: f32) -> f32 {
+fn fract(x: f64) -> f64 {
     x - x.floor()
 }
 
 /// Sun et al.'s trigonometric hash of a position, in [0, 1).
+///
+/// Evaluated in f64. In f32, as a shader computes it, `43758.5 sin(.)` is a number of up to
+/// 43758 whose fraction keeps only 8 or 9 bits: the numbers fall on a grid of 1/256, so a hit of
+/// opacity 1/255 is accepted with probability 0 or 2/255 and the image is biased (23 standard
+/// errors at 256 spp on the bundled asset; `tests/random.rs` measures the grid directly).
 #[inline]
 pub fn trig_hash(p: Vec3) -> f32 {
+    let p = p.as_dvec3();
     let r1 = fract(47_453.547 * (91.3458 * p.z).sin());
     let (x, y) = (p.x + r1, p.y + r1);
     // Both components of r2 use the same coefficients; one is enough.
-    fract(43_758.547 * (12.9898 * x + 78.233 * y).sin()).min(0.999_999_94)
+    (fract(43_758.547 * (12.9898 * x + 78.233 * y).sin()) as f32).min(0.999_999_94)
 }
 
 /// The acceptance number for Gaussian `id` hit at position `p`, for slot `slot` of a

@@ -217,6 +217,34 @@ fn run_reader(reader: Reader, path: &Path) -> Result<(), String> {
     }
 }
 
+/// A `.splat` file (antimatter15: 32-byte records) of the bundled asset's first 300 Gaussians,
+/// written here by the format's definition: there is no `.splat` file among the bundled data.
+fn splat_seed() -> Vec<u8> {
+    let cloud =
+        splat_raster::io::read_ply(&repo().join("data/splats/fruit_drops_minimal_inria.ply"))
+            .unwrap();
+    let stride = cloud.color_stride();
+    let mut out = Vec::new();
+    for g in 0..cloud.len().min(300) {
+        for v in &cloud.means[3 * g..3 * g + 3] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        for v in &cloud.log_scales[3 * g..3 * g + 3] {
+            out.extend_from_slice(&v.exp().to_le_bytes());
+        }
+        for c in &cloud.colors[g * stride..g * stride + 3] {
+            out.push(((0.5 + 0.282_094_8 * c).clamp(0.0, 1.0) * 255.0) as u8);
+        }
+        out.push((255.0 / (1.0 + (-cloud.opacity_logits[g]).exp())) as u8);
+        let q = &cloud.rotations[4 * g..4 * g + 4];
+        let n = q.iter().map(|v| v * v).sum::<f32>().sqrt().max(1e-12);
+        for v in q {
+            out.push((v / n * 127.0 + 128.0) as u8);
+        }
+    }
+    out
+}
+
 /// The seeds: (file, reader, the name the mutant is written under, files it needs beside it).
 fn seeds() -> Vec<(PathBuf, Reader, String)> {
     let data = repo().join("data");
@@ -251,6 +279,12 @@ fn seeds() -> Vec<(PathBuf, Reader, String)> {
         data.join("splats/fruit_drops_minimal_inria.ply"),
         Reader::Cloud,
         "fruit.ply".into(),
+    ));
+    // Made in memory by `splat_seed`; the path only has to exist.
+    out.push((
+        data.join("splats/fruit_drops_minimal_inria.ply"),
+        Reader::Cloud,
+        "generated.splat".into(),
     ));
     // A saved cache level is a PLY file too, read through `GsCache::load`.
     out.push((
@@ -360,8 +394,13 @@ fn mutated_files_never_panic_or_hang() {
     let failures_dir = repo().join("target/fuzz-failures");
     let mut failures = Vec::new();
     let mut total = 0u64;
+    let mut per_reader: std::collections::BTreeMap<String, u64> = Default::default();
     for (seed_path, reader, name) in &seeds {
-        let seed = std::fs::read(seed_path).unwrap();
+        let seed = if name == "generated.splat" {
+            splat_seed()
+        } else {
+            std::fs::read(seed_path).unwrap()
+        };
         let dir = std::env::temp_dir().join(format!(
             "gscache-fuzz-{}-{}",
             std::process::id(),
@@ -382,9 +421,17 @@ fn mutated_files_never_panic_or_hang() {
             case += 1;
         }
         total += case;
+        let kind = match reader {
+            Reader::Volume | Reader::Cloud => name.rsplit('.').next().unwrap_or("").to_string(),
+            other => format!("{other:?}"),
+        };
+        *per_reader.entry(kind).or_default() += case;
         let _ = std::fs::remove_dir_all(&dir);
     }
-    eprintln!("fuzz: {total} cases over {} seed files", seeds.len());
+    eprintln!(
+        "fuzz: {total} cases over {} seed files: {per_reader:?}",
+        seeds.len()
+    );
     assert!(
         failures.is_empty(),
         "{} failures:\n{}",

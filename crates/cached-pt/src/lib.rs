@@ -86,6 +86,8 @@ pub struct CachedFrameStats {
     pub train_seconds: f64,
     pub samples: u64,
     pub nonfinite_samples: u64,
+    /// Training samples the cache refused (negative or not finite).
+    pub dropped_training_samples: u64,
     pub cancelled: bool,
 }
 
@@ -141,6 +143,7 @@ pub fn render_cached_frame(
         train_seconds,
         samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
         nonfinite_samples: traced.nonfinite_samples,
+        dropped_training_samples: targets.dropped(),
         cancelled,
     })
 }

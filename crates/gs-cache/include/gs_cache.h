@@ -138,6 +138,8 @@ typedef struct GsCacheReport {
   double first_level_mse;
   // Learning-rate factor of Eq. 5 used for the step.
   float lr_scale;
+  // Samples `gs_cache_add_sample` refused this frame (negative or not finite).
+  uint64_t dropped_samples;
 } GsCacheReport;
 
 #ifdef __cplusplus

@@ -103,6 +103,8 @@ pub struct FrameReport {
     pub mse: Vec<Option<f64>>,
     /// Learning-rate factor of Eq. 5 used for the step.
     pub lr_scale: f32,
+    /// Training samples refused this frame (negative or not finite), counted, not trained on.
+    pub dropped_samples: u64,
 }
 
 /// A multi-level radiance cache (see the crate docs for what it estimates).
@@ -308,6 +310,7 @@ impl GsCache {
     pub fn train(&mut self, targets: &TrainingTargets) -> Result<&FrameReport> {
         let start = Instant::now();
         self.report.losses = vec![None; self.levels.len()];
+        self.report.dropped_samples = targets.dropped();
         self.report.mse = vec![None; self.levels.len()];
         let Some(frame) = self.frame.as_mut() else {
             return Err(CacheError::Config(

@@ -160,6 +160,8 @@ pub struct GsCacheReport {
     pub first_level_mse: f64,
     /// Learning-rate factor of Eq. 5 used for the step.
     pub lr_scale: f32,
+    /// Samples `gs_cache_add_sample` refused this frame (negative or not finite).
+    pub dropped_samples: u64,
 }
 
 /// An opaque cache handle with its frame's training targets.
@@ -584,6 +586,7 @@ pub unsafe extern "C" fn gs_cache_train(
             levels_trained: r.losses.iter().filter(|l| l.is_some()).count() as u32,
             first_level_mse: r.mse.first().copied().flatten().unwrap_or(-1.0),
             lr_scale: r.lr_scale,
+            dropped_samples: r.dropped_samples,
         };
         targets.clear();
         // SAFETY: NULL or a writable report, by the caller's contract.

@@ -11,6 +11,8 @@ pub struct TrainingTargets {
     height: u32,
     sums: Vec<Vec<[f32; 3]>>,
     counts: Vec<Vec<u32>>,
+    /// Samples refused this frame for being negative or not finite.
+    dropped: u64,
 }
 
 impl TrainingTargets {
@@ -21,6 +23,7 @@ impl TrainingTargets {
             height,
             sums: vec![vec![[0.0; 3]; n]; levels],
             counts: vec![vec![0; n]; levels],
+            dropped: 0,
         }
     }
 
@@ -34,10 +37,17 @@ impl TrainingTargets {
         self.height
     }
 
+    /// Samples refused since the last [`TrainingTargets::clear`] (negative or not finite): a
+    /// caller reports them, so a renderer feeding NaN finds out.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
     /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite and
-    /// non-negative are dropped (they would poison the loss).
+    /// non-negative are dropped (they would poison the loss) and counted.
     pub fn add(&mut self, level: usize, pixel: usize, value: [f32; 3]) {
         if !value.iter().all(|v| *v >= 0.0 && v.is_finite()) {
+            self.dropped += 1;
             return;
         }
         let s = &mut self.sums[level][pixel];
@@ -55,6 +65,7 @@ impl TrainingTargets {
         for c in &mut self.counts {
             c.fill(0);
         }
+        self.dropped = 0;
     }
 
     /// [`TrainingTargets::level_target`] at the cache's resolution: each cache pixel takes the
@@ -127,6 +138,8 @@ pub struct TileTargets {
     sums: Vec<Vec3>,
     /// Summed sample weights (sample counts when every weight is 1).
     weights: Vec<f32>,
+    /// Samples refused for a negative or non-finite value or weight.
+    dropped: u64,
 }
 
 impl TileTargets {
@@ -141,6 +154,7 @@ impl TileTargets {
             levels,
             sums: vec![Vec3::ZERO; n],
             weights: vec![0.0; n],
+            dropped: 0,
         }
     }
 
@@ -153,6 +167,16 @@ impl TileTargets {
     ) {
         let tile_pixels = self.width as usize * self.height as usize;
         for (level, value, weight) in samples {
+            // One NaN would spoil the pixel's whole mean: refuse the sample, count it. Written
+            // so that NaN fails.
+            if !(value.is_finite()
+                && value.min_element() >= 0.0
+                && weight >= 0.0
+                && weight.is_finite())
+            {
+                self.dropped += 1;
+                continue;
+            }
             let k = level * tile_pixels + in_tile;
             // Multiplying by a weight of 1 is exact: unweighted sums are unchanged.
             self.sums[k] += value * weight;
@@ -165,6 +189,7 @@ impl TrainingTargets {
     /// Adds each pixel's mean sample of `tile`, level by level. The tile must lie inside the
     /// image and have at most this frame's levels.
     pub fn add_tile(&mut self, tile: &TileTargets) {
+        self.dropped += tile.dropped;
         let (w, h) = (tile.width, tile.height);
         let tile_pixels = w as usize * h as usize;
         for level in 0..tile.levels.min(self.levels()) {
@@ -179,5 +204,31 @@ impl TrainingTargets {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A NaN or negative sample is refused and counted; the pixel keeps the mean of the rest
+    /// (before, one NaN made the pixel's whole mean NaN and the pixel was lost).
+    #[test]
+    fn bad_samples_are_counted_and_do_not_spoil_a_pixel() {
+        let mut tile = TileTargets::new(1, 0, 0, 2, 1);
+        tile.add_samples(0, [(0, Vec3::splat(1.0), 1.0), (0, Vec3::splat(3.0), 1.0)]);
+        tile.add_samples(0, [(0, Vec3::new(f32::NAN, 0.0, 0.0), 1.0)]);
+        tile.add_samples(
+            0,
+            [(0, Vec3::splat(-1.0), 1.0), (0, Vec3::ONE, f32::INFINITY)],
+        );
+        let mut targets = TrainingTargets::new(1, 2, 1);
+        targets.add_tile(&tile);
+        targets.add(0, 1, [f32::NAN; 3]);
+        assert_eq!(targets.dropped(), 4);
+        assert_eq!(targets.sums[0][0], [2.0; 3]); // the mean of 1 and 3
+        assert_eq!(targets.counts[0], vec![1, 0]);
+        targets.clear();
+        assert_eq!(targets.dropped(), 0);
     }
 }

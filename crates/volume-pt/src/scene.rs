@@ -287,6 +287,17 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
     .map_err(|e| scene_err(format!("camera: {e}")))?;
     let r = &desc.render;
     let max_depth = max_depth_from(r.max_depth).map_err(scene_err)?;
+    if r.spp == 0 {
+        return Err(scene_err(
+            "[render] spp = 0: expected at least 1 sample per pixel".into(),
+        ));
+    }
+    if !desc.output.exposure.is_finite() {
+        return Err(scene_err(format!(
+            "[output] exposure = {}: expected a finite number of stops",
+            desc.output.exposure
+        )));
+    }
     let mut notes = loaded.notes;
     // The densest path across the box: a huge optical depth is almost always a units mistake
     // (a density scale per voxel given per world unit, a spacing in micrometres read as metres),

@@ -304,6 +304,7 @@ fn render_with_cache(
     );
     let start = std::time::Instant::now();
     let (mut pt, mut st, mut ot, mut samples, mut nonfinite) = (0.0, 0.0, 0.0, 0u64, 0u64);
+    let mut dropped = 0u64;
     let mut counted = 0u32;
     let (lo, hi) = scene.media.medium.bounds();
     let centre = 0.5 * (lo + hi);
@@ -327,6 +328,7 @@ fn render_with_cache(
             cancel,
         )?;
         nonfinite += s.nonfinite_samples;
+        dropped += s.dropped_training_samples;
         if accumulate {
             bar.inc(s.samples);
             samples += s.samples;
@@ -343,6 +345,11 @@ fn render_with_cache(
             pt / n,
             st / n,
             ot / n
+        );
+    }
+    if dropped > 0 {
+        eprintln!(
+            "warning: the cache refused {dropped} training samples that were negative or not finite"
         );
     }
     if let Some(dir) = &a.cache_images {

@@ -1,7 +1,7 @@
 //! `gscache render` end to end: a render from the bundled scene, clear errors on bad input,
 //! and Ctrl-C writing the image accumulated so far.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 fn render() -> Command {
@@ -397,4 +397,51 @@ fn an_interrupt_stops_inside_a_slow_tile() {
         "took {:?} to stop",
         signalled.elapsed()
     );
+}
+
+/// A fit's target must be a finite image in a regular file: NaN pixels would become NaN
+/// gradients, and a FIFO would block the reader.
+#[test]
+fn a_fit_target_with_nan_or_no_end_is_refused() {
+    let d = scratch("fit-target");
+    let mut px = vec![glam::Vec3::splat(0.5); 16];
+    px[5] = glam::Vec3::new(f32::NAN, 0.0, 0.0);
+    let exr = d.join("nan.exr");
+    hdr_image::RgbImage::from_pixels(4, 4, px)
+        .unwrap()
+        .write_exr(&exr)
+        .unwrap();
+    let o = gscache()
+        .args(["splat", "fit"])
+        .arg(&exr)
+        .args([
+            "--width",
+            "4",
+            "--height",
+            "4",
+            "--iterations",
+            "1",
+            "-q",
+            "-o",
+        ])
+        .arg(d.join("f.ply"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("pixel (1, 1) is [NaN, 0, 0]"),
+        "{err}"
+    );
+    if Path::new("/dev/zero").exists() {
+        let o = gscache()
+            .args(["splat", "fit", "/dev/zero", "-q", "-o"])
+            .arg(d.join("f.ply"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains("not a regular file"),
+            "{err}"
+        );
+    }
 }

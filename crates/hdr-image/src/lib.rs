@@ -33,6 +33,9 @@ pub struct RgbImage {
     pixels: Vec<Vec3>,
 }
 
+/// The largest image side [`RgbImage::read_exr`] accepts (the cameras' own limit is 32768).
+pub const MAX_READ_SIDE: usize = 32_768;
+
 impl RgbImage {
     /// A black image.
     pub fn new(width: u32, height: u32) -> Self {
@@ -112,6 +115,29 @@ impl RgbImage {
     /// Reads the first RGB(A) layer of an EXR as linear RGB (alpha is dropped).
     pub fn read_exr(path: &Path) -> Result<Self> {
         use exr::prelude::read_first_rgba_layer_from_file;
+        let refuse = |message: String| ImageError::Read {
+            path: path.into(),
+            message,
+        };
+        // A FIFO or a device has no end to read to; the header's size is checked before the
+        // pixels are allocated for it.
+        if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+            return Err(refuse(
+                "is missing or not a regular file: expected an EXR image".into(),
+            ));
+        }
+        let meta = exr::meta::MetaData::read_from_file(path, false)
+            .map_err(|e| refuse(format!("not a readable RGB EXR: {e}")))?;
+        if let Some(header) = meta.headers.first() {
+            let size = header.layer_size;
+            if size.width() > MAX_READ_SIDE || size.height() > MAX_READ_SIDE {
+                return Err(refuse(format!(
+                    "EXR is {}x{}: expected at most {MAX_READ_SIDE} pixels a side",
+                    size.width(),
+                    size.height()
+                )));
+            }
+        }
         let image = read_first_rgba_layer_from_file(
             path,
             |res, _| (res.width(), vec![Vec3::ZERO; res.width() * res.height()]),

@@ -13,7 +13,8 @@ pub enum RandomKind {
     #[default]
     Hash,
     /// `xi(p) = r2(p_xy + r1(p_z))` with `r1(q) = fract(b1 sin(a1 q))` and
-    /// `r2(q) = fract(b2 sin(a2 . q))` (Sun et al. 2025, Eq. 8-10), at the perturbed hit position.
+    /// `r2(q) = fract(b2 sin(a2 . q))` (Sun et al. 2025, Eq. 8-10), at the perturbed hit position,
+    /// evaluated in f64 (see [`trig_hash`]).
     Trig,
 }
 

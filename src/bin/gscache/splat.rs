@@ -65,7 +65,8 @@ pub struct TraceArgs {
     /// rasteriser's depth).
     #[arg(long, value_enum, default_value_t = DepthMode::Mean)]
     depth: DepthMode,
-    /// Acceptance numbers: `hash` (integer) or `trig` (Sun et al., Eq. 8-10).
+    /// Acceptance numbers: `hash` (integer) or `trig` (Sun et al., Eq. 8-10, in f64: in f32 it
+    /// is biased for faint Gaussians).
     #[arg(long, value_enum, default_value_t = RandomKind::Hash)]
     random: RandomKind,
     #[arg(long, default_value_t = 0)]
@@ -280,6 +281,15 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             let target = RgbImage::read_exr(&a.target_image)?;
             let (w, h) = (target.width(), target.height());
             let target = target.into_pixels();
+            if let Some(i) = target.iter().position(|p| !p.is_finite()) {
+                bail!(
+                    "{}: pixel ({}, {}) is {}: a target must be finite everywhere",
+                    a.target_image.display(),
+                    i as u32 % w,
+                    i as u32 / w,
+                    target[i]
+                );
+            }
             if (w, h) != (a.camera.width, a.camera.height) {
                 bail!(
                     "{}: the target is {w}x{h} but the camera is {}x{}: pass --width {w} --height {h}",

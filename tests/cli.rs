@@ -280,6 +280,35 @@ fn numbers_that_would_spoil_an_image_are_refused() {
                 "splat".into(),
                 "trace".into(),
                 splats.clone(),
+                "--k".into(),
+                "18446744073709551615".into(),
+            ],
+            "--k",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "fit".into(),
+                "x.exr".into(),
+                "--points".into(),
+                "1000000000000".into(),
+            ],
+            "--points",
+        ),
+        (
+            vec![
+                "render".into(),
+                scene.clone(),
+                "--threads".into(),
+                "100000".into(),
+            ],
+            "--threads",
+        ),
+        (
+            vec![
+                "splat".into(),
+                "trace".into(),
+                splats.clone(),
                 "--min-transmittance".into(),
                 "nan".into(),
             ],

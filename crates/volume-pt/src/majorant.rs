@@ -28,9 +28,15 @@ impl ValueRanges {
     /// Value ranges over macrocells of `cell_size` voxels; a `cell_size` at least as large as the
     /// grid gives one global cell (one global majorant).
     pub fn build(grid: &ScalarGrid, cell_size: u32) -> Self {
-        let cell_size = cell_size.max(1);
         let dims = grid.dims();
-        let cells = (dims + cell_size - 1) / cell_size;
+        // A cell larger than the grid is one global majorant; clamping keeps the arithmetic
+        // below from wrapping for any u32 a scene or flag gives.
+        let cell_size = cell_size.clamp(1, dims.max_element());
+        let cells = UVec3::new(
+            dims.x.div_ceil(cell_size),
+            dims.y.div_ceil(cell_size),
+            dims.z.div_ceil(cell_size),
+        );
         let ranges: Vec<(f32, f32)> = (0..cells.x * cells.y * cells.z)
             .into_par_iter()
             .map(|i| {

@@ -350,6 +350,22 @@ fn numbers_that_nan_or_infinity_slip_past_are_refused() {
     }
 }
 
+/// A macrocell size of any u32 loads: larger than the grid means one global majorant (the
+/// arithmetic that sized the majorant grid used to wrap and leave it empty).
+#[test]
+fn any_macrocell_size_loads() {
+    let d = scratch("macrocell");
+    let tf = "[transfer]\nwindow = [0, 63]\ndensity_scale = 1.0\npoints = [ { value = 0.0, color = [1, 1, 1], opacity = 1.0 } ]";
+    let scene = scene_with(&d, tf);
+    let text = std::fs::read_to_string(&scene)
+        .unwrap()
+        .replace("[volume]\n", "[volume]\nmacrocell = 4294967295\n");
+    std::fs::write(&scene, text).unwrap();
+    let s = load_scene(&scene).unwrap();
+    assert_eq!(s.media.medium.majorants().cell_count(), 1);
+    assert!(s.media.medium.majorants().global_max() > 0.0);
+}
+
 #[test]
 fn an_implausible_optical_depth_is_warned_about() {
     let d = scratch("optical-depth");

@@ -10,8 +10,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(clap::Args, Debug, Clone, Copy)]
 pub struct Global {
     /// Worker threads (default: all cores). Results do not depend on it.
-    #[arg(long, global = true)]
-    pub threads: Option<usize>,
+    #[arg(long, global = true, value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub threads: Option<u16>,
     /// No progress bar.
     #[arg(long, short, global = true)]
     pub quiet: bool,
@@ -21,11 +21,8 @@ impl Global {
     /// Starts the global thread pool with `--threads` workers, if given.
     pub fn start_threads(&self) -> Result<()> {
         if let Some(t) = self.threads {
-            if t == 0 {
-                bail!("--threads 0: expected at least 1 thread");
-            }
             rayon::ThreadPoolBuilder::new()
-                .num_threads(t)
+                .num_threads(t.into())
                 .build_global()
                 .context("cannot start the thread pool")?;
         }
@@ -126,15 +123,6 @@ pub fn unit_f32(s: &str) -> std::result::Result<f32, String> {
         Ok(v)
     } else {
         Err(format!("`{s}`: expected a number in [0, 1]"))
-    }
-}
-
-/// A count of at least 1 (clap's ranged parsers give only u64 and smaller).
-pub fn at_least_one(s: &str) -> std::result::Result<usize, String> {
-    match s.trim().parse::<usize>() {
-        Ok(0) => Err(format!("`{s}`: expected at least 1")),
-        Ok(v) => Ok(v),
-        Err(e) => Err(format!("`{s}`: {e}")),
     }
 }
 

@@ -2,9 +2,7 @@
 //! differentiable rasteriser, fit a cloud to a target EXR seen from a given camera, or ray-trace
 //! it with stochastic transparency (Sun et al., 2025).
 
-use crate::common::{
-    Global, at_least_one, finite_f32, finite_vec3, positive_f32, prepare_output, unit_f32,
-};
+use crate::common::{Global, finite_f32, finite_vec3, positive_f32, prepare_output, unit_f32};
 use anyhow::{Result, bail};
 use clap::{Args as ClapArgs, Subcommand};
 use glam::Vec3;
@@ -53,8 +51,8 @@ pub struct TraceArgs {
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     samples_per_traversal: u32,
     /// Hits per pass for `kbuffer` and `stochastic-pass`.
-    #[arg(long, default_value_t = 16, value_parser = at_least_one)]
-    k: usize,
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u16).range(1..=4096))]
+    k: u16,
     /// `kbuffer` stops once transmittance falls below this (0: never).
     #[arg(long, default_value_t = 0.0, value_parser = unit_f32)]
     min_transmittance: f32,
@@ -145,8 +143,8 @@ pub struct FitArgs {
     #[arg(long)]
     init: Option<PathBuf>,
     /// Random Gaussians to start from when there is no --init.
-    #[arg(long, default_value_t = 20_000, value_parser = at_least_one)]
-    points: usize,
+    #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=16_777_216))]
+    points: u32,
     #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u32).range(1..))]
     iterations: u32,
     /// `hdr` (the GSCache paper's Eq. 4), `l1` or `l2`.
@@ -309,7 +307,7 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
                         (Some(e), Some(t)) => (t - e).length(),
                         _ => a.camera.distance,
                     };
-                    random_in_view(&cam, a.points, 0.7 * dist, 1.3 * dist)
+                    random_in_view(&cam, a.points as usize, 0.7 * dist, 1.3 * dist)
                 }
             };
             let target: Vec<[f32; 3]> = target.iter().map(|v| v.to_array()).collect();
@@ -345,13 +343,13 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             let estimator = match a.mode {
                 TraceMode::Exact => Estimator::Exact,
                 TraceMode::Kbuffer => Estimator::KBuffer {
-                    k: a.k,
+                    k: a.k.into(),
                     min_transmittance: a.min_transmittance,
                 },
                 TraceMode::Stochastic => Estimator::Stochastic {
                     samples_per_traversal: a.samples_per_traversal,
                 },
-                TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k },
+                TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k.into() },
             };
             let (depth_mode, random) = (a.depth, a.random);
             let t0 = std::time::Instant::now();

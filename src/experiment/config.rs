@@ -417,7 +417,13 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         });
     }
     let size = match (f.width, f.height) {
-        (Some(w), Some(h)) if w > 0 && h > 0 => Some((w, h)),
+        (Some(w), Some(h)) if w > 0 && h > 0 => {
+            let most = splat_raster::camera::MAX_IMAGE_SIDE;
+            if w > most || h > most {
+                bail!("width and height {w}x{h}: expected at most {most} pixels a side");
+            }
+            Some((w, h))
+        }
         (None, None) => None,
         _ => bail!("width and height: give both, each at least 1, or neither"),
     };

@@ -39,8 +39,7 @@ pub fn run_experiment(
     let results = run::run(&exp, progress)?;
     let mut scene = volume_pt::load_scene(&exp.scene)?;
     if let Some((w, h)) = exp.size {
-        scene.camera.width = w;
-        scene.camera.height = h;
+        scene.camera = scene.camera.with_size(w, h)?;
     }
     let figures = figures::write_all(&exp.output, &results, &scene)?;
     report::write_reports(&exp.output, &results, &figures)?;

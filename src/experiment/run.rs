@@ -316,8 +316,7 @@ fn compare_with(rows: &mut [SummaryRow], baseline: &[SummaryRow]) {
 pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
     let mut scene = volume_pt::load_scene(&exp.scene)?;
     if let Some((w, h)) = exp.size {
-        scene.camera.width = w;
-        scene.camera.height = h;
+        scene.camera = scene.camera.with_size(w, h)?;
     }
     let (w, h) = (scene.camera.width, scene.camera.height);
     std::fs::create_dir_all(&exp.output)

@@ -94,7 +94,7 @@ fn bad_input_is_a_clear_error_not_a_panic() {
 
 #[test]
 fn an_interrupt_writes_what_was_accumulated_and_exits_130() {
-    for signal in ["-INT", "-TERM"] {
+    for signal in ["-INT", "-TERM", "-HUP"] {
         let d = scratch(&format!("signal{signal}"));
         let exr = d.join("partial.exr");
         let child = render()

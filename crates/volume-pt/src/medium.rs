@@ -160,6 +160,6 @@ impl Medium {
 
     /// Bytes held per voxel (values) plus the majorant grid.
     pub fn memory_bytes(&self) -> usize {
-        self.grid.values().len() * 4 + self.majorants.bytes() * 3
+        self.grid.bytes() + self.majorants.bytes() * 3
     }
 }

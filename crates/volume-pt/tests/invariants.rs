@@ -125,17 +125,28 @@ fn a_cancelled_render_keeps_the_mean_of_what_it_took() {
         counts.iter().any(|&c| c < scene.settings.spp),
         "the render was not interrupted"
     );
-    // Pixels that received all their samples hold exactly what an uninterrupted render gives.
-    let full = render_with_threads(&scene, 2);
+    // Cancellation is read before every sample, so a pixel may stop part-way; every pixel holds
+    // the mean of its first `c` samples, which is what an uninterrupted render of `c` spp gives
+    // there (the same sample indices; sums grouped into other passes, so equal to rounding).
     let img = film.mean();
     let mut compared = 0;
-    for ((p, q), &c) in img.iter().zip(&full).zip(&counts) {
+    let mut by_count: std::collections::BTreeMap<u32, Vec<Vec3>> = Default::default();
+    for &c in counts.iter().filter(|&&c| c > 0) {
+        by_count.entry(c).or_insert_with(|| {
+            let mut fewer = small_default_scene();
+            fewer.settings.spp = c;
+            render_with_threads(&fewer, 2)
+        });
+    }
+    for (i, (p, &c)) in img.iter().zip(&counts).enumerate() {
         assert!(p.is_finite());
-        if c == scene.settings.spp {
-            assert_eq!(p, q);
+        if c > 0 {
+            let q = by_count[&c][i];
+            assert!(
+                (*p - q).abs().max_element() <= 1e-6 * (1.0 + q.abs().max_element()),
+                "pixel {i} with {c} samples: {p} vs {q}"
+            );
             compared += 1;
-        } else {
-            assert_eq!(c, 0, "a pixel was left with part of a pass");
         }
     }
     assert!(compared > 0);

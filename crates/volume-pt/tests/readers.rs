@@ -25,10 +25,10 @@ fn same_voxels(a: &Path, b: &Path, f: impl Fn(f32) -> f32) {
     );
     let mismatches = va
         .grid
-        .values()
+        .to_f32()
         .iter()
-        .zip(vb.grid.values())
-        .filter(|(x, y)| f(**x) != **y)
+        .zip(vb.grid.to_f32())
+        .filter(|(x, y)| f(**x) != *y)
         .count();
     assert_eq!(mismatches, 0, "{} vs {}", a.display(), b.display());
 }

@@ -3,7 +3,7 @@
 //! A header can claim any size: `sizes: 100000 100000 100000` in a 300-byte NRRD, dims whose
 //! product wraps past 2^64, a gzip stream that inflates to gigabytes. Every reader turns such a
 //! claim into a [`VolumeSize`] first: the voxel count is computed with checked arithmetic, and
-//! the memory the load will take (the payload as stored plus the f32 grid) is compared with the
+//! the memory the load will take (the payload as read plus the grid as kept) is compared with the
 //! memory this machine has available before a byte is reserved. Only then is the payload read,
 //! through [`read_bounded`], which never takes more than the size the header promised.
 
@@ -12,9 +12,6 @@ use crate::error::{Error, Result};
 use glam::UVec3;
 use std::io::Read;
 use std::path::Path;
-
-/// Bytes the renderer keeps per voxel: the scalar grid stores f32.
-pub const GRID_BYTES_PER_VOXEL: u64 = 4;
 
 /// A volume size that has passed the checks: its voxel and payload byte counts fit in memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -81,18 +78,18 @@ pub fn check_volume_size(path: &Path, dims: [i64; 3], dtype: DType) -> Result<Vo
     let payload = voxels
         .checked_mul(dtype.size() as u64)
         .ok_or_else(too_many)?;
-    let needed = voxels
-        .checked_mul(GRID_BYTES_PER_VOXEL)
-        .and_then(|g| g.checked_add(payload))
+    let kept = voxels
+        .checked_mul(dtype.bytes_in_memory() as u64)
         .ok_or_else(too_many)?;
+    let needed = kept.checked_add(payload).ok_or_else(too_many)?;
     let available = available_memory();
     if needed > available {
         return Err(bad(format!(
-            "volume {shown} of {dtype} needs about {} to load ({} as stored + {} as f32 voxels), \
-             but this machine has {} available",
+            "volume {shown} of {dtype} needs about {} to load ({} as read + {} as kept), but \
+             this machine has {} available",
             human_bytes(needed),
             human_bytes(payload),
-            human_bytes(voxels * GRID_BYTES_PER_VOXEL),
+            human_bytes(kept),
             human_bytes(available)
         )));
     }

@@ -1,6 +1,7 @@
 //! Reading volumes: raw, NRRD, VTK (legacy `.vtk` and XML `.vti`) and NIfTI (`.nii`, `.nii.gz`).
 //!
-//! Every reader gives the same thing, a [`LoadedVolume`]: voxels as f32 in x-fastest order, the
+//! Every reader gives the same thing, a [`LoadedVolume`]: voxels in their own type (see
+//! [`crate::grid::Voxels`]) in x-fastest order, the
 //! spacing the file states (if any) and notes about what was read but not used. Bad input is an
 //! [`Error`](crate::Error) naming the file, the fault and what was expected.
 
@@ -11,13 +12,13 @@ mod raw;
 mod vtk;
 
 pub use budget::{
-    GRID_BYTES_PER_VOXEL, MAX_TEXT_FILE_BYTES, VolumeSize, available_memory, check_volume_size,
-    human_bytes, read_text_file,
+    MAX_TEXT_FILE_BYTES, VolumeSize, available_memory, check_volume_size, human_bytes,
+    read_text_file,
 };
 pub use raw::{RawLayout, parse_raw_file_name};
 
 use crate::error::{Error, Result};
-use crate::grid::ScalarGrid;
+use crate::grid::{ScalarGrid, Voxels};
 use glam::{UVec3, Vec3};
 use std::path::Path;
 
@@ -50,6 +51,16 @@ impl DType {
             DType::U16 | DType::I16 => 2,
             DType::U32 | DType::I32 | DType::F32 => 4,
             DType::F64 => 8,
+        }
+    }
+
+    /// Bytes a voxel of this type takes in the grid (8- and 16-bit types are kept as they are,
+    /// the rest as f32; see [`crate::grid::Voxels`]).
+    pub fn bytes_in_memory(self) -> usize {
+        match self {
+            DType::U8 | DType::I8 => 1,
+            DType::U16 | DType::I16 => 2,
+            DType::U32 | DType::I32 | DType::F32 | DType::F64 => 4,
         }
     }
 
@@ -163,37 +174,47 @@ pub fn read_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
     }
 }
 
-/// Decodes packed voxels of `dtype` in `order` to f32.
-pub(crate) fn decode_samples(bytes: &[u8], dtype: DType, order: ByteOrder) -> Vec<f32> {
+/// Decodes packed voxels of `dtype` in `order`, keeping 8- and 16-bit types as they are (see
+/// [`crate::grid`]); 32-bit integers and f64 become f32.
+pub(crate) fn decode_voxels(bytes: &[u8], dtype: DType, order: ByteOrder) -> Voxels {
     macro_rules! decode {
         ($t:ty, $n:expr) => {
-            bytes
-                .chunks_exact($n)
-                .map(|c| {
-                    let a: [u8; $n] = c.try_into().unwrap();
-                    (match order {
-                        ByteOrder::Little => <$t>::from_le_bytes(a),
-                        ByteOrder::Big => <$t>::from_be_bytes(a),
-                    }) as f32
-                })
-                .collect()
+            bytes.chunks_exact($n).map(|c| {
+                let a: [u8; $n] = c.try_into().expect("chunks_exact gives $n bytes");
+                match order {
+                    ByteOrder::Little => <$t>::from_le_bytes(a),
+                    ByteOrder::Big => <$t>::from_be_bytes(a),
+                }
+            })
         };
     }
     match dtype {
-        DType::U8 => bytes.iter().map(|&b| b as f32).collect(),
-        DType::I8 => bytes.iter().map(|&b| b as i8 as f32).collect(),
-        DType::U16 => decode!(u16, 2),
-        DType::I16 => decode!(i16, 2),
-        DType::U32 => decode!(u32, 4),
-        DType::I32 => decode!(i32, 4),
-        DType::F32 => decode!(f32, 4),
-        DType::F64 => decode!(f64, 8),
+        DType::U8 => Voxels::U8(bytes.to_vec()),
+        DType::I8 => Voxels::I8(bytes.iter().map(|&b| b as i8).collect()),
+        DType::U16 => Voxels::U16(decode!(u16, 2).collect()),
+        DType::I16 => Voxels::I16(decode!(i16, 2).collect()),
+        DType::U32 => Voxels::F32(decode!(u32, 4).map(|v| v as f32).collect()),
+        DType::I32 => Voxels::F32(decode!(i32, 4).map(|v| v as f32).collect()),
+        DType::F32 => Voxels::F32(decode!(f32, 4).collect()),
+        DType::F64 => Voxels::F32(decode!(f64, 8).map(|v| v as f32).collect()),
     }
 }
 
 /// Builds the grid, turning a grid error into one that names the file.
-pub(crate) fn grid_for(path: &Path, dims: UVec3, values: Vec<f32>) -> Result<ScalarGrid> {
-    ScalarGrid::new(dims, values).map_err(|e| Error::format(path, e.to_string()))
+pub(crate) fn grid_for(path: &Path, dims: UVec3, voxels: Voxels) -> Result<ScalarGrid> {
+    scaled_grid_for(path, dims, voxels, 1.0, 0.0)
+}
+
+/// [`grid_for`] with an intensity scaling `scale * stored + offset`.
+pub(crate) fn scaled_grid_for(
+    path: &Path,
+    dims: UVec3,
+    voxels: Voxels,
+    scale: f32,
+    offset: f32,
+) -> Result<ScalarGrid> {
+    ScalarGrid::from_voxels(dims, voxels, scale, offset)
+        .map_err(|e| Error::format(path, e.to_string()))
 }
 
 /// Reads a whole file whose header (or name) has not yet said how big it should be: bounded by

@@ -4,7 +4,7 @@
 //! sform) is reported, not applied: the scene places the volume.
 
 use super::budget::check_volume_size;
-use super::{ByteOrder, DType, LoadedVolume, decode_samples, grid_for, read_file};
+use super::{ByteOrder, DType, LoadedVolume, decode_voxels, read_file, scaled_grid_for};
 use crate::error::{Error, Result};
 use flate2::read::GzDecoder;
 use glam::Vec3;
@@ -158,14 +158,14 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
         )));
     }
     let dims = size.dims;
-    let mut values = decode_samples(&data, dtype, order);
+    let voxels = decode_voxels(&data, dtype, order);
     drop(data);
-    let (slope, inter) = (header.scl_slope, header.scl_inter);
+    // NIfTI: a slope of 0 means "no scaling"; a non-finite one is ignored as the crate did.
+    let (mut slope, mut inter) = (header.scl_slope, header.scl_inter);
     if slope != 0.0 && slope.is_finite() && inter.is_finite() && (slope != 1.0 || inter != 0.0) {
-        for v in &mut values {
-            *v = slope * *v + inter;
-        }
         notes.push(format!("applied intensity scaling {slope} * v + {inter}"));
+    } else {
+        (slope, inter) = (1.0, 0.0);
     }
     if header.qform_code != 0 || header.sform_code != 0 {
         notes.push("NIfTI qform/sform affine is not applied: the scene places the volume".into());
@@ -174,7 +174,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let spacing = Vec3::new(p[1].abs(), p[2].abs(), p[3].abs());
     let spacing = (spacing.min_element() > 0.0 && spacing.is_finite()).then_some(spacing);
     Ok(LoadedVolume {
-        grid: grid_for(path, dims, values)?,
+        grid: scaled_grid_for(path, dims, voxels, slope, inter)?,
         spacing,
         notes,
     })

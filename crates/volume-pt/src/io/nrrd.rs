@@ -8,7 +8,7 @@
 
 use super::budget::read_bounded;
 use super::{
-    ByteOrder, DType, LoadedVolume, check_volume_size, decode_samples, grid_for, read_file,
+    ByteOrder, DType, LoadedVolume, check_volume_size, decode_voxels, grid_for, read_file,
 };
 use crate::error::{Error, Result};
 use flate2::read::GzDecoder;
@@ -282,7 +282,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
                 )));
             }
             return Ok(LoadedVolume {
-                grid: grid_for(path, dims, values)?,
+                grid: grid_for(path, dims, crate::grid::Voxels::F32(values))?,
                 spacing,
                 notes,
             });
@@ -317,7 +317,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             dims.z
         )));
     }
-    let values = decode_samples(data, dtype, order);
+    let values = decode_voxels(data, dtype, order);
     Ok(LoadedVolume {
         grid: grid_for(path, dims, values)?,
         spacing,

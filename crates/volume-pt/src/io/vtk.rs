@@ -10,22 +10,24 @@
 
 use super::{DType, LoadedVolume, check_volume_size, grid_for};
 use crate::error::{Error, Result};
+use crate::grid::Voxels;
 use glam::Vec3;
 use std::path::Path;
 use vtkio::model::{Attribute, DataSet, Extent, IOBuffer, Piece};
 
-fn to_f32(buf: IOBuffer) -> Option<Vec<f32>> {
+/// vtkio's array in our voxel types (8- and 16-bit kept, the rest as f32).
+fn to_voxels(buf: IOBuffer) -> Option<Voxels> {
     Some(match buf {
-        IOBuffer::U8(v) => v.into_iter().map(f32::from).collect(),
-        IOBuffer::I8(v) => v.into_iter().map(f32::from).collect(),
-        IOBuffer::U16(v) => v.into_iter().map(f32::from).collect(),
-        IOBuffer::I16(v) => v.into_iter().map(f32::from).collect(),
-        IOBuffer::U32(v) => v.into_iter().map(|x| x as f32).collect(),
-        IOBuffer::I32(v) => v.into_iter().map(|x| x as f32).collect(),
-        IOBuffer::U64(v) => v.into_iter().map(|x| x as f32).collect(),
-        IOBuffer::I64(v) => v.into_iter().map(|x| x as f32).collect(),
-        IOBuffer::F32(v) => v,
-        IOBuffer::F64(v) => v.into_iter().map(|x| x as f32).collect(),
+        IOBuffer::U8(v) => Voxels::U8(v),
+        IOBuffer::I8(v) => Voxels::I8(v),
+        IOBuffer::U16(v) => Voxels::U16(v),
+        IOBuffer::I16(v) => Voxels::I16(v),
+        IOBuffer::U32(v) => Voxels::F32(v.into_iter().map(|x| x as f32).collect()),
+        IOBuffer::I32(v) => Voxels::F32(v.into_iter().map(|x| x as f32).collect()),
+        IOBuffer::U64(v) => Voxels::F32(v.into_iter().map(|x| x as f32).collect()),
+        IOBuffer::I64(v) => Voxels::F32(v.into_iter().map(|x| x as f32).collect()),
+        IOBuffer::F32(v) => Voxels::F32(v),
+        IOBuffer::F64(v) => Voxels::F32(v.into_iter().map(|x| x as f32).collect()),
         IOBuffer::Bit(_) => return None,
     })
 }
@@ -121,7 +123,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let (name, values) = match array {
         Some(array) => {
             let name = array.name.clone();
-            let values = to_f32(array.data)
+            let values = to_voxels(array.data)
                 .ok_or_else(|| bad(format!("VTK array `{name}` is a bit array")))?;
             (name, values)
         }
@@ -213,7 +215,7 @@ fn xml_attr<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
 fn decode_compressed_array(
     text: &str,
     max_bytes: usize,
-) -> std::result::Result<(String, Vec<f32>), String> {
+) -> std::result::Result<(String, Voxels), String> {
     use std::io::Read;
     let root_start = text.find("<VTKFile").ok_or("no <VTKFile> element")?;
     let root =
@@ -326,6 +328,6 @@ fn decode_compressed_array(
                 raw.len()
             ));
         }
-        return Ok((name, super::decode_samples(&raw, dtype, order)));
+        return Ok((name, super::decode_voxels(&raw, dtype, order)));
     }
 }

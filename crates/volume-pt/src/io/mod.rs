@@ -200,6 +200,23 @@ pub(crate) fn decode_voxels(bytes: &[u8], dtype: DType, order: ByteOrder) -> Vox
     }
 }
 
+/// [`decode_voxels`] of `bytes[skip..]`, reusing the buffer for bytes (no copy of a
+/// gigavoxel uint8 volume: the peak is the file's size, not twice it).
+pub(crate) fn decode_voxels_owned(
+    mut bytes: Vec<u8>,
+    skip: usize,
+    dtype: DType,
+    order: ByteOrder,
+) -> Voxels {
+    match dtype {
+        DType::U8 => {
+            bytes.drain(..skip.min(bytes.len()));
+            Voxels::U8(bytes)
+        }
+        _ => decode_voxels(&bytes[skip.min(bytes.len())..], dtype, order),
+    }
+}
+
 /// Builds the grid, turning a grid error into one that names the file.
 pub(crate) fn grid_for(path: &Path, dims: UVec3, voxels: Voxels) -> Result<ScalarGrid> {
     scaled_grid_for(path, dims, voxels, 1.0, 0.0)

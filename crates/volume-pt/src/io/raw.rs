@@ -1,7 +1,7 @@
 //! Headerless raw voxels. The layout comes from the scene, or from the Open SciVis file-name
 //! convention `name_XxYxZ_dtype.raw` (for example `neghip_64x64x64_uint8.raw`).
 
-use super::{ByteOrder, DType, LoadedVolume, check_volume_size, decode_voxels, grid_for};
+use super::{ByteOrder, DType, LoadedVolume, check_volume_size, decode_voxels_owned, grid_for};
 use crate::error::{Error, Result};
 use glam::UVec3;
 use std::path::Path;
@@ -73,8 +73,9 @@ pub(super) fn read(path: &Path, layout: &RawLayout) -> Result<LoadedVolume> {
             "raw file changed while it was being read",
         ));
     }
-    let values = decode_voxels(
-        &bytes[layout.header_bytes as usize..],
+    let values = decode_voxels_owned(
+        bytes,
+        layout.header_bytes as usize,
         dtype,
         layout.byte_order,
     );

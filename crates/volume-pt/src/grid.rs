@@ -183,6 +183,41 @@ impl ScalarGrid {
         self.range
     }
 
+    /// Smallest and largest value of the voxels in the box `lo..=hi` (inclusive, clamped to the
+    /// grid): one pass over each x-row in the stored type, for the majorant grid's ranges.
+    pub fn range_in(&self, lo: UVec3, hi: UVec3) -> (f32, f32) {
+        fn fold<T: Copy + Into<f32>>(row: &[T], r: (f32, f32)) -> (f32, f32) {
+            row.iter().fold(r, |(a, b), &v| {
+                let v = v.into();
+                (a.min(v), b.max(v))
+            })
+        }
+        let hi = hi.min(self.dims - 1);
+        let (sy, sz) = (
+            self.dims.x as usize,
+            self.dims.x as usize * self.dims.y as usize,
+        );
+        let mut r = (f32::INFINITY, f32::NEG_INFINITY);
+        for z in lo.z..=hi.z {
+            for y in lo.y..=hi.y {
+                let start = lo.x as usize + sy * y as usize + sz * z as usize;
+                let rows = start..start + (hi.x - lo.x) as usize + 1;
+                r = match &self.voxels {
+                    Voxels::U8(v) => fold(&v[rows], r),
+                    Voxels::I8(v) => fold(&v[rows], r),
+                    Voxels::U16(v) => fold(&v[rows], r),
+                    Voxels::I16(v) => fold(&v[rows], r),
+                    Voxels::F32(v) => fold(&v[rows], r),
+                };
+            }
+        }
+        let (a, b) = (
+            self.scale * r.0 + self.offset,
+            self.scale * r.1 + self.offset,
+        );
+        (a.min(b), a.max(b))
+    }
+
     #[inline]
     fn value_at(&self, i: usize) -> f32 {
         self.scale * self.voxels.get(i) + self.offset

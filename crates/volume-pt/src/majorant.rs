@@ -37,28 +37,24 @@ impl ValueRanges {
             dims.y.div_ceil(cell_size),
             dims.z.div_ceil(cell_size),
         );
-        let ranges: Vec<(f32, f32)> = (0..cells.x * cells.y * cells.z)
+        let cell_count = cells.x as usize * cells.y as usize * cells.z as usize;
+        let ranges: Vec<(f32, f32)> = (0..cell_count)
             .into_par_iter()
             .map(|i| {
+                let (nx, ny) = (cells.x as usize, cells.y as usize);
                 let c = UVec3::new(
-                    i % cells.x,
-                    (i / cells.x) % cells.y,
-                    i / (cells.x * cells.y),
+                    (i % nx) as u32,
+                    ((i / nx) % ny) as u32,
+                    (i / (nx * ny)) as u32,
                 );
                 // Voxels [c*B - 1, (c+1)*B] (inclusive) are reachable by interpolation inside the cell.
                 let lo = (c * cell_size).saturating_sub(UVec3::ONE);
-                let hi = ((c + 1) * cell_size).min(dims - 1);
-                let mut r = (f32::INFINITY, f32::NEG_INFINITY);
-                for z in lo.z..=hi.z {
-                    for y in lo.y..=hi.y {
-                        for x in lo.x..=hi.x {
-                            let v = grid.voxel(x, y, z);
-                            r.0 = r.0.min(v);
-                            r.1 = r.1.max(v);
-                        }
-                    }
-                }
-                r
+                let hi = UVec3::new(
+                    (c.x + 1).saturating_mul(cell_size),
+                    (c.y + 1).saturating_mul(cell_size),
+                    (c.z + 1).saturating_mul(cell_size),
+                );
+                grid.range_in(lo, hi)
             })
             .collect();
         Self {

@@ -31,7 +31,7 @@ pub struct CacheBenchArgs {
     #[arg(long, default_value_t = 40)]
     pub warmup: u32,
     /// Degrees the camera orbits (about its up axis through the volume's centre) over the run.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, value_parser = crate::common::finite_f32)]
     pub orbit_degrees: f32,
     /// The cache's settings (`--cache-KEY`, as for `gscache render`); its lookup is measured
     /// both ways unless `--no-rt`.
@@ -73,8 +73,7 @@ pub fn load_sized(path: &Path, width: u32, height: u32) -> Result<Option<(String
         }
         Err(e) => return Err(e.into()),
     };
-    scene.camera.width = width;
-    scene.camera.height = height;
+    scene.camera = scene.camera.with_size(width, height)?;
     let name = path.file_stem().unwrap().to_string_lossy().into_owned();
     Ok(Some((name, scene)))
 }

@@ -59,10 +59,10 @@ struct Args {
     /// Scene files to measure (default: the bundled and shared scenes in data/scenes).
     scenes: Vec<PathBuf>,
     /// Image width and height.
-    #[arg(long, default_value_t = 512)]
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=4096))]
     size: u32,
     /// Samples per pixel for the throughput table.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..))]
     spp: u32,
     /// Skip the spp / image-size scaling table.
     #[arg(long)]

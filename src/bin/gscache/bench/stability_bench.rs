@@ -28,11 +28,11 @@ pub struct StabilityArgs {
     #[command(flatten)]
     pub cache: gs_cache::CacheConfig,
     /// Largest Gaussian allowed, as a fraction of the volume's diagonal.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = crate::common::positive_f32)]
     pub max_scale: f32,
     /// How far outside the volume's box a Gaussian centre may stray, as a fraction of the
     /// diagonal.
-    #[arg(long, default_value_t = 0.25)]
+    #[arg(long, default_value_t = 0.25, value_parser = crate::common::positive_f32)]
     pub max_stray: f32,
 }
 

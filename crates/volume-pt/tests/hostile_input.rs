@@ -341,6 +341,15 @@ fn numbers_that_nan_or_infinity_slip_past_are_refused() {
             "[transfer]\nwindow = [0, 63]\ndensity_scale = nan\npoints = [ { value = 0.0, color = [1, 1, 1], opacity = 1.0 } ]",
             "density_scale",
         ),
+        // Tables after the camera's: the scene file's own spp and exposure.
+        (
+            "[transfer]\nwindow = [0, 63]\ndensity_scale = 1.0\npoints = [ { value = 0.0, color = [1, 1, 1], opacity = 1.0 } ]\n[render]\nspp = 0",
+            "spp = 0",
+        ),
+        (
+            "[transfer]\nwindow = [0, 63]\ndensity_scale = 1.0\npoints = [ { value = 0.0, color = [1, 1, 1], opacity = 1.0 } ]\n[output]\nexposure = nan",
+            "exposure = NaN",
+        ),
     ] {
         let e = load_scene(&scene_with(&d, transfer))
             .err()

@@ -73,21 +73,26 @@ impl ValueRanges {
     }
 }
 
-/// Upper bounds of extinction per macrocell for one transfer function.
+/// Upper and lower bounds of extinction per macrocell for one transfer function.
 #[derive(Debug, Clone)]
 pub struct MajorantGrid {
     cell_size: f32,
     inv_cell_size: f32,
     cells: IVec3,
     majorants: Vec<f32>,
+    /// The smallest extinction in each cell (slightly under it): residual ratio tracking's
+    /// control, whose share of the transmittance is exact.
+    controls: Vec<f32>,
 }
 
-/// One stretch of a ray inside one macrocell: `t` from `t0` to `t1` with majorant `majorant`.
+/// One stretch of a ray inside one macrocell: `t` from `t0` to `t1` with majorant `majorant` and
+/// control extinction `control` (`0 <= control <= sigma_t <= majorant` inside the cell).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Segment {
     pub t0: f32,
     pub t1: f32,
     pub majorant: f32,
+    pub control: f32,
 }
 
 impl MajorantGrid {
@@ -104,11 +109,17 @@ impl MajorantGrid {
                 }
             })
             .collect();
+        let controls = ranges
+            .ranges
+            .par_iter()
+            .map(|&(lo, hi)| (tf.min_extinction(lo, hi) * (1.0 - MAJORANT_MARGIN)).max(0.0))
+            .collect();
         Self {
             cell_size: ranges.cell_size as f32,
             inv_cell_size: 1.0 / ranges.cell_size as f32,
             cells: ranges.cells.as_ivec3(),
             majorants,
+            controls,
         }
     }
 
@@ -126,9 +137,9 @@ impl MajorantGrid {
         self.majorants.iter().filter(|&&m| m == 0.0).count() as f64 / self.majorants.len() as f64
     }
 
-    /// Memory used by the majorants, in bytes.
+    /// Memory used by the majorants and controls, in bytes.
     pub fn bytes(&self) -> usize {
-        self.majorants.len() * std::mem::size_of::<f32>()
+        (self.majorants.len() + self.controls.len()) * std::mem::size_of::<f32>()
     }
 
     /// Walks the cells that the index-space ray `o + t d` crosses for `t` in `[t_min, t_max]`,
@@ -164,8 +175,8 @@ impl MajorantGrid {
     }
 
     #[inline]
-    fn at(&self, c: IVec3) -> f32 {
-        self.majorants[(c.x + self.cells.x * (c.y + self.cells.y * c.z)) as usize]
+    fn index(&self, c: IVec3) -> usize {
+        (c.x + self.cells.x * (c.y + self.cells.y * c.z)) as usize
     }
 
     /// Size of a macrocell in voxels.
@@ -206,10 +217,12 @@ impl Iterator for Segments<'_> {
             2
         };
         let t1 = self.t_next[axis].min(self.t_end).max(self.t);
+        let i = self.grid.index(c);
         let seg = Segment {
             t0: self.t,
             t1,
-            majorant: self.grid.at(c),
+            majorant: self.grid.majorants[i],
+            control: self.grid.controls[i],
         };
         self.t = t1;
         self.cell[axis] += self.step[axis];

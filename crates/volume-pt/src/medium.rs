@@ -158,8 +158,11 @@ impl Medium {
         self.tf.albedo(self.value(u))
     }
 
-    /// Bytes held per voxel (values) plus the majorant grid.
+    /// Bytes held: the voxels, each macrocell's value range (two f32) and its majorant and
+    /// control (two f32).
     pub fn memory_bytes(&self) -> usize {
-        self.grid.bytes() + self.majorants.bytes() * 3
+        self.grid.bytes()
+            + self.majorants.cell_count() * 2 * std::mem::size_of::<f32>()
+            + self.majorants.bytes()
     }
 }

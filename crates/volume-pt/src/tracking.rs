@@ -4,9 +4,11 @@
 //!   collisions are exponential with rate `m`; one at `x` is real with probability
 //!   `sigma_t(x) / m`. The exponential is memoryless, so crossing into the next macrocell simply
 //!   draws afresh with the new rate. Cells with `m = 0` are stepped over without a draw.
-//! - [`transmittance`]: ratio tracking over the same tentative collisions, multiplying by the
-//!   null probability `1 - sigma_t / m`, with Russian roulette once the estimate falls below
-//!   [`RR_TRANSMITTANCE`] (survivors are reset to that value, so the estimate stays unbiased).
+//! - [`transmittance`]: residual ratio tracking: each macrocell's smallest extinction `c` is
+//!   attenuated exactly, `exp(-c L)`, and only the residual is tracked against `m - c`,
+//!   multiplying by `1 - (sigma_t - c) / (m - c)`, with Russian roulette once the estimate falls
+//!   below [`RR_TRANSMITTANCE`] (survivors are reset to that value, so the estimate stays
+//!   unbiased). [`ratio_transmittance`] is plain ratio tracking, the baseline.
 //!
 //! Both guarantee progress: if `t + step` rounds to `t` (a dense medium far from the origin),
 //! `t` moves to the next representable float, so no loop can stall.
@@ -59,9 +61,59 @@ pub fn free_flight(
     None
 }
 
-/// Unbiased estimate of the transmittance over `[t0, t1]`.
+/// Unbiased estimate of the transmittance over `[t0, t1]` by residual ratio tracking (Novák et
+/// al. 2014, "Residual ratio tracking for estimating attenuation in participating media"), with
+/// each macrocell's smallest extinction as its control `c`: `exp(-c L)` is exact, and only the
+/// residual `sigma_t - c` is tracked, against the residual majorant `m - c`. Where a cell's
+/// extinction is constant the estimate is exact with no random number; where `c = 0` it is
+/// [`ratio_transmittance`].
 #[inline]
 pub fn transmittance(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut SampleStream,
+) -> f32 {
+    let Some((t0, t1)) = medium.clip(ray, t0, t1) else {
+        return 1.0;
+    };
+    let mut tr = 1.0f32;
+    for seg in medium.segments(ray, t0, t1) {
+        if !(seg.majorant > 0.0) {
+            continue;
+        }
+        let control = seg.control;
+        tr *= (-control * (seg.t1 - seg.t0)).exp();
+        let residual_majorant = seg.majorant - control;
+        // Written so that NaN skips the tracking, like an exact cell.
+        if !(residual_majorant > 0.0) {
+            continue;
+        }
+        let mut t = seg.t0;
+        loop {
+            t = advance(t, exp_step(rng, residual_majorant));
+            if !(t < seg.t1) {
+                break;
+            }
+            let residual = medium.extinction(ray.at(t)) - control;
+            tr *= (1.0 - residual / residual_majorant).max(0.0);
+            if tr < RR_TRANSMITTANCE {
+                if tr <= 0.0 || rng.next_f32() * RR_TRANSMITTANCE >= tr {
+                    return 0.0;
+                }
+                tr = RR_TRANSMITTANCE;
+            }
+        }
+    }
+    tr
+}
+
+/// Unbiased estimate of the transmittance over `[t0, t1]` by plain ratio tracking (every
+/// tentative collision of the full majorant multiplies by its null probability): the baseline
+/// [`transmittance`] is measured against.
+#[inline]
+pub fn ratio_transmittance(
     medium: &Medium,
     ray: &IndexRay,
     t0: f32,

@@ -133,11 +133,21 @@ impl<T: Lerp> PiecewiseLinear<T> {
 impl PiecewiseLinear<f32> {
     /// The largest value on `[a, b]`: the end points and every control point inside.
     pub fn max_on(&self, a: f32, b: f32) -> f32 {
-        let mut m = self.eval(a).max(self.eval(b));
+        self.extreme_on(a, b, f32::max)
+    }
+
+    /// The smallest value on `[a, b]` (a piecewise-linear function's extremes lie at the end
+    /// points or at control points).
+    pub fn min_on(&self, a: f32, b: f32) -> f32 {
+        self.extreme_on(a, b, f32::min)
+    }
+
+    fn extreme_on(&self, a: f32, b: f32, pick: fn(f32, f32) -> f32) -> f32 {
+        let mut m = pick(self.eval(a), self.eval(b));
         let lo = self.xs.partition_point(|&x| x < a);
         let hi = self.xs.partition_point(|&x| x <= b);
         for &y in &self.ys[lo..hi.max(lo)] {
-            m = m.max(y);
+            m = pick(m, y);
         }
         m
     }
@@ -253,6 +263,15 @@ impl TransferFunction {
             * self
                 .opacity
                 .max_on(self.normalise(vmin), self.normalise(vmax))
+    }
+
+    /// The smallest extinction any value in `[vmin, vmax]` can produce: the control extinction of
+    /// residual ratio tracking.
+    pub fn min_extinction(&self, vmin: f32, vmax: f32) -> f32 {
+        self.density_scale
+            * self
+                .opacity
+                .min_on(self.normalise(vmin), self.normalise(vmax))
     }
 
     /// True when no value gives any extinction.

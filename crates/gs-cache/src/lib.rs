@@ -62,6 +62,18 @@
 //! levels, which is why deeper levels are given fewer Gaussians). `C` trades it: `C` large stops
 //! no path (no early-termination bias); `C = 0` stops every path at `x_1`.
 //!
+//! **How large the second term gets, measured.** Stopping is not independent of the vertex: `q_n`
+//! grows with the albedo product, so the paths that stop are the ones through darker albedo, and
+//! they are given `Lambda_n(p)`, an average over all the vertices seen through `p`. Where the
+//! albedo and the radiance from a vertex on are correlated across a pixel's footprint, the image
+//! moves by their covariance. The committed experiment `docs/results/hydrogen_bias` isolates it:
+//! with the defaults (`C = 0.5`) hydrogen renders 6.0% dark at 1 and 16 spp (0.07% standard
+//! error); with early termination off the bias is -0.18% (+-0.13%), while turning off natural
+//! termination, re-weighting survivors or drawing at full resolution leaves it at -5.5 to -6.0%.
+//! The other volumes of the README's table measure -0.5% to +2.1% at 16 spp. A user who
+//! needs the image's brightness to better than that sets `early = false` (the cache then reads
+//! only where paths end naturally, and its error gain falls: 1.0x on hydrogen) or a larger `C`.
+//!
 //! **Where the GSCache paper leaves things open.** (1) Which levels a path trains: every level it
 //! reached and went on from, not only the one where it ended, so a path of length 3 trains levels
 //! 1-3 (a path that stops into level `n` trains the shorter levels with the cached value included:

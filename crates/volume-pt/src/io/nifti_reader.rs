@@ -1,7 +1,7 @@
 //! NIfTI-1 (`.nii`, `.nii.gz`, and `.hdr`/`.img` pairs): the header through the nifti crate, the
-//! voxels read here. The intensity
-//! scaling `scl_slope`/`scl_inter` is applied; `pixdim` gives the spacing; the affine (qform and
-//! sform) is reported, not applied: the scene places the volume.
+//! voxels read here. The intensity scaling `scl_slope`/`scl_inter` is applied on lookup;
+//! `pixdim` gives the spacing; the affine (qform and sform) is reported, not applied: the scene
+//! places the volume.
 
 use super::budget::check_volume_size;
 use super::{ByteOrder, DType, LoadedVolume, decode_voxels, read_file, scaled_grid_for};

@@ -30,6 +30,12 @@ pub struct LightSample {
     pub sphere: Option<usize>,
 }
 
+/// Rec. 709 luminance: the weight of a radiance in light selection.
+#[inline]
+fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
 impl SphereLight {
     /// `1 - cos(theta_max)` of the cone the sphere subtends from `p`, or None inside the sphere.
     fn cone(&self, p: Vec3) -> Option<(DVec3, f64, f64)> {
@@ -43,6 +49,22 @@ impl SphereLight {
         let cos_max = (1.0 - sin2).max(0.0).sqrt();
         let one_minus_cos_max = sin2 / (1.0 + cos_max);
         Some((to / d2.sqrt(), d2.sqrt(), one_minus_cos_max))
+    }
+
+    /// The unoccluded power this light sends to `p`, up to a common factor: luminance times the
+    /// solid angle it subtends (0 from inside it, where it cannot be sampled).
+    #[inline]
+    fn selection_weight(&self, p: Vec3) -> f32 {
+        // In f32: a weight only sets how often the light is picked, and sample and emission
+        // compute it the same way, so their pdfs agree exactly.
+        let d2 = (self.center - p).length_squared();
+        let r2 = self.radius * self.radius;
+        if !(d2 > r2) {
+            return 0.0;
+        }
+        let sin2 = r2 / d2;
+        let one_minus_cos = sin2 / (1.0 + (1.0 - sin2).sqrt());
+        luminance(self.radiance) * std::f32::consts::TAU * one_minus_cos
     }
 
     /// Samples a direction uniformly inside the cone the sphere subtends from `p`.
@@ -154,15 +176,77 @@ impl Lights {
         best
     }
 
-    /// Picks a light uniformly and samples a direction towards it. The returned pdf includes the
-    /// selection probability.
+    /// The environment's selection weight, on the spheres' scale: luminance times 4 pi.
+    fn environment_weight(&self) -> f32 {
+        if self.has_environment() {
+            luminance(self.environment) * 2.0 * std::f32::consts::TAU
+        } else {
+            0.0
+        }
+    }
+
+    /// The probability that NEE at `p` picks strategy `i` (sphere `i`, or the environment at
+    /// `i = spheres.len()`): proportional to the unoccluded power each sends to `p`, so the
+    /// bright, near and large lights get the samples (uniform selection spends a third of them
+    /// on a dim environment in the bundled scenes). Falls back to uniform when every weight is 0
+    /// or not finite, so no light that can contribute is ever left out.
+    #[inline]
+    pub fn selection_probability(&self, p: Vec3, i: usize) -> f32 {
+        let total = self.total_weight(p);
+        let n = self.count();
+        if !(total > 0.0 && total.is_finite()) {
+            return 1.0 / n.max(1) as f32;
+        }
+        let w = if i < self.spheres.len() {
+            self.spheres[i].selection_weight(p)
+        } else {
+            self.environment_weight()
+        };
+        w / total
+    }
+
+    #[inline]
+    fn total_weight(&self, p: Vec3) -> f32 {
+        self.spheres
+            .iter()
+            .map(|s| s.selection_weight(p))
+            .sum::<f32>()
+            + self.environment_weight()
+    }
+
+    /// Picks a strategy by [`Lights::selection_probability`] and samples a direction towards
+    /// it. The returned pdf includes the selection probability.
     #[inline]
     pub fn sample(&self, p: Vec3, u_pick: f32, u: (f32, f32)) -> Option<LightSample> {
         let n = self.count();
         if n == 0 {
             return None;
         }
-        let i = ((u_pick * n as f32) as usize).min(n - 1);
+        let total = self.total_weight(p);
+        let (i, pick) = if total > 0.0 && total.is_finite() {
+            // Walk the cumulative weights; the last strategy with weight takes any rounding.
+            let target = u_pick * total;
+            let mut acc = 0.0f32;
+            let mut chosen = None;
+            for k in 0..n {
+                let w = if k < self.spheres.len() {
+                    self.spheres[k].selection_weight(p)
+                } else {
+                    self.environment_weight()
+                };
+                if w > 0.0 {
+                    chosen = Some((k, w / total));
+                    acc += w;
+                    if target < acc {
+                        break;
+                    }
+                }
+            }
+            chosen?
+        } else {
+            let k = ((u_pick * n as f32) as usize).min(n - 1);
+            (k, 1.0 / n as f32)
+        };
         let mut s = if i < self.spheres.len() {
             LightSample {
                 sphere: Some(i),
@@ -177,7 +261,7 @@ impl Lights {
                 sphere: None,
             }
         };
-        s.pdf /= n as f32;
+        s.pdf *= pick;
         Some(s)
     }
 
@@ -185,19 +269,18 @@ impl Lights {
     /// to the environment when `hit` is None), with the NEE pdf for MIS.
     #[inline]
     pub fn emission(&self, p: Vec3, hit: Option<usize>) -> Emission {
-        let n = self.count().max(1) as f32;
         match hit {
             Some(i) => {
                 let s = &self.spheres[i];
                 Emission {
                     radiance: s.radiance,
-                    nee_pdf: s.pdf(p) / n,
+                    nee_pdf: s.pdf(p) * self.selection_probability(p, i),
                 }
             }
             None => Emission {
                 radiance: self.environment,
                 nee_pdf: if self.has_environment() {
-                    UNIFORM_SPHERE_PDF / n
+                    UNIFORM_SPHERE_PDF * self.selection_probability(p, self.spheres.len())
                 } else {
                     0.0
                 },
@@ -234,6 +317,61 @@ mod tests {
         e /= n as f64;
         let exact = std::f64::consts::PI * 1e-8 / 100.0;
         assert!((e / exact - 1.0).abs() < 1e-4, "{e} vs {exact}");
+    }
+
+    /// The pdf a light sample reports is the one `emission` gives for the same direction from
+    /// the same point (MIS needs both), the selection probabilities sum to 1, and a light that
+    /// sends more power to a point is picked more often, in proportion.
+    #[test]
+    fn selection_is_consistent_and_follows_power() {
+        let lights = Lights {
+            spheres: vec![
+                SphereLight {
+                    center: Vec3::new(10.0, 0.0, 0.0),
+                    radius: 1.0,
+                    radiance: Vec3::splat(100.0),
+                },
+                SphereLight {
+                    center: Vec3::new(0.0, -20.0, 3.0),
+                    radius: 4.0,
+                    radiance: Vec3::new(0.5, 1.0, 3.0),
+                },
+            ],
+            environment: Vec3::splat(0.05),
+        };
+        let mut rng = SampleStream::new(4, 0, 0);
+        for k in 0..200 {
+            let p = Vec3::new(k as f32 * 0.05 - 5.0, (k % 7) as f32, (k % 3) as f32 - 1.0);
+            let total: f32 = (0..3).map(|i| lights.selection_probability(p, i)).sum();
+            assert!((total - 1.0).abs() < 1e-5, "{total}");
+            let ls = lights.sample(p, rng.next_f32(), rng.next_2d()).unwrap();
+            let em = lights.emission(p, ls.sphere);
+            assert!(
+                (ls.pdf - em.nee_pdf).abs() <= 1e-4 * ls.pdf,
+                "{} vs {}",
+                ls.pdf,
+                em.nee_pdf
+            );
+        }
+        // Picks follow the probabilities: binomial z < 5 over 200000 picks at one point.
+        let p = Vec3::ZERO;
+        let n = 200_000;
+        let mut counts = [0u32; 3];
+        for _ in 0..n {
+            let ls = lights.sample(p, rng.next_f32(), rng.next_2d()).unwrap();
+            counts[ls.sphere.unwrap_or(2)] += 1;
+        }
+        for (i, &c) in counts.iter().enumerate() {
+            let q = lights.selection_probability(p, i) as f64;
+            let z = (c as f64 - n as f64 * q) / (n as f64 * q * (1.0 - q)).sqrt();
+            assert!(
+                z.abs() < 5.0,
+                "strategy {i}: {c} picks, expected {}",
+                n as f64 * q
+            );
+        }
+        // The bright sphere (100 x 0.0314 sr) outweighs the dim environment (0.05 x 4 pi).
+        assert!(lights.selection_probability(p, 0) > lights.selection_probability(p, 2));
     }
 
     #[test]

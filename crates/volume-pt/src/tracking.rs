@@ -84,7 +84,9 @@ pub fn transmittance(
             continue;
         }
         let control = seg.control;
-        tr *= (-control * (seg.t1 - seg.t0)).exp();
+        if control > 0.0 {
+            tr *= (-control * (seg.t1 - seg.t0)).exp();
+        }
         let residual_majorant = seg.majorant - control;
         // Written so that NaN skips the tracking, like an exact cell.
         if !(residual_majorant > 0.0) {

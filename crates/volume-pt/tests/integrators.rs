@@ -119,11 +119,20 @@ fn lit_neghip() -> (SceneMedia, Camera) {
     let mut media = s.media;
     // A large light, so that phase sampling alone finds it often enough for a fair z-test.
     media.lights = Lights {
-        spheres: vec![SphereLight {
-            center: Vec3::new(60.0, 70.0, 40.0),
-            radius: 35.0,
-            radiance: Vec3::new(3.0, 2.5, 2.0),
-        }],
+        // Two spheres of different power and the environment: NEE picks among three
+        // strategies with probabilities that change from vertex to vertex.
+        spheres: vec![
+            SphereLight {
+                center: Vec3::new(60.0, 70.0, 40.0),
+                radius: 35.0,
+                radiance: Vec3::new(3.0, 2.5, 2.0),
+            },
+            SphereLight {
+                center: Vec3::new(-70.0, 20.0, 50.0),
+                radius: 25.0,
+                radiance: Vec3::new(1.0, 1.5, 3.0),
+            },
+        ],
         environment: Vec3::new(0.2, 0.25, 0.3),
     };
     let cam = Camera::look_at(

@@ -75,6 +75,34 @@ pub fn transmittance(
     t1: f32,
     rng: &mut SampleStream,
 ) -> f32 {
+    track_transmittance(medium, ray, t0, t1, rng, true)
+}
+
+/// Unbiased estimate of the transmittance over `[t0, t1]` by plain ratio tracking (every
+/// tentative collision of the full majorant multiplies by its null probability): the baseline
+/// [`transmittance`] is measured against.
+#[inline]
+pub fn ratio_transmittance(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut SampleStream,
+) -> f32 {
+    track_transmittance(medium, ray, t0, t1, rng, false)
+}
+
+/// Residual ratio tracking with each cell's control, or plain ratio tracking (a control of 0,
+/// which makes every step the same as ratio tracking's).
+#[inline(always)]
+fn track_transmittance(
+    medium: &Medium,
+    ray: &IndexRay,
+    t0: f32,
+    t1: f32,
+    rng: &mut SampleStream,
+    use_control: bool,
+) -> f32 {
     let Some((t0, t1)) = medium.clip(ray, t0, t1) else {
         return 1.0;
     };
@@ -83,7 +111,7 @@ pub fn transmittance(
         if !(seg.majorant > 0.0) {
             continue;
         }
-        let control = seg.control;
+        let control = if use_control { seg.control } else { 0.0 };
         if control > 0.0 {
             tr *= (-control * (seg.t1 - seg.t0)).exp();
         }
@@ -100,44 +128,6 @@ pub fn transmittance(
             }
             let residual = medium.extinction(ray.at(t)) - control;
             tr *= (1.0 - residual / residual_majorant).max(0.0);
-            if tr < RR_TRANSMITTANCE {
-                if tr <= 0.0 || rng.next_f32() * RR_TRANSMITTANCE >= tr {
-                    return 0.0;
-                }
-                tr = RR_TRANSMITTANCE;
-            }
-        }
-    }
-    tr
-}
-
-/// Unbiased estimate of the transmittance over `[t0, t1]` by plain ratio tracking (every
-/// tentative collision of the full majorant multiplies by its null probability): the baseline
-/// [`transmittance`] is measured against.
-#[inline]
-pub fn ratio_transmittance(
-    medium: &Medium,
-    ray: &IndexRay,
-    t0: f32,
-    t1: f32,
-    rng: &mut SampleStream,
-) -> f32 {
-    let Some((t0, t1)) = medium.clip(ray, t0, t1) else {
-        return 1.0;
-    };
-    let mut tr = 1.0f32;
-    for seg in medium.segments(ray, t0, t1) {
-        if !(seg.majorant > 0.0) {
-            continue;
-        }
-        let mut t = seg.t0;
-        loop {
-            t = advance(t, exp_step(rng, seg.majorant));
-            if !(t < seg.t1) {
-                break;
-            }
-            let sigma = medium.extinction(ray.at(t));
-            tr *= (1.0 - sigma / seg.majorant).max(0.0);
             if tr < RR_TRANSMITTANCE {
                 if tr <= 0.0 || rng.next_f32() * RR_TRANSMITTANCE >= tr {
                     return 0.0;

@@ -321,3 +321,46 @@ fn train_every_steps_on_one_frame_in_k() {
         }
     }
 }
+
+/// The warm start (gs-cache's `warm_start`) fits a fresh level's colours to its samples in a
+/// few frames, where Adam's bounded steps take tens. With early and natural termination off the
+/// samples do not depend on the cache, so rendering frame 0 again gives the very same targets:
+/// the training error reported before each step then measures how well the last steps fitted
+/// them. Measured when written: after 4 steps, 0.26 of the first frame's error with the warm
+/// start and 0.87 with Adam alone.
+#[test]
+fn warm_start_fits_the_samples_in_a_few_frames() {
+    let s = scene();
+    let mut settings = s.settings;
+    settings.spp = 1;
+    let fit = |warm_start_frames| {
+        let config = CacheConfig {
+            warm_start_frames,
+            early: false,
+            natural: false,
+            ..Default::default()
+        };
+        let mut cache = new_cache(&s, config);
+        let mut mse = Vec::new();
+        for _ in 0..5 {
+            render_cached_frame(
+                &s.media,
+                &s.camera,
+                &settings,
+                0,
+                None,
+                &mut cache,
+                &AtomicBool::new(false),
+            )
+            .unwrap();
+            mse.push(cache.report().mse[0].unwrap());
+        }
+        mse[4] / mse[0]
+    };
+    let (adam, warm) = (fit(0), fit(32));
+    eprintln!("level-0 error after 4 steps over the first's: Adam {adam:.4}, warm start {warm:.4}");
+    assert!(
+        warm < 0.5 * adam && warm < 0.5,
+        "warm start {warm}, Adam {adam}"
+    );
+}

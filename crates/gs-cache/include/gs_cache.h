@@ -108,6 +108,8 @@ typedef struct GsCacheConfig {
   bool train;
   // Train on one frame in this many.
   uint32_t train_every;
+  // Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
+  uint32_t warm_start_frames;
   // Per-level masks (see the crate docs); false only for ablations.
   bool masked_targets;
   // Learning rates relative to each level's mean radiance (see the crate docs); false for

@@ -6,6 +6,7 @@ use crate::init::{SH_C0, initial_levels};
 use crate::resolution::PixelMap;
 use crate::schedule::Schedule;
 use crate::targets::TrainingTargets;
+use crate::warm_start::{Drawn, fit_colors};
 use glam::Vec3;
 use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
 use splat_raster::loss::{Loss, loss_and_grad};
@@ -25,6 +26,11 @@ pub struct Level {
     /// The cloud's colours are absolute radiance (loaded from disk), not yet divided by the
     /// scale; a fresh cloud's albedo colours are already relative.
     absolute_colors: bool,
+    /// Warm-start steps taken since the level was made or the scene last changed (see
+    /// [`crate::warm_start`]); a loaded level starts with its warm start done.
+    warm_steps: u32,
+    /// Per colour channel, its blending weight summed over the warm-start frames so far.
+    warm_weights: Vec<f32>,
 }
 
 impl Level {
@@ -150,6 +156,7 @@ impl GsCache {
         let mut cache = Self::from_levels(levels, config)?;
         for l in &mut cache.levels {
             l.absolute_colors = false;
+            l.warm_steps = 0;
         }
         Ok(cache)
     }
@@ -185,6 +192,8 @@ impl GsCache {
                     optimizer,
                     radiance_scale: None,
                     absolute_colors: true,
+                    warm_steps: u32::MAX,
+                    warm_weights: Vec::new(),
                 })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -222,10 +231,16 @@ impl GsCache {
             .sum()
     }
 
-    /// Restarts Eq. 5's schedule: call it when the transfer function or the lights change (a
-    /// camera change is noticed by [`GsCache::begin_frame`]).
+    /// The scene changed (the transfer function or the lights): restarts Eq. 5's schedule and
+    /// the warm start, whose colour fits re-converge in a few frames where Adam's steps would
+    /// take tens. A camera change is noticed by [`GsCache::begin_frame`] and restarts only the
+    /// schedule: the levels' world-space colours stay right when the view moves.
     pub fn reset_schedule(&mut self) {
         self.schedule.reset();
+        for level in &mut self.levels {
+            level.warm_steps = 0;
+            level.warm_weights.clear();
+        }
     }
 
     /// Draws every level from `camera` for the coming pass. A camera different from the last
@@ -396,7 +411,7 @@ impl GsCache {
             if !loss.is_finite() {
                 continue;
             }
-            let grads = backward(
+            let mut grads = backward(
                 &level.cloud,
                 &camera,
                 &state,
@@ -406,6 +421,28 @@ impl GsCache {
                     depth: None,
                 },
             );
+            if level.warm_steps < self.config.warm_start_frames {
+                // The warm start sets the colours; Adam trains the rest (see `warm_start`).
+                level.warm_steps += 1;
+                level.warm_weights.resize(level.cloud.colors.len(), 0.0);
+                let drawn = Drawn {
+                    camera: &camera,
+                    state: &state,
+                    prediction: &prediction,
+                    radiance_scale: scale,
+                };
+                fit_colors(
+                    &mut level.cloud,
+                    drawn,
+                    &target,
+                    &mask,
+                    &mut level.warm_weights,
+                );
+                if level.warm_steps == self.config.warm_start_frames {
+                    level.warm_weights = Vec::new();
+                }
+                grads.colors.fill(0.0);
+            }
             level.optimizer.step(&mut level.cloud, &grads, lr_scale);
             self.report.losses[i] = Some(loss);
             self.report.mse[i] = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);

@@ -126,6 +126,8 @@ pub struct GsCacheConfig {
     pub train: bool,
     /// Train on one frame in this many.
     pub train_every: u32,
+    /// Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
+    pub warm_start_frames: u32,
     /// Per-level masks (see the crate docs); false only for ablations.
     pub masked_targets: bool,
     /// Learning rates relative to each level's mean radiance (see the crate docs); false for
@@ -288,6 +290,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             initial_opacity: c.initial_opacity,
             train: c.train,
             train_every: c.train_every,
+            warm_start_frames: c.warm_start_frames,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
         })
@@ -339,6 +342,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         initial_opacity: d.initial_opacity,
         train: d.train,
         train_every: d.train_every,
+        warm_start_frames: d.warm_start_frames,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,
     }

@@ -145,6 +145,11 @@ pub struct CacheConfig {
     /// are read but not trained on, which divides the training time by it.
     #[cfg_attr(feature = "clap", arg(long = "cache-train-every", default_value_t = DEFAULT.train_every))]
     pub train_every: u32,
+    /// Frames over which a fresh level's colours are fitted straight to the samples (a running
+    /// least-squares mean; see `warm_start.rs`) instead of by Adam; restarted when the scene
+    /// changes. 0 leaves every step to Adam (the GSCache paper's).
+    #[cfg_attr(feature = "clap", arg(long = "cache-warm-start-frames", default_value_t = DEFAULT.warm_start_frames))]
+    pub warm_start_frames: u32,
     /// Train each level only where a path reached it (the per-level masks); false treats pixels
     /// without a sample as zero targets and renders too dark (kept for the ablation; see the
     /// crate docs).
@@ -182,6 +187,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     initial_opacity: 0.5,
     train: true,
     train_every: 1,
+    warm_start_frames: 32,
     masked_targets: true,
     normalized_radiance: true,
 };
@@ -250,6 +256,12 @@ impl CacheConfig {
             return bad(format!(
                 "train_every = {}: expected 1..=1000 frames",
                 self.train_every
+            ));
+        }
+        if self.warm_start_frames > 1000 {
+            return bad(format!(
+                "warm_start_frames = {}: expected 0..=1000 frames",
+                self.warm_start_frames
             ));
         }
         if !(1..=16).contains(&self.resolution_divisor) {
@@ -385,6 +397,13 @@ mod tests {
                 ..d
             },
             "train_every",
+        );
+        bad(
+            CacheConfig {
+                warm_start_frames: 1001,
+                ..d
+            },
+            "warm_start_frames",
         );
         bad(CacheConfig { c: f32::NAN, ..d }, "c = NaN");
         bad(

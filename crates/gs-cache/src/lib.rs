@@ -12,6 +12,7 @@
 //! - [`targets`]: per-level training targets with masks.
 //! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
+//! - [`warm_start`]: a fresh level's colours fitted to its first frames' samples.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
 //! - [`capi`]: the C ABI (header `include/gs_cache.h`; a C program using it in `c/`).
 //!
@@ -109,6 +110,7 @@ pub mod resolution;
 pub mod schedule;
 pub mod targets;
 pub mod termination;
+pub mod warm_start;
 
 pub use cache::{CacheFrame, FrameReport, GsCache, Level};
 pub use config::{

@@ -93,6 +93,11 @@ impl<F: Real> ForwardState<F> {
     pub fn kernel(&self) -> Kernel {
         self.config.kernel
     }
+    /// Per pixel final transmittance, row-major: the forward pass's
+    /// [`RenderOutput::transmittance`] again, for a caller that kept the state but not the output.
+    pub fn transmittance(&self, camera: &Camera) -> Vec<F> {
+        tile_major_to_rows(&self.final_t, camera.width, camera.height)
+    }
     /// Number of (tile, splat) pairs.
     pub fn entry_count(&self) -> usize {
         self.entries.len()

@@ -364,3 +364,55 @@ fn warm_start_fits_the_samples_in_a_few_frames() {
         "warm start {warm}, Adam {adam}"
     );
 }
+
+/// A frame after one without a training step, on the same camera, reuses the level images
+/// (`FrameReport::lookup_reused`), and they are bit for bit what drawing again gives; a step,
+/// or a camera that moved, draws them again.
+#[test]
+fn still_frames_without_a_step_reuse_the_drawn_levels() {
+    let s = scene();
+    let mut cache = new_cache(
+        &s,
+        CacheConfig {
+            train_every: 2,
+            ..Default::default()
+        },
+    );
+    let mut settings = s.settings;
+    settings.spp = 1;
+    let moved = gscache_cli::camera_path::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
+    let render_with = |cache: &mut GsCache, camera, f| {
+        render_cached_frame(
+            &s.media,
+            camera,
+            &settings,
+            f,
+            None,
+            cache,
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        cache.report().lookup_reused
+    };
+    // Frame 0 steps (train_every = 2), frame 1 draws anew and does not step, frame 2 reuses.
+    assert!(!render_with(&mut cache, &s.camera, 0));
+    assert!(!render_with(&mut cache, &s.camera, 1));
+    let mut fresh = cache.clone();
+    assert!(render_with(&mut cache, &s.camera, 2), "frame 2 must reuse");
+    let reused: Vec<Vec<[f32; 3]>> = (0..3)
+        .map(|l| cache.frame().unwrap().image(l).to_vec())
+        .collect();
+    // The clone has the same levels; a moved camera and back makes it draw them again.
+    fresh.begin_frame(&moved);
+    assert!(!fresh.report().lookup_reused);
+    fresh.begin_frame(&s.camera);
+    assert!(!fresh.report().lookup_reused, "a camera change draws again");
+    for (l, image) in reused.iter().enumerate() {
+        assert!(
+            image == fresh.frame().unwrap().image(l),
+            "level {l} differs"
+        );
+    }
+    // Frame 2 stepped (2 % 2 == 0): frame 3 draws again.
+    assert!(!render_with(&mut cache, &s.camera, 3));
+}

@@ -112,6 +112,7 @@ fn settings_written_as_flags_read_back_the_same() {
         initial_opacity: 0.3,
         train: false,
         train_every: 3,
+        adaptive_training: false,
         warm_start_frames: 2,
         masked_targets: false,
         normalized_radiance: false,

@@ -46,6 +46,10 @@
 // automatic size is 0.35 per cache pixel), and a bound on memory a typo can ask for.
 #define GS_CACHE_MAX_POINTS (1 << 24)
 
+// Once the error has levelled off on a still view, a training step is taken on one frame in
+// this many (with adaptive training).
+#define SETTLED_TRAIN_EVERY 4
+
 // Outcome of a call.
 typedef enum GsCacheStatus {
   GS_CACHE_STATUS_OK = 0,
@@ -108,6 +112,8 @@ typedef struct GsCacheConfig {
   bool train;
   // Train on one frame in this many.
   uint32_t train_every;
+  // Fewer training steps once the error levels off on a still view (see `CacheConfig`).
+  bool adaptive_training;
   // Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
   uint32_t warm_start_frames;
   // Per-level masks (see the crate docs); false only for ablations.

@@ -99,6 +99,9 @@ impl CacheFrame {
 pub struct FrameReport {
     /// Drawing the levels (the paper's splat time, ST).
     pub lookup_seconds: f64,
+    /// The frame reused the last frame's level images (same camera, no training step since):
+    /// see [`GsCache::begin_frame`].
+    pub lookup_reused: bool,
     /// Loss, backward pass and optimiser step of every level (OT).
     pub train_seconds: f64,
     /// HDR loss per level before the step (None: the level had no sample). Its value is not a
@@ -124,6 +127,9 @@ pub struct GsCache {
     traced: Vec<Option<GaussianScene>>,
     /// Calls of [`GsCache::train`] so far (a step is taken on one in `train_every`).
     train_calls: u64,
+    /// The levels (or their radiance scales) changed since `frame` was drawn: a still camera
+    /// may reuse the drawn images only while this is false.
+    levels_changed: bool,
     frame: Option<CacheFrame>,
     report: FrameReport,
     raster: RasterConfig,
@@ -202,6 +208,7 @@ impl GsCache {
             levels,
             schedule: Schedule::new(config.decay),
             train_calls: 0,
+            levels_changed: true,
             traced: Vec::new(),
             frame: None,
             report: FrameReport::default(),
@@ -244,12 +251,22 @@ impl GsCache {
     }
 
     /// Draws every level from `camera` for the coming pass. A camera different from the last
-    /// frame's restarts the learning-rate schedule.
+    /// frame's restarts the learning-rate schedule. The rasterised images of the last frame are
+    /// reused, not drawn again, when neither the camera nor the levels changed since (a frame
+    /// without a training step): they would be drawn bit for bit the same.
     pub fn begin_frame(&mut self, camera: &Camera) -> &CacheFrame {
         let start = Instant::now();
-        if self.frame.as_ref().is_some_and(|f| f.camera != *camera) {
+        let same_camera = self.frame.as_ref().is_some_and(|f| f.camera == *camera);
+        if self.frame.is_some() && !same_camera {
             self.schedule.reset();
         }
+        self.report.lookup_reused =
+            same_camera && !self.levels_changed && self.config.lookup == Lookup::Raster;
+        if self.report.lookup_reused {
+            self.report.lookup_seconds = start.elapsed().as_secs_f64();
+            return self.frame.as_ref().expect("same_camera implies a frame");
+        }
+        self.levels_changed = false;
         let (cache_camera, map) = PixelMap::new(camera, self.config.resolution_divisor);
         let draw_camera = &cache_camera;
         let (images, states) = match self.config.lookup {
@@ -351,7 +368,8 @@ impl GsCache {
         }
         let step_now = self
             .train_calls
-            .is_multiple_of(self.config.train_every.max(1) as u64);
+            .is_multiple_of(self.config.train_every.max(1) as u64)
+            && (!self.config.adaptive_training || self.schedule.wants_step());
         self.train_calls += 1;
         if !self.config.train || !step_now {
             // A frozen fresh cache still takes its radiance scale from its first samples.
@@ -363,6 +381,7 @@ impl GsCache {
                     let (target, mask) = targets.level_target_binned(i, true, &map);
                     if mask.iter().any(|&m| m) {
                         level.set_radiance_scale(&target, &mask);
+                        self.levels_changed = true;
                     }
                 }
             }
@@ -371,6 +390,7 @@ impl GsCache {
         }
         let lr_scale = self.schedule.next_scale();
         self.report.lr_scale = lr_scale;
+        self.levels_changed = true;
         for (i, level) in self.levels.iter_mut().enumerate() {
             let (target, mask) = targets.level_target_binned(i, self.config.masked_targets, &map);
             if !mask.iter().any(|&m| m) {

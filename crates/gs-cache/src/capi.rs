@@ -126,6 +126,8 @@ pub struct GsCacheConfig {
     pub train: bool,
     /// Train on one frame in this many.
     pub train_every: u32,
+    /// Fewer training steps once the error levels off on a still view (see `CacheConfig`).
+    pub adaptive_training: bool,
     /// Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
     pub warm_start_frames: u32,
     /// Per-level masks (see the crate docs); false only for ablations.
@@ -290,6 +292,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             initial_opacity: c.initial_opacity,
             train: c.train,
             train_every: c.train_every,
+            adaptive_training: c.adaptive_training,
             warm_start_frames: c.warm_start_frames,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
@@ -342,6 +345,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         initial_opacity: d.initial_opacity,
         train: d.train,
         train_every: d.train_every,
+        adaptive_training: d.adaptive_training,
         warm_start_frames: d.warm_start_frames,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,

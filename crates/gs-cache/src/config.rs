@@ -145,6 +145,17 @@ pub struct CacheConfig {
     /// are read but not trained on, which divides the training time by it.
     #[cfg_attr(feature = "clap", arg(long = "cache-train-every", default_value_t = DEFAULT.train_every))]
     pub train_every: u32,
+    /// Train on every frame until the training error levels off on a still view, then on one
+    /// frame in 4 (`schedule::SETTLED_TRAIN_EVERY`), back to every frame when the camera, the
+    /// transfer function or the lights change: the GSCache paper's suggestion (its section 4.4)
+    /// of spending training where it still helps. Frames without a step on a still camera reuse
+    /// the last frame's level images, so they cost no cache time at all. Applies on top of
+    /// `train_every`. Off by measurement: on chest CT, neghip, hydrogen and headsq it saved 10-15%
+    /// of the time at 64 spp but the less-trained cache lost more than that (relMSE at 1 s
+    /// 1.07-1.33x higher; BENCHMARKS.md): past the plateau, training still lowers the cache's
+    /// error, which is what limits it at high spp.
+    #[cfg_attr(feature = "clap", arg(long = "cache-adaptive-training", action = clap::ArgAction::Set, default_value_t = DEFAULT.adaptive_training))]
+    pub adaptive_training: bool,
     /// Frames over which a fresh level's colours are fitted straight to the samples (a running
     /// least-squares mean; see `warm_start.rs`) instead of by Adam; restarted when the scene
     /// changes. 0 leaves every step to Adam (the GSCache paper's).
@@ -187,6 +198,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     initial_opacity: 0.5,
     train: true,
     train_every: 1,
+    adaptive_training: false,
     warm_start_frames: 32,
     masked_targets: true,
     normalized_radiance: true,

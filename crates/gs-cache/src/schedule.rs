@@ -8,6 +8,10 @@
 //! [`Decay::Plateau`] the count starts only once the training error levels off: the rate stays
 //! at its initial value while a fast moving average of the error is still clearly below a slow
 //! one, and Eq. 5 takes over from the frame the two meet.
+//!
+//! The same test tells the cache when training has settled on a still view, so it can train on
+//! fewer frames (`CacheConfig::adaptive_training`, the GSCache paper's suggestion in its
+//! section 4.4): a settled schedule asks for a step on one frame in [`SETTLED_TRAIN_EVERY`].
 
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +35,9 @@ const SLOW: f64 = 0.1;
 const LEVEL: f64 = 0.97;
 /// Frames after a change before a plateau may be declared (the averages need a few samples).
 const MIN_FRAMES: u32 = 8;
+/// Once the error has levelled off on a still view, a training step is taken on one frame in
+/// this many (with adaptive training).
+pub const SETTLED_TRAIN_EVERY: u32 = 4;
 
 /// The schedule's state since the last change.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,6 +47,8 @@ pub struct Schedule {
     frames: u32,
     /// Frames trained since the decay started (Eq. 5's `t`); 0 before it has.
     decaying: u32,
+    /// Frames asked about since the error levelled off (whatever the decay mode); 0 before.
+    settled: u32,
     fast: f64,
     slow: f64,
 }
@@ -50,9 +59,21 @@ impl Schedule {
             decay,
             frames: 0,
             decaying: 0,
+            settled: 0,
             fast: f64::NAN,
             slow: f64::NAN,
         }
+    }
+
+    /// Whether a frame should take a training step when training adapts to the error: every
+    /// frame until the error has levelled off since the last change, then one in
+    /// [`SETTLED_TRAIN_EVERY`]. Call once per frame.
+    pub fn wants_step(&mut self) -> bool {
+        if self.settled == 0 && !self.levelled_off() {
+            return true;
+        }
+        self.settled = self.settled.saturating_add(1);
+        self.settled % SETTLED_TRAIN_EVERY == 1
     }
 
     /// The factor for the next training step.
@@ -137,5 +158,47 @@ mod tests {
         assert_eq!(s.next_scale(), 1.0);
         s.observe(f64::NAN);
         assert_eq!(s.next_scale(), 1.0);
+    }
+
+    /// Adaptive training asks for a step every frame while the error falls (and after any
+    /// change), then on one frame in SETTLED_TRAIN_EVERY once it levels off, in any decay mode.
+    #[test]
+    fn steps_thin_out_once_the_error_levels_off() {
+        for decay in [Decay::Paper, Decay::Plateau, Decay::Off] {
+            let mut s = Schedule::new(decay);
+            for f in 0..60 {
+                assert!(s.wants_step(), "{decay:?} frame {f}");
+                s.next_scale();
+                s.observe(0.5f64.powf(f as f64 / 10.0));
+            }
+            let mut steps = Vec::new();
+            for f in 60..200 {
+                if s.wants_step() {
+                    steps.push(f);
+                    s.next_scale();
+                    s.observe(0.5f64.powf(6.0));
+                }
+            }
+            let first = steps[0];
+            assert!(steps.len() > 20, "{decay:?}: {steps:?}");
+            let gaps: Vec<u32> = steps.windows(2).map(|w| w[1] - w[0]).collect();
+            let settled_at = gaps
+                .iter()
+                .position(|&g| g > 1)
+                .expect("steps must thin out");
+            assert!(
+                gaps[settled_at..].iter().all(|&g| g == SETTLED_TRAIN_EVERY),
+                "{decay:?}: {gaps:?} (first step at {first})"
+            );
+            assert!(
+                steps[settled_at] < 140,
+                "{decay:?}: settled late: {steps:?}"
+            );
+            s.reset();
+            assert!(
+                (0..5).all(|_| s.wants_step()),
+                "a change trains every frame again"
+            );
+        }
     }
 }

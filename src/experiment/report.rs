@@ -355,6 +355,32 @@ fn rising_error(rows: &[&SummaryRow]) -> Option<String> {
     })
 }
 
+/// Where a method stops paying as samples grow: the spp budgets at which its efficiency (1 /
+/// (relMSE x time)) against the baseline's is at least 1, and the first larger one at which it
+/// falls below, or `None` when it never changes side (or has fewer than two spp budgets).
+fn stops_paying(rows: &[&SummaryRow]) -> Option<String> {
+    let mut by_spp: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|s| matches!(s.budget, Budget::Spp(_)))
+        .filter_map(|s| Some((s.spp, s.efficiency_vs_baseline?)))
+        .collect();
+    by_spp.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (&(first_spp, first), rest) = by_spp.split_first()?;
+    if first < 1.0 {
+        return None;
+    }
+    let lost = rest.iter().position(|&(_, e)| e < 1.0)?;
+    let (last_win, last_eff) = if lost == 0 {
+        (first_spp, first)
+    } else {
+        rest[lost - 1]
+    };
+    let (spp, eff) = rest[lost];
+    Some(format!(
+        "it stops paying between {last_win} spp (efficiency {last_eff:.2}x the baseline's) and {spp} spp ({eff:.2}x)"
+    ))
+}
+
 /// Plain sentences: where each method beats the baseline at equal time and where it loses.
 fn findings(r: &Results) -> String {
     let Some(base) = &r.baseline else {
@@ -425,6 +451,9 @@ fn findings(r: &Results) -> String {
         if let Some(warning) = rising_error(&rows) {
             parts.push(warning);
         }
+        if let Some(crossing) = stops_paying(&rows) {
+            parts.push(crossing);
+        }
         let _ = writeln!(
             out,
             "- `{}` against `{base}`: {}.",
@@ -471,5 +500,25 @@ mod tests {
         // Falling, or a rise under half, is not.
         let (a, b, c) = (row(1, 0.18), row(4, 0.05), row(16, 0.07));
         assert_eq!(rising_error(&[&a, &b, &c]), None);
+    }
+
+    #[test]
+    fn where_a_method_stops_paying_is_named() {
+        let with = |spp, e| SummaryRow {
+            efficiency_vs_baseline: Some(e),
+            ..row(spp, 0.1)
+        };
+        // Out of order on purpose; wins at 1 and 4, loses from 16.
+        let (a, b, c, d) = (with(16, 0.8), with(1, 3.0), with(64, 0.5), with(4, 1.4));
+        let s = stops_paying(&[&a, &b, &c, &d]).expect("1.4x at 4 spp, 0.8x at 16 spp");
+        assert!(
+            s.contains("between 4 spp (efficiency 1.40x") && s.contains("and 16 spp (0.80x)"),
+            "{s}"
+        );
+        // Always winning, or losing from the start, says nothing.
+        let (a, b) = (with(1, 2.0), with(16, 1.1));
+        assert_eq!(stops_paying(&[&a, &b]), None);
+        let (a, b) = (with(1, 0.9), with(16, 1.1));
+        assert_eq!(stops_paying(&[&a, &b]), None);
     }
 }

@@ -46,6 +46,17 @@
 // automatic size is 0.35 per cache pixel), and a bound on memory a typo can ask for.
 #define GS_CACHE_MAX_POINTS (1 << 24)
 
+// How many standard errors the residual must exceed.
+#define Z_SCORE 3.0
+
+// The fraction of the value within which a distrusted pixel's residual must fall (or within
+// the noise) for the pixel to be trusted again.
+#define RELATIVE_ERROR 0.2
+
+// The fraction of the value a trusted pixel's residual must exceed (beyond the noise), in two
+// frames running, for the pixel to be distrusted.
+#define STALE_ERROR 0.5
+
 // Once the error has levelled off on a still view, a training step is taken on one frame in
 // this many (with adaptive training).
 #define SETTLED_TRAIN_EVERY 4
@@ -114,6 +125,8 @@ typedef struct GsCacheConfig {
   uint32_t train_every;
   // Fewer training steps once the error levels off on a still view (see `CacheConfig`).
   bool adaptive_training;
+  // Plain path tracing where a level's last residual says it is stale (see `CacheConfig`).
+  bool fallback;
   // Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
   uint32_t warm_start_frames;
   // Per-level masks (see the crate docs); false only for ablations.

@@ -2,6 +2,7 @@
 
 use crate::config::{CacheConfig, Lookup, Optimizer};
 use crate::error::{CacheError, Result};
+use crate::fallback::Trust;
 use crate::init::{SH_C0, initial_levels};
 use crate::resolution::PixelMap;
 use crate::schedule::Schedule;
@@ -74,6 +75,9 @@ pub struct CacheFrame {
     /// Per level, the rasteriser's state for the backward pass (raster lookup only, and only
     /// while the levels are unchanged since they were drawn).
     states: Vec<Option<ForwardState<f32>>>,
+    /// Where paths may stop into each level (`None`: everywhere, the fallback is off). Carried
+    /// from frame to frame and updated by training.
+    trust: Option<Trust>,
 }
 
 impl CacheFrame {
@@ -91,6 +95,21 @@ impl CacheFrame {
     /// The whole image of a level.
     pub fn image(&self, level: usize) -> &[[f32; 3]] {
         &self.images[level]
+    }
+    /// Whether paths through row-major frame pixel `pixel` may stop into `level` (see
+    /// [`crate::fallback`]); always true with the fallback off.
+    #[inline]
+    pub fn trusted(&self, level: usize, pixel: usize) -> bool {
+        self.trust.as_ref().is_none_or(|t| {
+            let w = self.camera.width as usize;
+            t.trusted(level, self.map.bin((pixel % w) as u32, (pixel / w) as u32))
+        })
+    }
+    /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback off).
+    pub fn trusted_fractions(&self) -> Vec<f64> {
+        (0..self.levels())
+            .map(|l| self.trust.as_ref().map_or(1.0, |t| t.trusted_fraction(l)))
+            .collect()
     }
 }
 
@@ -114,6 +133,9 @@ pub struct FrameReport {
     pub lr_scale: f32,
     /// Training samples refused this frame (negative or not finite), counted, not trained on.
     pub dropped_samples: u64,
+    /// Per level, the fraction of the tested cache pixels whose residual was gross this frame
+    /// (see [`crate::fallback`]; `None`: the fallback is off or no pixel had two samples).
+    pub stale_fraction: Vec<Option<f64>>,
 }
 
 /// A multi-level radiance cache (see the crate docs for what it estimates).
@@ -240,13 +262,17 @@ impl GsCache {
 
     /// The scene changed (the transfer function or the lights): restarts Eq. 5's schedule and
     /// the warm start, whose colour fits re-converge in a few frames where Adam's steps would
-    /// take tens. A camera change is noticed by [`GsCache::begin_frame`] and restarts only the
+    /// take tens, and (with the fallback) sends every pixel back to plain path tracing until its
+    /// residuals show the level fits again. A camera change is noticed by [`GsCache::begin_frame`] and restarts only the
     /// schedule: the levels' world-space colours stay right when the view moves.
     pub fn reset_schedule(&mut self) {
         self.schedule.reset();
         for level in &mut self.levels {
             level.warm_steps = 0;
             level.warm_weights.clear();
+        }
+        if let Some(trust) = self.frame.as_mut().and_then(|f| f.trust.as_mut()) {
+            trust.distrust_all();
         }
     }
 
@@ -268,6 +294,11 @@ impl GsCache {
         }
         self.levels_changed = false;
         let (cache_camera, map) = PixelMap::new(camera, self.config.resolution_divisor);
+        let trust = self.config.fallback.then(|| {
+            let mut trust = self.frame.take().and_then(|f| f.trust).unwrap_or_default();
+            trust.fit(self.levels.len(), map.width, map.height);
+            trust
+        });
         let draw_camera = &cache_camera;
         let (images, states) = match self.config.lookup {
             Lookup::Raster => self
@@ -328,6 +359,7 @@ impl GsCache {
             images,
             drawn,
             states,
+            trust,
         })
     }
 
@@ -344,6 +376,7 @@ impl GsCache {
         self.report.losses = vec![None; self.levels.len()];
         self.report.dropped_samples = targets.dropped();
         self.report.mse = vec![None; self.levels.len()];
+        self.report.stale_fraction = vec![None; self.levels.len()];
         let Some(frame) = self.frame.as_mut() else {
             return Err(CacheError::Config(
                 "train() called before begin_frame(): the targets need the frame's camera".into(),
@@ -424,6 +457,10 @@ impl GsCache {
             if scale != drawn_scale {
                 let f = scale / drawn_scale;
                 prediction.iter_mut().flatten().for_each(|v| *v *= f);
+            }
+            if let Some(trust) = frame.trust.as_mut() {
+                let spread = targets.level_spread_binned(i, &map);
+                self.report.stale_fraction[i] = trust.update(i, &prediction, &target, &spread);
             }
             let (loss, mut grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
             // The cloud draws radiance / scale: the chain rule multiplies its gradient by scale.

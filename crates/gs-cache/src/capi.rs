@@ -128,6 +128,8 @@ pub struct GsCacheConfig {
     pub train_every: u32,
     /// Fewer training steps once the error levels off on a still view (see `CacheConfig`).
     pub adaptive_training: bool,
+    /// Plain path tracing where a level's last residual says it is stale (see `CacheConfig`).
+    pub fallback: bool,
     /// Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
     pub warm_start_frames: u32,
     /// Per-level masks (see the crate docs); false only for ablations.
@@ -293,6 +295,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             train: c.train,
             train_every: c.train_every,
             adaptive_training: c.adaptive_training,
+            fallback: c.fallback,
             warm_start_frames: c.warm_start_frames,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
@@ -346,6 +349,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         train: d.train,
         train_every: d.train_every,
         adaptive_training: d.adaptive_training,
+        fallback: d.fallback,
         warm_start_frames: d.warm_start_frames,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,

@@ -156,6 +156,11 @@ pub struct CacheConfig {
     /// error, which is what limits it at high spp.
     #[cfg_attr(feature = "clap", arg(long = "cache-adaptive-training", action = clap::ArgAction::Set, default_value_t = DEFAULT.adaptive_training))]
     pub adaptive_training: bool,
+    /// Paths fall back to plain path tracing (no early or natural termination) at the pixels and
+    /// levels whose last training residual was large and beyond its noise: a stale cache after
+    /// an edit, or a fresh one, then costs variance instead of brightness (see `fallback.rs`).
+    #[cfg_attr(feature = "clap", arg(long = "cache-fallback", action = clap::ArgAction::Set, default_value_t = DEFAULT.fallback))]
+    pub fallback: bool,
     /// Frames over which a fresh level's colours are fitted straight to the samples (a running
     /// least-squares mean; see `warm_start.rs`) instead of by Adam; restarted when the scene
     /// changes. 0 leaves every step to Adam (the GSCache paper's).
@@ -199,6 +204,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     train: true,
     train_every: 1,
     adaptive_training: false,
+    fallback: true,
     warm_start_frames: 32,
     masked_targets: true,
     normalized_radiance: true,

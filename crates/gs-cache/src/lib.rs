@@ -12,6 +12,7 @@
 //! - [`targets`]: per-level training targets with masks.
 //! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
+//! - [`fallback`]: plain path tracing where a level's last residual says it is stale.
 //! - [`warm_start`]: a fresh level's colours fitted to its first frames' samples.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
 //! - [`capi`]: the C ABI (header `include/gs_cache.h`; a C program using it in `c/`).
@@ -103,6 +104,7 @@ pub mod cache;
 pub mod capi;
 pub mod config;
 pub mod error;
+pub mod fallback;
 pub mod init;
 pub mod path;
 pub mod persist;

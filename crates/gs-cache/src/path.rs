@@ -91,9 +91,12 @@ impl<'a> CachedPath<'a> {
     }
 
     /// Algorithm 1 at the current vertex: the probability of going on. 1 where no level holds
-    /// this length or early termination is off.
+    /// this length, early termination is off, or the fallback distrusts the level at this pixel.
     pub fn continue_probability(&self) -> f32 {
-        if self.length == 0 || self.length > self.frame.levels() {
+        if self.length == 0
+            || self.length > self.frame.levels()
+            || !self.frame.trusted(self.length - 1, self.pixel)
+        {
             return 1.0;
         }
         continue_probability(&self.termination, self.albedo_product)
@@ -118,14 +121,19 @@ impl<'a> CachedPath<'a> {
         x
     }
 
-    /// The path left the volume after its last vertex. If natural termination is on and the
-    /// path gathered no radiance at all (`path_radiance` is zero), returns the cached value of
+    /// The path left the volume after its last vertex. If natural termination is on, the level
+    /// is trusted at this pixel and the path gathered no radiance at all (`path_radiance` is zero), returns the cached value of
     /// its length, which the renderer adds as `W * x` to the image only: the training samples
     /// stay the true (zero) ones. Otherwise returns zero.
     pub fn escaped(&self, path_radiance: Vec3) -> Vec3 {
         let carried_nothing = !(path_radiance.max_element() > 0.0);
         match self.length.checked_sub(1) {
-            Some(n) if self.termination.natural && carried_nothing && n < self.frame.levels() => {
+            Some(n)
+                if self.termination.natural
+                    && carried_nothing
+                    && n < self.frame.levels()
+                    && self.frame.trusted(n, self.pixel) =>
+            {
                 self.frame.value(n, self.pixel)
             }
             _ => Vec3::ZERO,

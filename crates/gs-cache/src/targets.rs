@@ -2,6 +2,7 @@
 //! samples it had (no sample: the pixel takes no part in that level's loss).
 
 use crate::resolution::PixelMap;
+use crate::termination::luminance;
 use glam::Vec3;
 
 /// Training samples of one frame, one image per level, row-major.
@@ -10,6 +11,9 @@ pub struct TrainingTargets {
     width: u32,
     height: u32,
     sums: Vec<Vec<[f32; 3]>>,
+    /// Per level, per pixel: the sum of the squared luminances of its samples (for the spread
+    /// the fallback's test needs: [`TrainingTargets::level_spread_binned`]).
+    squares: Vec<Vec<f32>>,
     counts: Vec<Vec<u32>>,
     /// Samples refused this frame for being negative or not finite.
     dropped: u64,
@@ -22,6 +26,7 @@ impl TrainingTargets {
             width,
             height,
             sums: vec![vec![[0.0; 3]; n]; levels],
+            squares: vec![vec![0.0; n]; levels],
             counts: vec![vec![0; n]; levels],
             dropped: 0,
         }
@@ -54,6 +59,7 @@ impl TrainingTargets {
         for c in 0..3 {
             s[c] += value[c];
         }
+        self.squares[level][pixel] += luminance(Vec3::from_array(value)).powi(2);
         self.counts[level][pixel] += 1;
     }
 
@@ -61,6 +67,9 @@ impl TrainingTargets {
     pub fn clear(&mut self) {
         for s in &mut self.sums {
             s.fill([0.0; 3]);
+        }
+        for s in &mut self.squares {
+            s.fill(0.0);
         }
         for c in &mut self.counts {
             c.fill(0);
@@ -104,6 +113,37 @@ impl TrainingTargets {
             }
         }
         (target, mask)
+    }
+
+    /// Per cache pixel of `map`, the number of samples binned into it and the variance of their
+    /// mean's luminance (the sample variance over that number; NaN below two samples): how far
+    /// the binned target may lie from its expectation by noise alone.
+    pub fn level_spread_binned(&self, level: usize, map: &PixelMap) -> Vec<(u64, f32)> {
+        let n = map.width as usize * map.height as usize;
+        let mut acc = vec![(0u64, 0.0f64, 0.0f64); n];
+        for y in 0..self.height {
+            for x in 0..self.width {
+                let i = (y * self.width + x) as usize;
+                let c = self.counts[level][i];
+                if c > 0 {
+                    let a = &mut acc[map.bin(x, y)];
+                    a.0 += c as u64;
+                    a.1 += luminance(Vec3::from_array(self.sums[level][i])) as f64;
+                    a.2 += self.squares[level][i] as f64;
+                }
+            }
+        }
+        acc.into_iter()
+            .map(|(count, sum, squares)| {
+                if count < 2 {
+                    return (count, f32::NAN);
+                }
+                let k = count as f64;
+                let mean = sum / k;
+                let variance = ((squares - k * mean * mean) / (k - 1.0)).max(0.0);
+                (count, (variance / k) as f32)
+            })
+            .collect()
     }
 
     /// The mean target image of `level` and its mask (pixels with at least one sample). With

@@ -150,9 +150,9 @@ pub struct CacheConfig {
     /// transfer function or the lights change: the GSCache paper's suggestion (its section 4.4)
     /// of spending training where it still helps. Frames without a step on a still camera reuse
     /// the last frame's level images, so they cost no cache time at all. Applies on top of
-    /// `train_every`. Off by measurement: on chest CT, neghip, hydrogen and headsq it saved 10-15%
+    /// `train_every`. Off by measurement: on chest CT, neghip, hydrogen and headsq it saved 6-15%
     /// of the time at 64 spp but the less-trained cache lost more than that (relMSE at 1 s
-    /// 1.07-1.33x higher; BENCHMARKS.md): past the plateau, training still lowers the cache's
+    /// 1.10-1.31x higher; BENCHMARKS.md): past the plateau, training still lowers the cache's
     /// error, which is what limits it at high spp.
     #[cfg_attr(feature = "clap", arg(long = "cache-adaptive-training", action = clap::ArgAction::Set, default_value_t = DEFAULT.adaptive_training))]
     pub adaptive_training: bool,

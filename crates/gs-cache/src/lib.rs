@@ -68,11 +68,15 @@
 //! grows with the albedo product, so the paths that stop are the ones through darker albedo, and
 //! they are given `Lambda_n(p)`, an average over all the vertices seen through `p`. Where the
 //! albedo and the radiance from a vertex on are correlated across a pixel's footprint, the image
-//! moves by their covariance. The committed experiment `docs/results/hydrogen_bias` isolates it:
-//! with the defaults (`C = 0.5`) hydrogen renders 6.0% dark at 1 and 16 spp (0.07% standard
-//! error); with early termination off the bias is -0.18% (+-0.13%), while turning off natural
-//! termination, re-weighting survivors or drawing at full resolution leaves it at -5.5 to -6.0%.
-//! The other volumes of the README's table measure -0.5% to +2.1% at 16 spp. A user who
+//! moves by their covariance. How the cache is fitted decides how much of it shows. The committed
+//! experiment `docs/results/hydrogen_bias` isolates it with Adam alone (the GSCache paper's
+//! training): with the defaults then (`C = 0.5`) hydrogen rendered 6.0% dark at 1 and 16 spp
+//! (0.07% standard error); with early termination off -0.18% (+-0.13%), while turning off
+//! natural termination, re-weighting survivors or drawing at full resolution left it at -5.5 to
+//! -6.0%. With the warm start's least-squares colours ([`warm_start`], the default) it measures
+//! +0.1% at 1 spp, -0.6% at 16 spp and -1.4% at 64 spp (BENCHMARKS.md), the last as Adam takes
+//! over after the warm start's 32 frames: Adam's bounded steps settle away from the mean of the
+//! skewed samples early termination leaves, and a least-squares fit is their mean. A user who
 //! needs the image's brightness to better than that sets `early = false` (the cache then reads
 //! only where paths end naturally, and its error gain falls: 1.0x on hydrogen) or a larger `C`.
 //!
@@ -98,7 +102,13 @@
 //! faster convergence) at a fraction of the cost. On the committed volumes at 320x180 the trade
 //! lowered both the error and the bias (docs/results/cost_default, cost_headsq). (5) The cache
 //! for length 0 is never needed: camera rays that leave the
-//! volume see the lights and the environment exactly.
+//! volume see the lights and the environment exactly. (6) The start. A level's image is linear
+//! in its colours, so during its first frames (and after a scene change) the colours are fitted
+//! to the samples by a least-squares step instead of Adam's bounded ones ([`warm_start`]); the
+//! estimator is unchanged, the cache only gets closer to `Lambda_n` sooner. (7) Staleness. Where
+//! a level's last residual is large beyond its noise, and everywhere in the frame after a scene
+//! change, paths do not stop into it ([`fallback`]): those pixels are plain path tracing, so
+//! their bias terms above vanish, at the variance plain path tracing has.
 
 pub mod cache;
 pub mod capi;

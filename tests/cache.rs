@@ -503,3 +503,74 @@ fn an_unreported_change_falls_back_within_frames() {
     eprintln!("relMSE after the unreported move: fallback {on:.4}, none {off:.4}");
     assert!(on < 0.85 * off, "fallback {on}, none {off}");
 }
+
+/// After `handoff_frames` frames of an image (`start_image`) the cache hands the view back to
+/// plain path tracing: the frame is plain NEE bit for bit and the levels stop training; frames
+/// before `start_image` do not count, and a camera move takes the cache back (it is read and
+/// trained again).
+#[test]
+fn a_still_view_is_handed_back_to_plain_path_tracing() {
+    let s = scene();
+    let mut settings = s.settings;
+    settings.spp = 1;
+    settings.seed = 11;
+    let mut cache = new_cache(
+        &s,
+        CacheConfig {
+            handoff_frames: 4,
+            ..Default::default()
+        },
+    );
+    let frame = |cache: &mut GsCache, camera, f| {
+        let mut film = Film::new(SIZE, SIZE);
+        render_cached_frame(
+            &s.media,
+            camera,
+            &settings,
+            f,
+            Some(&mut film),
+            cache,
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        (film.mean(), cache.report().handed_off)
+    };
+    let colours = |c: &GsCache| c.levels()[0].cloud.colors.clone();
+    // Plain path tracing of frame f: a cache that is never read (early and natural termination
+    // off) draws frame f's samples from the same streams.
+    let mut reference = new_cache(
+        &s,
+        CacheConfig {
+            early: false,
+            natural: false,
+            ..Default::default()
+        },
+    );
+    // Six warm-up frames on the same camera, then the image: frames 0-3 of it read and train the
+    // cache, frame 4 on are handed off.
+    for f in 0..6 {
+        let (_, handed_off) = frame(&mut cache, &s.camera, 100 + f);
+        assert!(!handed_off, "warm-up frame {f}");
+    }
+    cache.start_image();
+    for f in 0..4 {
+        let (image, handed_off) = frame(&mut cache, &s.camera, f);
+        let (plain_frame, _) = frame(&mut reference, &s.camera, f);
+        assert!(
+            !handed_off && image != plain_frame,
+            "frame {f} reads the cache"
+        );
+    }
+    let trained = colours(&cache);
+    for f in 4..7 {
+        let (image, handed_off) = frame(&mut cache, &s.camera, f);
+        let (plain_frame, _) = frame(&mut reference, &s.camera, f);
+        assert!(handed_off, "frame {f}");
+        assert!(image == plain_frame, "frame {f} is plain path tracing");
+    }
+    assert!(colours(&cache) == trained, "no training once handed off");
+    let moved = gscache_cli::camera_path::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
+    let (_, handed_off) = frame(&mut cache, &moved, 7);
+    assert!(!handed_off, "a camera move takes the cache back");
+    assert!(colours(&cache) != trained, "and it trains again");
+}

@@ -114,6 +114,7 @@ fn settings_written_as_flags_read_back_the_same() {
         train_every: 3,
         adaptive_training: true,
         fallback: false,
+        handoff_frames: 0,
         warm_start_frames: 2,
         masked_targets: false,
         normalized_radiance: false,

@@ -150,6 +150,7 @@ pub fn run_method(
         record.level_mse.push(cache.report().mse.clone());
     }
     record.warmup_seconds = start.elapsed().as_secs_f64();
+    cache.start_image();
     let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
         let start = Instant::now();
         let s = render_cached_frame(

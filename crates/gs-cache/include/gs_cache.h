@@ -127,6 +127,8 @@ typedef struct GsCacheConfig {
   bool adaptive_training;
   // Plain path tracing where a level's last residual says it is stale (see `CacheConfig`).
   bool fallback;
+  // Still frames after which paths run without the cache (0: never; see `CacheConfig`).
+  uint32_t handoff_frames;
   // Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
   uint32_t warm_start_frames;
   // Per-level masks (see the crate docs); false only for ablations.
@@ -253,7 +255,15 @@ enum GsCacheStatus gs_cache_add_sample(struct GsCacheHandle *cache,
 // `cache` must be a live handle; `report` NULL or pointing to a writable `GsCacheReport`.
 enum GsCacheStatus gs_cache_train(struct GsCacheHandle *cache, struct GsCacheReport *report);
 
-// Restarts Eq. 5's schedule: call it when the transfer function or the lights change.
+// The frames from now on are averaged into one image: the handoff to plain path tracing
+// (`handoff_frames`) counts from here, not from the frames that only trained the cache.
+//
+// # Safety
+// `cache` must be a live handle.
+enum GsCacheStatus gs_cache_start_image(struct GsCacheHandle *cache);
+
+// Restarts Eq. 5's schedule, the warm start and (with the fallback) the pixels' trust: call
+// it when the transfer function or the lights change.
 //
 // # Safety
 // `cache` must be a live handle.

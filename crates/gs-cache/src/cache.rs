@@ -78,6 +78,9 @@ pub struct CacheFrame {
     /// Where paths may stop into each level (`None`: everywhere, the fallback is off). Carried
     /// from frame to frame and updated by training.
     trust: Option<Trust>,
+    /// The still view has had its `handoff_frames`: paths do not read the cache and it does not
+    /// train (see [`CacheConfig::handoff_frames`]).
+    handed_off: bool,
 }
 
 impl CacheFrame {
@@ -100,16 +103,26 @@ impl CacheFrame {
     /// [`crate::fallback`]); always true with the fallback off.
     #[inline]
     pub fn trusted(&self, level: usize, pixel: usize) -> bool {
-        self.trust.as_ref().is_none_or(|t| {
-            let w = self.camera.width as usize;
-            t.trusted(level, self.map.bin((pixel % w) as u32, (pixel / w) as u32))
-        })
+        !self.handed_off
+            && self.trust.as_ref().is_none_or(|t| {
+                let w = self.camera.width as usize;
+                t.trusted(level, self.map.bin((pixel % w) as u32, (pixel / w) as u32))
+            })
     }
-    /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback off).
+    /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback off, 0
+    /// once handed off).
     pub fn trusted_fractions(&self) -> Vec<f64> {
         (0..self.levels())
-            .map(|l| self.trust.as_ref().map_or(1.0, |t| t.trusted_fraction(l)))
+            .map(|l| match (&self.trust, self.handed_off) {
+                (_, true) => 0.0,
+                (Some(t), false) => t.trusted_fraction(l),
+                (None, false) => 1.0,
+            })
             .collect()
+    }
+    /// Whether this frame's paths run without the cache (the still view's handoff).
+    pub fn handed_off(&self) -> bool {
+        self.handed_off
     }
 }
 
@@ -121,6 +134,8 @@ pub struct FrameReport {
     /// The frame reused the last frame's level images (same camera, no training step since):
     /// see [`GsCache::begin_frame`].
     pub lookup_reused: bool,
+    /// The frame ran without the cache: the still view had its `handoff_frames`.
+    pub handed_off: bool,
     /// Loss, backward pass and optimiser step of every level (OT).
     pub train_seconds: f64,
     /// HDR loss per level before the step (None: the level had no sample). Its value is not a
@@ -149,6 +164,9 @@ pub struct GsCache {
     traced: Vec<Option<GaussianScene>>,
     /// Calls of [`GsCache::train`] so far (a step is taken on one in `train_every`).
     train_calls: u64,
+    /// Frames drawn since [`GsCache::start_image`] on the same camera with the scene unchanged
+    /// (`None`: no image is accumulating, so no handoff).
+    image_frames: Option<u32>,
     /// The levels (or their radiance scales) changed since `frame` was drawn: a still camera
     /// may reuse the drawn images only while this is false.
     levels_changed: bool,
@@ -230,6 +248,7 @@ impl GsCache {
             levels,
             schedule: Schedule::new(config.decay),
             train_calls: 0,
+            image_frames: None,
             levels_changed: true,
             traced: Vec::new(),
             frame: None,
@@ -271,8 +290,24 @@ impl GsCache {
             level.warm_steps = 0;
             level.warm_weights.clear();
         }
-        if let Some(trust) = self.frame.as_mut().and_then(|f| f.trust.as_mut()) {
-            trust.distrust_all();
+        self.image_frames = None;
+        if let Some(frame) = self.frame.as_mut() {
+            frame.handed_off = false;
+            if let Some(trust) = frame.trust.as_mut() {
+                trust.distrust_all();
+            }
+        }
+    }
+
+    /// The frames from now on are averaged into one image (a progressive render of a still
+    /// view): after [`CacheConfig::handoff_frames`] of them, paths run without the cache. Frames
+    /// before the call (a warm-up) do not count, and without it there is no handoff, as every
+    /// frame of an interactive view is shown alone. A camera move or a scene change ends the
+    /// image.
+    pub fn start_image(&mut self) {
+        self.image_frames = Some(0);
+        if let Some(frame) = self.frame.as_mut() {
+            frame.handed_off = false;
         }
     }
 
@@ -286,11 +321,23 @@ impl GsCache {
         if self.frame.is_some() && !same_camera {
             self.schedule.reset();
         }
-        self.report.lookup_reused =
-            same_camera && !self.levels_changed && self.config.lookup == Lookup::Raster;
+        if self.frame.is_some() && !same_camera {
+            self.image_frames = None;
+        }
+        let handed_off = self.config.handoff_frames > 0
+            && self
+                .image_frames
+                .is_some_and(|n| n >= self.config.handoff_frames);
+        self.image_frames = self.image_frames.map(|n| n.saturating_add(1));
+        self.report.handed_off = handed_off;
+        // Handed off, the images are not read: nothing to draw.
+        self.report.lookup_reused = same_camera
+            && (handed_off || (!self.levels_changed && self.config.lookup == Lookup::Raster));
         if self.report.lookup_reused {
             self.report.lookup_seconds = start.elapsed().as_secs_f64();
-            return self.frame.as_ref().expect("same_camera implies a frame");
+            let frame = self.frame.as_mut().expect("same_camera implies a frame");
+            frame.handed_off = handed_off;
+            return frame;
         }
         self.levels_changed = false;
         let (cache_camera, map) = PixelMap::new(camera, self.config.resolution_divisor);
@@ -360,6 +407,7 @@ impl GsCache {
             drawn,
             states,
             trust,
+            handed_off,
         })
     }
 
@@ -398,6 +446,10 @@ impl GsCache {
                 frame_camera.width,
                 frame_camera.height
             )));
+        }
+        if frame.handed_off {
+            self.report.train_seconds = 0.0;
+            return Ok(&self.report);
         }
         let step_now = self
             .train_calls

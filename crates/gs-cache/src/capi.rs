@@ -130,6 +130,8 @@ pub struct GsCacheConfig {
     pub adaptive_training: bool,
     /// Plain path tracing where a level's last residual says it is stale (see `CacheConfig`).
     pub fallback: bool,
+    /// Still frames after which paths run without the cache (0: never; see `CacheConfig`).
+    pub handoff_frames: u32,
     /// Frames whose samples a fresh level's colours are fitted to directly (0: Adam only).
     pub warm_start_frames: u32,
     /// Per-level masks (see the crate docs); false only for ablations.
@@ -296,6 +298,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             train_every: c.train_every,
             adaptive_training: c.adaptive_training,
             fallback: c.fallback,
+            handoff_frames: c.handoff_frames,
             warm_start_frames: c.warm_start_frames,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
@@ -350,6 +353,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         train_every: d.train_every,
         adaptive_training: d.adaptive_training,
         fallback: d.fallback,
+        handoff_frames: d.handoff_frames,
         warm_start_frames: d.warm_start_frames,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,
@@ -609,7 +613,22 @@ pub unsafe extern "C" fn gs_cache_train(
     })
 }
 
-/// Restarts Eq. 5's schedule: call it when the transfer function or the lights change.
+/// The frames from now on are averaged into one image: the handoff to plain path tracing
+/// (`handoff_frames`) counts from here, not from the frames that only trained the cache.
+///
+/// # Safety
+/// `cache` must be a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn gs_cache_start_image(cache: *mut GsCacheHandle) -> GsCacheStatus {
+    guarded(|| {
+        // SAFETY: the caller passes a live handle.
+        unsafe { handle(cache) }?.cache.start_image();
+        Ok(())
+    })
+}
+
+/// Restarts Eq. 5's schedule, the warm start and (with the fallback) the pixels' trust: call
+/// it when the transfer function or the lights change.
 ///
 /// # Safety
 /// `cache` must be a live handle.

@@ -161,6 +161,16 @@ pub struct CacheConfig {
     /// an edit, or a fresh one, then costs variance instead of brightness (see `fallback.rs`).
     #[cfg_attr(feature = "clap", arg(long = "cache-fallback", action = clap::ArgAction::Set, default_value_t = DEFAULT.fallback))]
     pub fallback: bool,
+    /// In an image accumulated over frames of a still view (`GsCache::start_image`), the frames
+    /// after which paths stop reading the cache and it stops training: from then on the frames
+    /// are plain path tracing, at its speed, so the cache's bias in the accumulated image
+    /// shrinks as the plain frames add up, where the cache's own error would level off. Counted
+    /// in frames whatever their spp. 0 never hands off. A camera move or a scene change ends
+    /// the image; interactive frames (no `start_image`) never hand off. 16 by measurement
+    /// (8, 16, 32 tried on four volumes after the experiments' warm-up): at 1 s the cache went
+    /// from 0.52-0.99x NEE's relMSE to 0.92-1.06x, unchanged at 200 ms (BENCHMARKS.md).
+    #[cfg_attr(feature = "clap", arg(long = "cache-handoff-frames", default_value_t = DEFAULT.handoff_frames))]
+    pub handoff_frames: u32,
     /// Frames over which a fresh level's colours are fitted straight to the samples (a running
     /// least-squares mean; see `warm_start.rs`) instead of by Adam; restarted when the scene
     /// changes. 0 leaves every step to Adam (the GSCache paper's).
@@ -205,6 +215,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     train_every: 1,
     adaptive_training: false,
     fallback: true,
+    handoff_frames: 16,
     warm_start_frames: 32,
     masked_targets: true,
     normalized_radiance: true,

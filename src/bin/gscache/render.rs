@@ -313,6 +313,9 @@ fn render_with_cache(
             break;
         }
         let accumulate = f >= a.warmup;
+        if f == a.warmup {
+            cache.start_image();
+        }
         let camera = if accumulate || a.warmup_orbit == 0.0 {
             scene.camera
         } else {

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The ablations behind the cache's start-up defaults (BENCHMARKS.md, "The cache from its first
 # frames"): the warm start (warm_start_frames 0 against 32), adaptive training (off against on),
-# the fallback (off against on, with a light move and a transfer-function edit) and the cache's
-# resolution divisor (4 against 3 and 2), each on neghip, hydrogen, headsq and chest CT (chest CT
+# the fallback (off against on, with a light move and a transfer-function edit), the cache's
+# resolution divisor (4 against 3 and 2) and the handoff in long images (0, 8, 16, 32 frames), each on neghip, hydrogen, headsq and chest CT (chest CT
 # needs ../shared/data), 320x180, 3 seeds, 40 warm-up frames along the runner's orbit.
 #
 # Usage: bash tools/cache_start_ablations.sh [OUT]   (default OUT: target/cache-start-ablations)
@@ -64,6 +64,13 @@ EOF
     method "divisor 2" ", resolution_divisor = 2"
   } >"$out/divisor_$volume.toml"
   {
+    header handoff
+    method "no handoff" ", handoff_frames = 0"
+    method "handoff 8" ", handoff_frames = 8"
+    method "handoff 16" ", handoff_frames = 16"
+    method "handoff 32" ", handoff_frames = 32"
+  } >"$out/handoff_$volume.toml"
+  {
     header fallback
     method "no fallback" ", fallback = false"
     method "fallback" ", fallback = true"
@@ -74,7 +81,7 @@ EOF
       printf '[[flythrough.event]]\nframe = 40\n%s\n' "${edit#*:}"
     done
   } >"$out/fallback_$volume.toml"
-  for ablation in warm_start adaptive divisor fallback; do
+  for ablation in warm_start adaptive divisor handoff fallback; do
     "$bin" experiment "$out/${ablation}_$volume.toml"
   done
 done

@@ -546,10 +546,12 @@ fn a_still_view_is_handed_back_to_plain_path_tracing() {
             ..Default::default()
         },
     );
-    // Six warm-up frames on the same camera, then the image: frames 0-3 of it read and train the
-    // cache, frame 4 on are handed off.
+    // Six warm-up frames, the last from another view (as the experiments' orbit ends), then the
+    // image: frames 0-3 of it read and train the cache, frame 4 on are handed off.
+    let aside = gscache_cli::camera_path::orbit(&s.camera, Vec3::ZERO, 3.0, 0, 2);
     for f in 0..6 {
-        let (_, handed_off) = frame(&mut cache, &s.camera, 100 + f);
+        let camera = if f == 5 { &aside } else { &s.camera };
+        let (_, handed_off) = frame(&mut cache, camera, 100 + f);
         assert!(!handed_off, "warm-up frame {f}");
     }
     cache.start_image();

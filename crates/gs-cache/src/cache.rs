@@ -321,7 +321,9 @@ impl GsCache {
         if self.frame.is_some() && !same_camera {
             self.schedule.reset();
         }
-        if self.frame.is_some() && !same_camera {
+        // A camera move after the image's first frame ends it (the first frame may move from a
+        // warm-up's last view to the image's).
+        if !same_camera && self.image_frames.is_some_and(|n| n > 0) {
             self.image_frames = None;
         }
         let handed_off = self.config.handoff_frames > 0

@@ -72,11 +72,14 @@
 //! experiment `docs/results/hydrogen_bias` isolates it with Adam alone (the GSCache paper's
 //! training): with the defaults then (`C = 0.5`) hydrogen rendered 6.0% dark at 1 and 16 spp
 //! (0.07% standard error); with early termination off -0.18% (+-0.13%), while turning off
-//! natural termination, re-weighting survivors or drawing at full resolution left it at -5.5 to
-//! -6.0%. With the warm start's least-squares colours ([`warm_start`], the default) it measures
-//! +0.1% at 1 spp, -0.6% at 16 spp and -1.4% at 64 spp (BENCHMARKS.md), the last as Adam takes
-//! over after the warm start's 32 frames: Adam's bounded steps settle away from the mean of the
-//! skewed samples early termination leaves, and a least-squares fit is their mean. A user who
+//! natural termination or drawing at full resolution left it at -5.5 to -6.0%. (Its row
+//! "re-weighting survivors" did not re-weight: at one path per pixel the weights cancelled when
+//! each pixel's mean entered the targets with weight 1. Fixed since, the weights kept through
+//! the binning, they change hydrogen's relMSE at 16 spp by 0.2%.) With the warm start's
+//! least-squares colours ([`warm_start`], the default) it measures +0.1% at 1 spp and -0.6% at
+//! 16 spp, and -1.4% at 64 spp without the handoff as Adam takes over after the warm start's 32
+//! frames (BENCHMARKS.md): Adam's bounded steps settle away from the mean of the skewed samples
+//! early termination leaves, and a least-squares fit is their mean. A user who
 //! needs the image's brightness to better than that sets `early = false` (the cache then reads
 //! only where paths end naturally, and its error gain falls: 1.0x on hydrogen) or a larger `C`.
 //!

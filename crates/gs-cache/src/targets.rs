@@ -1,5 +1,9 @@
-//! Per-level training targets: each pixel's mean sample for each level this frame, and how many
-//! samples it had (no sample: the pixel takes no part in that level's loss).
+//! Per-level training targets: each pixel's weighted mean sample for each level this frame, and
+//! how many samples it had (no sample: the pixel takes no part in that level's loss). The
+//! weights are 1, or with survivor weights the inverse of Algorithm 1's probability of going on;
+//! they are kept through the binning into cache pixels, so a bin's target is the weighted mean of
+//! every sample in it (a pixel's mean taken with weight 1 would undo them: one path per pixel
+//! has a weighted mean equal to its own sample).
 
 use crate::resolution::PixelMap;
 use crate::termination::luminance;
@@ -10,10 +14,14 @@ use glam::Vec3;
 pub struct TrainingTargets {
     width: u32,
     height: u32,
+    /// Per level, per pixel: the weighted sum of its samples.
     sums: Vec<Vec<[f32; 3]>>,
-    /// Per level, per pixel: the sum of the squared luminances of its samples (for the spread
-    /// the fallback's test needs: [`TrainingTargets::level_spread_binned`]).
+    /// Per level, per pixel: the sum of the weights.
+    weights: Vec<Vec<f32>>,
+    /// Per level, per pixel: the weighted sum of the squared luminances of its samples (for the
+    /// spread the fallback's test needs: [`TrainingTargets::level_spread_binned`]).
     squares: Vec<Vec<f32>>,
+    /// Per level, per pixel: how many samples were added.
     counts: Vec<Vec<u32>>,
     /// Samples refused this frame for being negative or not finite.
     dropped: u64,
@@ -26,6 +34,7 @@ impl TrainingTargets {
             width,
             height,
             sums: vec![vec![[0.0; 3]; n]; levels],
+            weights: vec![vec![0.0; n]; levels],
             squares: vec![vec![0.0; n]; levels],
             counts: vec![vec![0; n]; levels],
             dropped: 0,
@@ -51,15 +60,24 @@ impl TrainingTargets {
     /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite and
     /// non-negative are dropped (they would poison the loss) and counted.
     pub fn add(&mut self, level: usize, pixel: usize, value: [f32; 3]) {
-        if !value.iter().all(|v| *v >= 0.0 && v.is_finite()) {
+        self.add_weighted(level, pixel, value, 1.0);
+    }
+
+    /// [`TrainingTargets::add`] with a weight (finite and positive, else the sample is dropped
+    /// and counted).
+    pub fn add_weighted(&mut self, level: usize, pixel: usize, value: [f32; 3], weight: f32) {
+        // Written so that NaN fails.
+        if !(value.iter().all(|v| *v >= 0.0 && v.is_finite()) && weight > 0.0 && weight.is_finite())
+        {
             self.dropped += 1;
             return;
         }
         let s = &mut self.sums[level][pixel];
         for c in 0..3 {
-            s[c] += value[c];
+            s[c] += weight * value[c];
         }
-        self.squares[level][pixel] += luminance(Vec3::from_array(value)).powi(2);
+        self.weights[level][pixel] += weight;
+        self.squares[level][pixel] += weight * luminance(Vec3::from_array(value)).powi(2);
         self.counts[level][pixel] += 1;
     }
 
@@ -68,7 +86,7 @@ impl TrainingTargets {
         for s in &mut self.sums {
             s.fill([0.0; 3]);
         }
-        for s in &mut self.squares {
+        for s in self.squares.iter_mut().chain(&mut self.weights) {
             s.fill(0.0);
         }
         for c in &mut self.counts {
@@ -78,7 +96,7 @@ impl TrainingTargets {
     }
 
     /// [`TrainingTargets::level_target`] at the cache's resolution: each cache pixel takes the
-    /// mean of the samples of the frame pixels binned into it by `map`.
+    /// weighted mean of the samples of the frame pixels binned into it by `map`.
     pub fn level_target_binned(
         &self,
         level: usize,
@@ -90,25 +108,24 @@ impl TrainingTargets {
         }
         let n = map.width as usize * map.height as usize;
         let mut sums = vec![[0.0f64; 3]; n];
-        let mut counts = vec![0u64; n];
+        let mut weights = vec![0.0f64; n];
         for y in 0..self.height {
             for x in 0..self.width {
                 let i = (y * self.width + x) as usize;
-                let c = self.counts[level][i];
-                if c > 0 {
+                if self.counts[level][i] > 0 {
                     let b = map.bin(x, y);
                     for k in 0..3 {
                         sums[b][k] += self.sums[level][i][k] as f64;
                     }
-                    counts[b] += c as u64;
+                    weights[b] += self.weights[level][i] as f64;
                 }
             }
         }
         let mut target = vec![[0.0f32; 3]; n];
         let mut mask = vec![!masked; n];
         for b in 0..n {
-            if counts[b] > 0 {
-                target[b] = sums[b].map(|v| (v / counts[b] as f64) as f32);
+            if weights[b] > 0.0 {
+                target[b] = sums[b].map(|v| (v / weights[b]) as f32);
                 mask[b] = true;
             }
         }
@@ -116,11 +133,12 @@ impl TrainingTargets {
     }
 
     /// Per cache pixel of `map`, the number of samples binned into it and the variance of their
-    /// mean's luminance (the sample variance over that number; NaN below two samples): how far
-    /// the binned target may lie from its expectation by noise alone.
+    /// weighted mean's luminance (the weighted sample variance over that number; NaN below two
+    /// samples): how far the binned target may lie from its expectation by noise alone.
     pub fn level_spread_binned(&self, level: usize, map: &PixelMap) -> Vec<(u64, f32)> {
         let n = map.width as usize * map.height as usize;
-        let mut acc = vec![(0u64, 0.0f64, 0.0f64); n];
+        // Per bin: samples, summed weights, weighted luminance sum, weighted square sum.
+        let mut acc = vec![(0u64, 0.0f64, 0.0f64, 0.0f64); n];
         for y in 0..self.height {
             for x in 0..self.width {
                 let i = (y * self.width + x) as usize;
@@ -128,34 +146,36 @@ impl TrainingTargets {
                 if c > 0 {
                     let a = &mut acc[map.bin(x, y)];
                     a.0 += c as u64;
-                    a.1 += luminance(Vec3::from_array(self.sums[level][i])) as f64;
-                    a.2 += self.squares[level][i] as f64;
+                    a.1 += self.weights[level][i] as f64;
+                    a.2 += luminance(Vec3::from_array(self.sums[level][i])) as f64;
+                    a.3 += self.squares[level][i] as f64;
                 }
             }
         }
         acc.into_iter()
-            .map(|(count, sum, squares)| {
-                if count < 2 {
+            .map(|(count, weight, sum, squares)| {
+                if count < 2 || !(weight > 0.0) {
                     return (count, f32::NAN);
                 }
                 let k = count as f64;
-                let mean = sum / k;
-                let variance = ((squares - k * mean * mean) / (k - 1.0)).max(0.0);
+                let mean = sum / weight;
+                let variance = ((squares / weight - mean * mean) * k / (k - 1.0)).max(0.0);
                 (count, (variance / k) as f32)
             })
             .collect()
     }
 
-    /// The mean target image of `level` and its mask (pixels with at least one sample). With
-    /// `masked = false` every pixel is valid and pixels without samples target zero.
+    /// The weighted mean target image of `level` and its mask (pixels with at least one
+    /// sample). With `masked = false` every pixel is valid and pixels without samples target
+    /// zero.
     pub fn level_target(&self, level: usize, masked: bool) -> (Vec<[f32; 3]>, Vec<bool>) {
         let sums = &self.sums[level];
-        let counts = &self.counts[level];
+        let weights = &self.weights[level];
         let mut target = vec![[0.0f32; 3]; sums.len()];
         let mut mask = vec![!masked; sums.len()];
         for i in 0..sums.len() {
-            if counts[i] > 0 {
-                let inv = 1.0 / counts[i] as f32;
+            if weights[i] > 0.0 {
+                let inv = 1.0 / weights[i];
                 target[i] = sums[i].map(|v| v * inv);
                 mask[i] = true;
             }
@@ -226,7 +246,7 @@ impl TileTargets {
 }
 
 impl TrainingTargets {
-    /// Adds each pixel's mean sample of `tile`, level by level. The tile must lie inside the
+    /// Adds each pixel's weighted mean sample of `tile`, with its summed weight, level by level. The tile must lie inside the
     /// image and have at most this frame's levels.
     pub fn add_tile(&mut self, tile: &TileTargets) {
         self.dropped += tile.dropped;
@@ -239,7 +259,9 @@ impl TrainingTargets {
                     if tile.weights[k] > 0.0 {
                         let pixel = ((tile.y0 + j) * self.width + tile.x0 + i) as usize;
                         let mean = tile.sums[k] / tile.weights[k];
-                        self.add(level, pixel, mean.to_array());
+                        // The pixel's weighted mean, with its summed weight: a bin then weighs
+                        // each pixel by its samples' weights.
+                        self.add_weighted(level, pixel, mean.to_array(), tile.weights[k]);
                     }
                 }
             }
@@ -266,9 +288,28 @@ mod tests {
         targets.add_tile(&tile);
         targets.add(0, 1, [f32::NAN; 3]);
         assert_eq!(targets.dropped(), 4);
-        assert_eq!(targets.sums[0][0], [2.0; 3]); // the mean of 1 and 3
+        assert_eq!(targets.sums[0][0], [4.0; 3]); // the mean of 1 and 3, weight 2
         assert_eq!(targets.counts[0], vec![1, 0]);
+        assert_eq!(targets.weights[0], vec![2.0, 0.0]);
         targets.clear();
         assert_eq!(targets.dropped(), 0);
+    }
+
+    /// Survivor weights survive the binning: two pixels in one cache pixel, each with one path,
+    /// one of weight 1 and value 1, one of weight 3 and value 5: the bin's target is their
+    /// weighted mean 4, not the plain mean 3 (which taking each pixel's mean with weight 1 gave).
+    #[test]
+    fn weights_are_kept_through_the_binning() {
+        let mut tile = TileTargets::new(1, 0, 0, 2, 2);
+        tile.add_samples(0, [(0, Vec3::splat(1.0), 1.0)]);
+        tile.add_samples(1, [(0, Vec3::splat(5.0), 3.0)]);
+        let mut targets = TrainingTargets::new(1, 2, 2);
+        targets.add_tile(&tile);
+        let map = PixelMap::for_size(2, 2, 2);
+        assert_eq!((map.width, map.height), (1, 1));
+        let (target, mask) = targets.level_target_binned(0, true, &map);
+        assert_eq!((target, mask), (vec![[4.0; 3]], vec![true]));
+        let (target, _) = targets.level_target(0, true);
+        assert_eq!(&target[..2], &[[1.0; 3], [5.0; 3]]);
     }
 }

@@ -48,8 +48,12 @@ pub struct CacheRecord {
     pub warmup_seconds: f64,
     /// Per frame (warm-up, then measured): per level, the MSE before the step.
     pub level_mse: Vec<Vec<Option<f64>>>,
-    /// Per measured frame: seconds of path tracing, lookup (splatting) and training.
+    /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting) and
+    /// training. Frames after the handoff (plain path tracing) are counted in `handed_off`
+    /// instead, so the cache's per-frame cost is that of the frames that pay it.
     pub frame_seconds: Vec<[f64; 3]>,
+    /// Measured frames traced without the cache after its handoff.
+    pub handed_off: u32,
     /// The levels as last drawn, at the scene camera.
     pub level_images: Vec<Vec<Vec3>>,
     pub parameter_bytes: usize,
@@ -165,9 +169,13 @@ pub fn run_method(
         let secs = start.elapsed().as_secs_f64();
         record.nonfinite_samples += s.nonfinite_samples;
         record.level_mse.push(cache.report().mse.clone());
-        record
-            .frame_seconds
-            .push([s.trace_seconds, s.lookup_seconds, s.train_seconds]);
+        if cache.report().handed_off {
+            record.handed_off += 1;
+        } else {
+            record
+                .frame_seconds
+                .push([s.trace_seconds, s.lookup_seconds, s.train_seconds]);
+        }
         Ok(secs)
     })?;
     if let Some(frame) = cache.frame() {

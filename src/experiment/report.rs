@@ -205,11 +205,12 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     md.push_str(&findings(r));
     if !r.caches.is_empty() {
         let _ = writeln!(md, "\n## Caches (first seed)\n");
-        md.push_str("| method | init ms | warm-up frames | warm-up s | trace ms per frame | splat ms | train ms | (splat + train) / trace | MB |\n|---|---|---|---|---|---|---|---|---|\n");
+        md.push_str("Per-frame costs are over the measured frames that used the cache; the frames after its handoff to plain path tracing (`handoff_frames`) are counted apart.\n\n");
+        md.push_str("| method | init ms | warm-up frames | warm-up s | trace ms per frame | splat ms | train ms | (splat + train) / trace | frames with the cache / handed off | MB |\n|---|---|---|---|---|---|---|---|---|---|\n");
         for c in &r.caches {
             let _ = writeln!(
                 md,
-                "| {} | {:.0} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2}x | {:.1} |",
+                "| {} | {:.0} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.2}x | {} / {} | {:.1} |",
                 c.method,
                 c.init_seconds * 1e3,
                 c.warmup_frames,
@@ -218,6 +219,8 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
                 c.splat_ms,
                 c.train_ms,
                 (c.splat_ms + c.train_ms) / c.trace_ms.max(1e-9),
+                c.record.frame_seconds.len(),
+                c.record.handed_off,
                 c.parameter_bytes as f64 / 1e6
             );
         }

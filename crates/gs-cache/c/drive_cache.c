@@ -36,7 +36,7 @@ int main(int argc, char **argv) {
     GsCacheConfig config = gs_cache_default_config();
     CHECK(config.levels == 3, "default levels %u", config.levels);
     CHECK(fabsf(config.c - 0.5f) < 1e-7f, "C %g", config.c);
-    CHECK(fabsf(config.lr_color - 0.0125f) < 1e-7f, "colour rate %g", config.lr_color);
+    CHECK(fabsf(config.lr_color - 0.1f) < 1e-7f, "colour rate %g", config.lr_color);
 
     /* Algorithm 1: C = 0.5 times the luminance of a grey albedo product 0.8 is 0.4. */
     const float grey[3] = {0.8f, 0.8f, 0.8f};

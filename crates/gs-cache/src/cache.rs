@@ -164,6 +164,9 @@ pub struct GsCache {
     traced: Vec<Option<GaussianScene>>,
     /// Calls of [`GsCache::train`] so far (a step is taken on one in `train_every`).
     train_calls: u64,
+    /// A fresh cache before its first training frame: its colours are still the albedo start
+    /// and it has no radiance scale, so (with the fallback) that frame is plain path tracing.
+    fresh: bool,
     /// Frames drawn since [`GsCache::start_image`] on the same camera with the scene unchanged
     /// (`None`: no image is accumulating, so no handoff).
     image_frames: Option<u32>,
@@ -204,6 +207,7 @@ impl GsCache {
             l.absolute_colors = false;
             l.warm_steps = 0;
         }
+        cache.fresh = true;
         Ok(cache)
     }
 
@@ -249,6 +253,7 @@ impl GsCache {
             schedule: Schedule::new(config.decay),
             train_calls: 0,
             image_frames: None,
+            fresh: false,
             levels_changed: true,
             traced: Vec::new(),
             frame: None,
@@ -346,6 +351,9 @@ impl GsCache {
         let trust = self.config.fallback.then(|| {
             let mut trust = self.frame.take().and_then(|f| f.trust).unwrap_or_default();
             trust.fit(self.levels.len(), map.width, map.height);
+            if self.fresh {
+                trust.distrust_all();
+            }
             trust
         });
         let draw_camera = &cache_camera;
@@ -472,6 +480,11 @@ impl GsCache {
                     }
                 }
             }
+            if std::mem::replace(&mut self.fresh, false)
+                && let Some(trust) = frame.trust.as_mut()
+            {
+                trust.trust_all();
+            }
             self.report.train_seconds = 0.0;
             return Ok(&self.report);
         }
@@ -512,7 +525,7 @@ impl GsCache {
                 let f = scale / drawn_scale;
                 prediction.iter_mut().flatten().for_each(|v| *v *= f);
             }
-            if let Some(trust) = frame.trust.as_mut() {
+            if let Some(trust) = frame.trust.as_mut().filter(|_| !self.fresh) {
                 let spread = targets.level_spread_binned(i, &map);
                 self.report.stale_fraction[i] = trust.update(i, &prediction, &target, &spread);
             }
@@ -566,6 +579,13 @@ impl GsCache {
                 }
                 None => frame.images[i] = prediction,
             }
+        }
+        if std::mem::replace(&mut self.fresh, false)
+            && let Some(trust) = frame.trust.as_mut()
+        {
+            // The first frame's samples set the radiance scales and the first fit: from now on
+            // the levels are radiance, and the residual test takes over.
+            trust.trust_all();
         }
         // The schedule watches the levels' summed HDR loss (relative to the prediction, so levels
         // of any brightness weigh alike) to see when training levels off.

@@ -111,7 +111,11 @@ pub struct CacheConfig {
     /// Learning rate of the means (the GSCache paper's section 4.1).
     #[cfg_attr(feature = "clap", arg(long = "cache-lr-position", default_value_t = DEFAULT.lr_position))]
     pub lr_position: f32,
-    /// Learning rate of the colours.
+    /// Learning rate of the colours, relative to each level's mean radiance (with
+    /// `normalized_radiance`): 0.1, eight times the GSCache paper's 0.0125 for absolute colours,
+    /// by measurement on four volumes after the experiments' orbit warm-up (0.0125, 0.05, 0.1,
+    /// 0.25: 0.1 best or within a standard error of the best at 16 spp and 200 ms but for
+    /// hydrogen's brightness, -1.5% against -0.6% at 0.05; BENCHMARKS.md).
     #[cfg_attr(feature = "clap", arg(long = "cache-lr-color", default_value_t = DEFAULT.lr_color))]
     pub lr_color: f32,
     /// Learning rate of the rotations.
@@ -203,7 +207,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     optimizer: Optimizer::AdamW,
     decay: Decay::Plateau,
     lr_position: 1.16e-3,
-    lr_color: 1.25e-2,
+    lr_color: 0.1,
     lr_rotation: 1e-3,
     lr_scales: 0.0,
     lr_opacity: 1.5e-1,

@@ -79,6 +79,13 @@ impl Trust {
         }
     }
 
+    /// Trusts every pixel of every level (a fresh cache after its first frame).
+    pub fn trust_all(&mut self) {
+        self.levels
+            .iter_mut()
+            .for_each(|l| l.fill(Verdict::Trusted));
+    }
+
     /// Distrusts every pixel of every level (the scene changed).
     pub fn distrust_all(&mut self) {
         self.levels

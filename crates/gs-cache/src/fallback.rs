@@ -26,12 +26,13 @@
 //! **When it distrusts.** A scene change (`GsCache::reset_schedule`) distrusts every pixel
 //! until its first residual: the frame after an edit is plain path tracing, bit for bit, and the
 //! warm start, restarted with it, refits the colours from that frame's samples, so most pixels
-//! come back the frame after. A fresh cache is trusted from its first frame, although its
-//! colours are still the albedo start. Distrusting it was measured worse: after the experiments'
-//! 40-frame orbit warm-up, plain first frames left headsq's cache at 1.9-2.5x the relMSE of a
-//! trusted start, through the training they feed (the first frame's plain paths give gradients
-//! 3x larger, which Adam's second moment keeps: resetting the moments after that frame closed a
-//! fifth of the gap; the rest was not traced), while on a still camera the two were within 10%.
+//! come back the frame after. A fresh cache's first frame is plain path tracing too (its colours
+//! are still the albedo start, and its radiance scales come from that frame's samples); every
+//! pixel is trusted from the second frame, whose residuals then take over. Reading the albedo
+//! start as radiance on that first frame had made it 35x worse than NEE on headsq, and had
+//! inflated the radiance scales (2.7x on headsq) through the self-training samples, which
+//! raised the colour learning rate by accident: the default rate was measured again with
+//! unbiased scales (`CacheConfig::lr_color`).
 
 //! **What it does not see.** The test is in screen space: after a camera move the last frame's
 //! verdicts are read at the same pixels, which for small moves (a 1.5 degree orbit step) is
@@ -66,8 +67,9 @@ pub struct Trust {
 }
 
 impl Trust {
-    /// Sized for `levels` levels of `width` x `height` cache pixels; a new size (or a fresh
-    /// cache) trusts every pixel, as a fresh cache is (see the module docs).
+    /// Sized for `levels` levels of `width` x `height` cache pixels; a new size trusts every
+    /// pixel (the levels hold radiance whatever the image's size). A fresh cache is distrusted
+    /// for its first frame by the cache itself (see the module docs).
     pub fn fit(&mut self, levels: usize, width: u32, height: u32) {
         let n = width as usize * height as usize;
         if self.width != width || self.height != height || self.levels.len() != levels {
@@ -159,7 +161,7 @@ mod tests {
     fn a_pixel_is_distrusted_only_for_a_large_error_beyond_the_noise_twice() {
         let mut trust = Trust::default();
         trust.fit(1, 5, 1);
-        assert_eq!(trust.trusted_fraction(0), 1.0, "a fresh cache is trusted");
+        assert_eq!(trust.trusted_fraction(0), 1.0, "a new map is trusted");
         trust.distrust_all();
         let drawn = [[1.0; 3]; 5];
         let target = [[1.5; 3], [1.1; 3], [3.0; 3], [3.0; 3], [f32::NAN; 3]];

@@ -5,6 +5,7 @@ use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache, Lookup};
 use gscache_cli::metrics::rel_mse;
+use splat_raster::Camera;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use volume_pt::{Film, Scene, load_scene, render, sample_cache_points};
@@ -59,6 +60,26 @@ fn cached(scene: &Scene, cache: &mut GsCache, frames: u32, keep: u32, seed: u64)
         )
         .unwrap();
     }
+    film.mean()
+}
+
+/// Renders frame `f` of 1 spp with seed `seed` from `camera`, reading and training `cache`;
+/// returns the frame's image.
+fn one_frame(s: &Scene, camera: &Camera, seed: u64, f: u32, cache: &mut GsCache) -> Vec<Vec3> {
+    let mut settings = s.settings;
+    settings.spp = 1;
+    settings.seed = seed;
+    let mut film = Film::new(camera.width, camera.height);
+    render_cached_frame(
+        &s.media,
+        camera,
+        &settings,
+        f,
+        Some(&mut film),
+        cache,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
     film.mean()
 }
 
@@ -338,8 +359,6 @@ fn train_every_steps_on_one_frame_in_k() {
 #[test]
 fn warm_start_fits_the_samples_in_a_few_frames() {
     let s = scene();
-    let mut settings = s.settings;
-    settings.spp = 1;
     let fit = |warm_start_frames| {
         let config = CacheConfig {
             warm_start_frames,
@@ -350,16 +369,7 @@ fn warm_start_fits_the_samples_in_a_few_frames() {
         let mut cache = new_cache(&s, config);
         let mut mse = Vec::new();
         for _ in 0..5 {
-            render_cached_frame(
-                &s.media,
-                &s.camera,
-                &settings,
-                0,
-                None,
-                &mut cache,
-                &AtomicBool::new(false),
-            )
-            .unwrap();
+            one_frame(&s, &s.camera, s.settings.seed, 0, &mut cache);
             mse.push(cache.report().mse[0].unwrap());
         }
         mse[4] / mse[0]
@@ -385,20 +395,9 @@ fn still_frames_without_a_step_reuse_the_drawn_levels() {
             ..Default::default()
         },
     );
-    let mut settings = s.settings;
-    settings.spp = 1;
     let moved = gscache_cli::camera_path::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
     let render_with = |cache: &mut GsCache, camera, f| {
-        render_cached_frame(
-            &s.media,
-            camera,
-            &settings,
-            f,
-            None,
-            cache,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+        one_frame(&s, camera, s.settings.seed, f, cache);
         cache.report().lookup_reused
     };
     // Frame 0 steps (train_every = 2), frame 1 draws anew and does not step, frame 2 reuses.
@@ -430,23 +429,7 @@ fn still_frames_without_a_step_reuse_the_drawn_levels() {
 #[test]
 fn after_a_scene_change_the_fallback_renders_plain_nee() {
     let s = scene();
-    let mut settings = s.settings;
-    settings.spp = 1;
-    settings.seed = 11;
-    let frame = |cache: &mut GsCache, f| {
-        let mut film = Film::new(SIZE, SIZE);
-        render_cached_frame(
-            &s.media,
-            &s.camera,
-            &settings,
-            f,
-            Some(&mut film),
-            cache,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
-        film.mean()
-    };
+    let frame = |cache: &mut GsCache, f| one_frame(&s, &s.camera, 11, f, cache);
     let plain_first = plain(&s, 1, 11);
     let mut on = new_cache(&s, CacheConfig::default());
     let mut off = new_cache(
@@ -518,9 +501,6 @@ fn an_unreported_change_falls_back_within_frames() {
 #[test]
 fn a_still_view_is_handed_back_to_plain_path_tracing() {
     let s = scene();
-    let mut settings = s.settings;
-    settings.spp = 1;
-    settings.seed = 11;
     let mut cache = new_cache(
         &s,
         CacheConfig {
@@ -529,18 +509,8 @@ fn a_still_view_is_handed_back_to_plain_path_tracing() {
         },
     );
     let frame = |cache: &mut GsCache, camera, f| {
-        let mut film = Film::new(SIZE, SIZE);
-        render_cached_frame(
-            &s.media,
-            camera,
-            &settings,
-            f,
-            Some(&mut film),
-            cache,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
-        (film.mean(), cache.report().handed_off)
+        let image = one_frame(&s, camera, 11, f, cache);
+        (image, cache.report().handed_off)
     };
     let colours = |c: &GsCache| c.levels()[0].cloud.colors.clone();
     // Plain path tracing of frame f: a cache that is never read (early and natural termination

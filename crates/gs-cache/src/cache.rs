@@ -99,15 +99,18 @@ impl CacheFrame {
     pub fn image(&self, level: usize) -> &[[f32; 3]] {
         &self.images[level]
     }
-    /// Whether paths through row-major frame pixel `pixel` may stop into `level` (see
+    /// The cache pixel that holds row-major frame pixel `pixel` (what [`CacheFrame::trusted`]
+    /// takes; a path computes it once).
+    #[inline]
+    pub fn bin(&self, pixel: usize) -> usize {
+        let w = self.camera.width as usize;
+        self.map.bin((pixel % w) as u32, (pixel / w) as u32)
+    }
+    /// Whether paths through cache pixel `bin` ([`CacheFrame::bin`]) may stop into `level` (see
     /// [`crate::fallback`]); always true with the fallback off.
     #[inline]
-    pub fn trusted(&self, level: usize, pixel: usize) -> bool {
-        !self.handed_off
-            && self.trust.as_ref().is_none_or(|t| {
-                let w = self.camera.width as usize;
-                t.trusted(level, self.map.bin((pixel % w) as u32, (pixel / w) as u32))
-            })
+    pub fn trusted(&self, level: usize, bin: usize) -> bool {
+        !self.handed_off && self.trust.as_ref().is_none_or(|t| t.trusted(level, bin))
     }
     /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback off, 0
     /// once handed off).
@@ -287,8 +290,9 @@ impl GsCache {
     /// The scene changed (the transfer function or the lights): restarts Eq. 5's schedule and
     /// the warm start, whose colour fits re-converge in a few frames where Adam's steps would
     /// take tens, and (with the fallback) sends every pixel back to plain path tracing until its
-    /// residuals show the level fits again. A camera change is noticed by [`GsCache::begin_frame`] and restarts only the
-    /// schedule: the levels' world-space colours stay right when the view moves.
+    /// residuals show the level fits again. A camera change is noticed by
+    /// [`GsCache::begin_frame`] and restarts only the schedule: the levels' world-space colours
+    /// stay right when the view moves.
     pub fn reset_schedule(&mut self) {
         self.schedule.reset();
         for level in &mut self.levels {
@@ -480,11 +484,7 @@ impl GsCache {
                     }
                 }
             }
-            if std::mem::replace(&mut self.fresh, false)
-                && let Some(trust) = frame.trust.as_mut()
-            {
-                trust.trust_all();
-            }
+            settle_fresh(&mut self.fresh, frame);
             self.report.train_seconds = 0.0;
             return Ok(&self.report);
         }
@@ -580,13 +580,7 @@ impl GsCache {
                 None => frame.images[i] = prediction,
             }
         }
-        if std::mem::replace(&mut self.fresh, false)
-            && let Some(trust) = frame.trust.as_mut()
-        {
-            // The first frame's samples set the radiance scales and the first fit: from now on
-            // the levels are radiance, and the residual test takes over.
-            trust.trust_all();
-        }
+        settle_fresh(&mut self.fresh, frame);
         // The schedule watches the levels' summed HDR loss (relative to the prediction, so levels
         // of any brightness weigh alike) to see when training levels off.
         let losses: Vec<f64> = self.report.losses.iter().flatten().copied().collect();
@@ -600,6 +594,17 @@ impl GsCache {
     /// Timings and losses of the last frame.
     pub fn report(&self) -> &FrameReport {
         &self.report
+    }
+}
+
+/// After a fresh cache's first training frame: its samples set the radiance scales (and the
+/// first fit), so from now on the levels are radiance, every pixel is trusted, and the residual
+/// test takes over.
+fn settle_fresh(fresh: &mut bool, frame: &mut CacheFrame) {
+    if std::mem::replace(fresh, false)
+        && let Some(trust) = frame.trust.as_mut()
+    {
+        trust.trust_all();
     }
 }
 

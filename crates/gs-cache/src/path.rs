@@ -17,6 +17,8 @@ use glam::Vec3;
 pub struct CachedPath<'a> {
     frame: &'a CacheFrame,
     pixel: usize,
+    /// The cache pixel holding `pixel`, for the fallback's verdicts.
+    bin: usize,
     termination: TerminationConfig,
     /// Vertices so far (the path length if it ended now).
     length: usize,
@@ -39,6 +41,7 @@ impl<'a> CachedPath<'a> {
         Self {
             frame,
             pixel,
+            bin: frame.bin(pixel),
             termination,
             length: 0,
             albedo_product: Vec3::ONE,
@@ -95,7 +98,7 @@ impl<'a> CachedPath<'a> {
     pub fn continue_probability(&self) -> f32 {
         if self.length == 0
             || self.length > self.frame.levels()
-            || !self.frame.trusted(self.length - 1, self.pixel)
+            || !self.frame.trusted(self.length - 1, self.bin)
         {
             return 1.0;
         }
@@ -132,7 +135,7 @@ impl<'a> CachedPath<'a> {
                 if self.termination.natural
                     && carried_nothing
                     && n < self.frame.levels()
-                    && self.frame.trusted(n, self.pixel) =>
+                    && self.frame.trusted(n, self.bin) =>
             {
                 self.frame.value(n, self.pixel)
             }

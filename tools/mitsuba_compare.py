@@ -8,12 +8,16 @@ interpolating, so only nearest filtering is the same medium). Both run with unli
 length, so no depth convention is involved.
 
     pip install mitsuba numpy
-    python3 tools/mitsuba_compare.py data/scenes/default.toml --spp 1024 --size 128
+    cargo build --release
+    python3 tools/mitsuba_compare.py agree data/scenes/default.toml --spp 1024 --size 128
+    python3 tools/mitsuba_compare.py variance data/scenes/one_light.toml --spp 256 --seeds 4
 
-Reports each renderer's time, the mean ratio, and the relative MSE between the two images next to
+`agree` reports each renderer's time, the mean ratio, and the relative MSE between the two images next to
 the relative MSE between two of our own renders with different seeds (the noise floor): agreement
 means the first is close to the second. Block means (8x8 pixels) are also z-tested, with the
-noise estimated from the seed-to-seed spread of our two renders.
+noise estimated from the seed-to-seed spread of our two renders. `variance` measures each
+renderer's error per sample (relMSE x spp) over several seeds against one high-spp reference,
+and the efficiency ratio 1 / (relMSE x time).
 """
 import argparse
 import pathlib
@@ -110,7 +114,7 @@ def our_render(binary, scene_path, desc, spp, size, seed, tmp):
     path.write_text(to_toml(d))
     out = tmp / f"ours_{seed}.exr"
     t0 = time.time()
-    r = subprocess.run([binary, str(path), "--spp", str(spp), "--width", str(size), "--height", str(size),
+    r = subprocess.run([binary, "render", str(path), "--spp", str(spp), "--width", str(size), "--height", str(size),
                         "--max-depth", "-1", "--seed", str(seed), "-o", str(out), "-q"],
                        capture_output=True, text=True)
     if r.returncode != 0:
@@ -147,15 +151,8 @@ def relmse(a, b, eps=0.01):
     return float(np.mean((a - b) ** 2 / (b ** 2 + eps)))
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("scene")
-    ap.add_argument("--spp", type=int, default=1024)
-    ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--binary", default="target/release/render")
-    ap.add_argument("--variant", default="scalar_rgb",
-                    help="Mitsuba variant: scalar_rgb, or llvm_ad_rgb (vectorised JIT; needs libLLVM)")
-    args = ap.parse_args()
+def agree(args):
+    """Pixel-by-pixel agreement: two of our renders and one of Mitsuba's at the same spp."""
     scene_path = pathlib.Path(args.scene).resolve()
     desc = tomllib.loads(scene_path.read_text())
     import mitsuba as mi
@@ -194,6 +191,80 @@ def main():
     z = (ours_mean - m_mean) / np.sqrt(var_block / 2 + var_block + (1e-5 * m_mean) ** 2 + 1e-30)
     print(f"8x8 blocks: mean z {z.mean():+.3f}, rms z {np.sqrt((z ** 2).mean()):.3f} (1 if they agree), "
           f"fraction |z| > 3: {(np.abs(z) > 3).mean():.4f} (0.0027 if they agree; {z.size} blocks)")
+
+
+def variance(args):
+    """Per-sample variance and efficiency: `seeds` renders each at `spp` against one reference.
+
+    relMSE x spp is the error of one sample, comparable across spp; it is measured two ways:
+    against a high-spp reference of ours (minus the reference's own share, estimated from the
+    seed spread), and from the seed spread alone (the per-pixel sample variance across seeds over
+    reference^2 + eps, which needs the reference only to normalise). Efficiency is
+    1 / (relMSE x time) with each renderer's median render time (Mitsuba's excludes scene loading
+    and its first, JIT-compiling render).
+    """
+    scene_path = pathlib.Path(args.scene).resolve()
+    desc = tomllib.loads(scene_path.read_text())
+    import mitsuba as mi
+    mi.set_variant(args.variant)
+    cache = pathlib.Path(args.reference_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    ref_path = cache / f"{scene_path.stem}_{args.size}_{args.reference_spp}.npy"
+    with tempfile.TemporaryDirectory() as t:
+        tmp = pathlib.Path(t)
+        if ref_path.exists():
+            ref = np.load(ref_path)
+        else:
+            ref, t_ref, _ = our_render(args.binary, scene_path, desc, args.reference_spp, args.size, 9999, tmp)
+            np.save(ref_path, ref)
+            print(f"reference: {args.reference_spp} spp in {t_ref:.1f} s -> {ref_path}")
+        ours = [our_render(args.binary, scene_path, desc, args.spp, args.size, 1 + s, tmp)[:2]
+                for s in range(args.seeds)]
+    # A first render compiles Mitsuba's kernels (llvm) and warms its caches: not timed.
+    mitsuba_render(scene_path, desc, 1, args.size, 0, args.variant)
+    mits = [mitsuba_render(scene_path, desc, args.spp, args.size, 101 + s, args.variant)
+            for s in range(args.seeds)]
+    eps = 0.01
+    print(f"scene {scene_path.name}, {args.size}x{args.size}, {args.spp} spp x {args.seeds} seeds, "
+          f"reference {args.reference_spp} spp (ours), unlimited path length, nearest filter, "
+          f"mitsuba {args.variant}")
+    rows = {}
+    for name, runs in (("ours", ours), ("mitsuba", mits)):
+        imgs = np.stack([r[0] for r in runs])
+        times = np.array([r[1] for r in runs])
+        per_seed = np.array([relmse(im, ref, eps) for im in imgs]) * args.spp
+        spread = imgs.var(axis=0, ddof=1) / (ref ** 2 + eps)
+        spread_spp = float(spread.mean()) * args.spp
+        # The reference's own noise adds spread/reference_spp to each render's relMSE.
+        ref_share = spread_spp / args.reference_spp
+        mean = per_seed.mean() - ref_share
+        half = 1.96 * per_seed.std(ddof=1) / np.sqrt(len(per_seed))
+        t_med = float(np.median(times))
+        rows[name] = (mean, spread_spp, t_med)
+        print(f"{name:8s} relMSE x spp {mean:.4f} +- {half:.4f} (95%, seeds {', '.join(f'{x:.4f}' for x in per_seed)}; "
+              f"reference share {ref_share:.1e} removed), seed spread {spread_spp:.4f}, "
+              f"median time {t_med:.2f} s, efficiency {1 / (mean / args.spp * t_med):.1f}")
+    (eo, so, to), (em, sm, tm) = rows["ours"], rows["mitsuba"]
+    print(f"ours / mitsuba: relMSE x spp {eo / em:.3f} (seed spread {so / sm:.3f}), time {to / tm:.3f}, "
+          f"efficiency ratio {(em * tm) / (eo * to):.2f}x")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    sub = ap.add_subparsers(dest="mode", required=True)
+    for mode, spp in (("agree", 1024), ("variance", 256)):
+        p = sub.add_parser(mode)
+        p.add_argument("scene")
+        p.add_argument("--spp", type=int, default=spp)
+        p.add_argument("--size", type=int, default=128)
+        p.add_argument("--binary", default="target/release/gscache")
+        p.add_argument("--variant", default="scalar_rgb",
+                       help="Mitsuba variant: scalar_rgb, or llvm_ad_rgb (vectorised JIT; needs libLLVM)")
+    p.add_argument("--seeds", type=int, default=4)
+    p.add_argument("--reference-spp", type=int, default=16384)
+    p.add_argument("--reference-dir", default="out/mitsuba_compare")
+    args = ap.parse_args()
+    (agree if args.mode == "agree" else variance)(args)
 
 if __name__ == "__main__":
     main()

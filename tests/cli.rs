@@ -474,3 +474,57 @@ fn a_fit_target_with_nan_or_no_end_is_refused() {
         );
     }
 }
+
+#[test]
+fn bench_large_tiles_the_bundled_volume_and_renders_it() {
+    let d = scratch("large");
+    let out = Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .args([
+            "bench", "large", "--voxels", "128", "--size", "16", "--spp", "1",
+        ])
+        .arg("--dir")
+        .arg(&d)
+        .args(["--threads", "2"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("| neghip tiled 128^3 (uint8) | 0.002 G | 1 |"),
+        "{stdout}"
+    );
+    // Voxel (x, y, z) of the tiled file is voxel (x % 64, y % 64, z % 64) of the tile.
+    let tiled = std::fs::read(d.join("neghip_tiled_128x128x128_uint8.raw")).unwrap();
+    let tile = std::fs::read(repo().join("data/volumes/neghip_64x64x64_uint8.raw")).unwrap();
+    assert_eq!(tiled.len(), 128 * 128 * 128);
+    for (x, y, z) in [
+        (0, 0, 0),
+        (70, 3, 5),
+        (31, 100, 64),
+        (127, 127, 127),
+        (64, 65, 126),
+    ] {
+        assert_eq!(
+            tiled[x + 128 * (y + 128 * z)],
+            tile[x % 64 + 64 * (y % 64 + 64 * (z % 64))],
+            "voxel ({x}, {y}, {z})"
+        );
+    }
+    let bad = Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .args(["bench", "large", "--voxels", "100"])
+        .arg("--dir")
+        .arg(&d)
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(
+        String::from_utf8_lossy(&bad.stderr).contains("not a multiple of the tile's 64 voxels"),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
+    std::fs::remove_dir_all(&d).unwrap();
+}

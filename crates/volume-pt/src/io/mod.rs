@@ -188,16 +188,27 @@ pub(crate) fn decode_voxels(bytes: &[u8], dtype: DType, order: ByteOrder) -> Vox
             })
         };
     }
+    let n = bytes.len() / dtype.size();
     match dtype {
-        DType::U8 => Voxels::U8(bytes.to_vec()),
-        DType::I8 => Voxels::I8(bytes.iter().map(|&b| b as i8).collect()),
-        DType::U16 => Voxels::U16(decode!(u16, 2).collect()),
-        DType::I16 => Voxels::I16(decode!(i16, 2).collect()),
-        DType::U32 => Voxels::F32(decode!(u32, 4).map(|v| v as f32).collect()),
-        DType::I32 => Voxels::F32(decode!(i32, 4).map(|v| v as f32).collect()),
-        DType::F32 => Voxels::F32(decode!(f32, 4).collect()),
-        DType::F64 => Voxels::F32(decode!(f64, 8).map(|v| v as f32).collect()),
+        DType::U8 => Voxels::U8(collect_voxels(bytes.iter().copied(), n)),
+        DType::I8 => Voxels::I8(collect_voxels(bytes.iter().map(|&b| b as i8), n)),
+        DType::U16 => Voxels::U16(collect_voxels(decode!(u16, 2), n)),
+        DType::I16 => Voxels::I16(collect_voxels(decode!(i16, 2), n)),
+        DType::U32 => Voxels::F32(collect_voxels(decode!(u32, 4).map(|v| v as f32), n)),
+        DType::I32 => Voxels::F32(collect_voxels(decode!(i32, 4).map(|v| v as f32), n)),
+        DType::F32 => Voxels::F32(collect_voxels(decode!(f32, 4), n)),
+        DType::F64 => Voxels::F32(collect_voxels(decode!(f64, 8).map(|v| v as f32), n)),
     }
+}
+
+/// The `n` voxels of `values` in a buffer reserved once and backed by huge pages where the
+/// system offers them (the voxels are read at random while rendering; see
+/// [`budget::advise_huge_pages`]).
+fn collect_voxels<T>(values: impl Iterator<Item = T>, n: usize) -> Vec<T> {
+    let mut out = Vec::with_capacity(n);
+    budget::advise_huge_pages(&mut out);
+    out.extend(values);
+    out
 }
 
 /// [`decode_voxels`] of `bytes[skip..]`, reusing the buffer for bytes (no copy of a

@@ -14,9 +14,13 @@
 //! - `bench stability`: the cache over a 1000-frame orbit on every volume, inspected for
 //!   non-finite values, exploding or straying Gaussians.
 //!
+//! - `bench large`: the path tracer on a gigavoxel (a bundled volume tiled to 1024^3): load
+//!   time, peak memory, samples per second.
+//!
 //! Inputs that live in `../shared/data` are skipped, with a note, when it is absent.
 
 mod cache_bench;
+mod large_bench;
 mod splat_bench;
 mod stability_bench;
 mod trace_bench;
@@ -47,6 +51,8 @@ enum Sub {
     Cache(cache_bench::CacheBenchArgs),
     /// The radiance cache over a long fly-through: no NaN, no exploding Gaussians.
     Stability(stability_bench::StabilityArgs),
+    /// The path tracer on a gigavoxel volume: load time, peak memory, samples per second.
+    Large(large_bench::LargeArgs),
     /// Error of EXR images against a reference EXR: relMSE and PSNR.
     Compare {
         reference: PathBuf,
@@ -93,6 +99,7 @@ pub fn run(cli: BenchArgs) -> Result<i32> {
         Some(Sub::Trace(a)) => trace_bench::run(&a),
         Some(Sub::Cache(a)) => cache_bench::run(&a),
         Some(Sub::Stability(a)) => stability_bench::run(&a),
+        Some(Sub::Large(a)) => large_bench::run(&a),
         Some(Sub::Pt(a)) => run_pt(a),
         Some(Sub::Compare { reference, images }) => compare(&reference, &images),
         None => run_pt(cli.pt),

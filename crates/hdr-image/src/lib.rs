@@ -172,8 +172,9 @@ impl RgbImage {
 }
 
 /// Writes through `write` into a temporary file beside `path`, then renames it over `path`.
-/// On failure the temporary file is removed and `path` is untouched.
-fn write_atomically(
+/// On failure the temporary file is removed and `path` is untouched. Every file the project
+/// writes for a user (images, partial renders) goes through here.
+pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&Path) -> std::result::Result<(), String>,
 ) -> Result<()> {

@@ -1,10 +1,73 @@
-//! The film: per-pixel running sums in f64 and per-pixel sample counts, so an image stopped at
-//! any moment (Ctrl-C) is still the mean of the samples each pixel received.
+//! The film: per-pixel running sums and per-pixel sample counts, so an image stopped at any
+//! moment (Ctrl-C) is still the mean of the samples each pixel received.
+//!
+//! The sums are exact: each sample is truncated once to fixed point ([`ExactRgb`], 2^-56
+//! steps in an i128), and integer addition does not depend on grouping. Films of disjoint
+//! sample ranges rendered on different machines therefore merge, in any order, into the film
+//! one process would have made, bit for bit (see [`crate::shard`]). An f64 sum would not: its
+//! rounding depends on the order of the additions.
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 
 /// Side of the square tiles that threads take one at a time.
 pub const TILE_SIZE: u32 = 16;
+
+/// Fixed-point steps per unit of radiance: 2^56. A sample is truncated to a multiple of 2^-56
+/// (1.4e-17), far below anything an f32 image can show.
+const EXACT_SCALE: f64 = (1u64 << 56) as f64;
+
+/// The largest radiance a sample may carry per channel: 2^39 (5.5e11). An i128 sum holds
+/// 2^71 in these steps, so even 2^32 samples (the count's limit) at this bound cannot overflow.
+/// A brighter sample is refused like a NaN one (counted, and black).
+pub const MAX_SAMPLE_RADIANCE: f32 = (1u64 << 39) as f32;
+
+/// An RGB sum in fixed point (2^-56 steps): sums are exact, so any grouping gives the same bits.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExactRgb(pub [i128; 3]);
+
+impl ExactRgb {
+    pub const ZERO: Self = Self([0; 3]);
+
+    /// A sample in fixed point, or `None` when a channel is NaN, negative, infinite or above
+    /// [`MAX_SAMPLE_RADIANCE`]. Each channel is checked on its own, written so NaN fails.
+    #[inline]
+    pub fn from_sample(l: Vec3) -> Option<Self> {
+        let mut out = [0i128; 3];
+        for (o, c) in out.iter_mut().zip(l.to_array()) {
+            if !(c >= 0.0 && c <= MAX_SAMPLE_RADIANCE) {
+                return None;
+            }
+            // c * 2^56 <= 2^95: too big for i64 only above 128, where the (slower) i128
+            // conversion is used. Both truncate towards zero; the product is exact in f64.
+            let scaled = c as f64 * EXACT_SCALE;
+            *o = if scaled < 9.2e18 {
+                scaled as i64 as i128
+            } else {
+                scaled as i128
+            };
+        }
+        Some(Self(out))
+    }
+
+    /// The sum divided by `count`: the sum and the count rounded to f64, divided, rounded to f32.
+    pub fn mean(&self, count: u32) -> Vec3 {
+        let n = count as f64 * EXACT_SCALE;
+        Vec3::new(
+            (self.0[0] as f64 / n) as f32,
+            (self.0[1] as f64 / n) as f32,
+            (self.0[2] as f64 / n) as f32,
+        )
+    }
+}
+
+impl std::ops::AddAssign for ExactRgb {
+    #[inline]
+    fn add_assign(&mut self, o: Self) {
+        for (a, b) in self.0.iter_mut().zip(o.0) {
+            *a += b;
+        }
+    }
+}
 
 /// One tile of the film and its accumulators.
 #[derive(Debug, Clone)]
@@ -13,7 +76,7 @@ pub struct Tile {
     pub y0: u32,
     pub width: u32,
     pub height: u32,
-    pub sum: Vec<DVec3>,
+    pub sum: Vec<ExactRgb>,
     pub count: Vec<u32>,
 }
 
@@ -52,7 +115,7 @@ impl Film {
                     y0,
                     width: w,
                     height: h,
-                    sum: vec![DVec3::ZERO; n],
+                    sum: vec![ExactRgb::ZERO; n],
                     count: vec![0; n],
                 });
             }
@@ -90,7 +153,7 @@ impl Film {
                     let k = (j * t.width + i) as usize;
                     let px = ((t.y0 + j) * self.width + t.x0 + i) as usize;
                     if t.count[k] > 0 {
-                        out[px] = (t.sum[k] / t.count[k] as f64).as_vec3();
+                        out[px] = t.sum[k].mean(t.count[k]);
                     }
                 }
             }
@@ -102,6 +165,23 @@ impl Film {
     pub fn image(&self) -> hdr_image::RgbImage {
         hdr_image::RgbImage::from_pixels(self.width, self.height, self.mean())
             .expect("the film's mean has one pixel per film pixel")
+    }
+
+    /// The exact sums and the counts, row-major (what a [`crate::shard::PartialRender`] keeps).
+    pub fn exact_sums(&self) -> (Vec<ExactRgb>, Vec<u32>) {
+        let n = (self.width * self.height) as usize;
+        let (mut sums, mut counts) = (vec![ExactRgb::ZERO; n], vec![0; n]);
+        for t in &self.tiles {
+            for j in 0..t.height {
+                for i in 0..t.width {
+                    let k = (j * t.width + i) as usize;
+                    let px = ((t.y0 + j) * self.width + t.x0 + i) as usize;
+                    sums[px] = t.sum[k];
+                    counts[px] = t.count[k];
+                }
+            }
+        }
+        (sums, counts)
     }
 
     /// Samples per pixel, row-major.

@@ -8,7 +8,8 @@
 //! - [`tracking`]: delta tracking (free flights) and ratio tracking (transmittance).
 //! - [`phase`], [`lights`]: phase functions; sphere lights and a constant environment.
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
-//! - [`render`], [`film`]: tiles, passes, threads; accumulation.
+//! - [`render`], [`film`]: tiles, passes, threads; exact accumulation.
+//! - [`shard`]: a render split into sample ranges whose partial films merge bit for bit.
 //! - [`cache`]: the seam a radiance cache plugs into (per-path hooks, per-frame cache, start points).
 //! - [`scene`]: the TOML scene file.
 //! - [`sampling`]: counter-based random numbers and warps.
@@ -26,17 +27,21 @@ pub mod phase;
 pub mod render;
 pub mod sampling;
 pub mod scene;
+pub mod shard;
 pub mod tracking;
 pub mod transfer;
 
 pub use cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, sample_cache_points};
 pub use error::{Error, Result};
-pub use film::Film;
+pub use film::{ExactRgb, Film};
 pub use grid::{Filter, ScalarGrid};
 pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance, radiance_with};
 pub use lights::{Lights, SphereLight};
 pub use medium::Medium;
 pub use phase::Phase;
-pub use render::{CachedFrame, RenderSettings, RenderStats, render, render_frame_with};
+pub use render::{
+    CachedFrame, RenderSettings, RenderStats, render, render_frame_with, render_samples,
+};
 pub use scene::{Scene, load_scene};
+pub use shard::{PartialRender, RenderKey, Shard};
 pub use transfer::TransferFunction;

@@ -3,10 +3,9 @@
 //! so the image is bit-identical for a seed whatever the thread count or pass split.
 
 use crate::cache::{FrameCache, NoCache, TilePixel, TileRect};
-use crate::film::{Film, Tile};
+use crate::film::{ExactRgb, Film, Tile};
 use crate::integrator::{PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
-use glam::DVec3;
 use rayon::prelude::*;
 use splat_raster::Camera;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -64,7 +63,7 @@ fn render_tile<C: FrameCache>(
                 pixel: y as u64 * camera.width as u64 + x as u64,
                 in_tile: (j * tile.width + i) as usize,
             };
-            let mut sum = DVec3::ZERO;
+            let mut sum = ExactRgb::ZERO;
             let mut taken = 0u32;
             for s in samples.clone() {
                 if cancel.load(Ordering::Relaxed) {
@@ -84,11 +83,11 @@ fn render_tile<C: FrameCache>(
                     &mut path,
                 );
                 cache.path_ended(path, pixel, record);
-                // Written so that NaN fails: a bad sample counts as black, never reaches the film.
-                if l.is_finite() && l.min_element() >= 0.0 {
-                    sum += l.as_dvec3();
-                } else {
-                    nonfinite += 1;
+                // A bad sample (NaN, negative, infinite, absurdly bright) counts as black and
+                // never reaches the film.
+                match ExactRgb::from_sample(l) {
+                    Some(v) => sum += v,
+                    None => nonfinite += 1,
                 }
             }
             tile.sum[pixel.in_tile] += sum;
@@ -167,14 +166,37 @@ pub fn render(
     cancel: &AtomicBool,
     progress: &(dyn Fn(u64) + Sync),
 ) -> RenderStats {
+    render_samples(
+        scene,
+        camera,
+        settings,
+        0..settings.spp,
+        film,
+        cancel,
+        progress,
+    )
+}
+
+/// Renders sample indices `samples` of every pixel into `film` (a shard of a render: see
+/// [`crate::shard`]); [`render`] is `render_samples(0..spp)`. Films of disjoint ranges merge
+/// into the whole render's film bit for bit.
+pub fn render_samples(
+    scene: &SceneMedia,
+    camera: &Camera,
+    settings: &RenderSettings,
+    samples: std::ops::Range<u32>,
+    film: &mut Film,
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(u64) + Sync),
+) -> RenderStats {
     let start = std::time::Instant::now();
     let before = film.total_samples();
     let pixels = camera.width as u64 * camera.height as u64;
-    let step = pass_size(settings.spp, pixels);
+    let step = pass_size(samples.len() as u32, pixels);
     let nonfinite = AtomicU64::new(0);
-    let mut s0 = 0;
-    while s0 < settings.spp && !cancel.load(Ordering::Relaxed) {
-        let s1 = (s0 + step).min(settings.spp);
+    let mut s0 = samples.start;
+    while s0 < samples.end && !cancel.load(Ordering::Relaxed) {
+        let s1 = s0.saturating_add(step).min(samples.end);
         film.tiles.par_iter_mut().for_each(|tile| {
             if cancel.load(Ordering::Relaxed) {
                 return;

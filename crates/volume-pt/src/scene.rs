@@ -179,6 +179,33 @@ pub fn load_scene(path: &Path) -> Result<Scene> {
     build_scene(path, desc)
 }
 
+/// The key of a render of `scene`, loaded from the file at `path` with any overrides applied
+/// (see [`crate::shard::RenderKey`]): the scene file's text, the volume file's path and size,
+/// and every setting that decides a pixel (samples, seed, path settings, camera, macrocells).
+/// Two renders with the same key draw the same samples; a volume edited in place at the same
+/// size is not told apart (hashing a gigavoxel per shard would cost more than it guards).
+pub fn scene_render_key(path: &Path, scene: &Scene) -> Result<crate::shard::RenderKey> {
+    let text = crate::io::read_text_file(path, "a scene file")?;
+    let volume_bytes = std::fs::metadata(&scene.volume_path)
+        .map_err(|e| Error::io(&scene.volume_path, e))?
+        .len();
+    Ok(crate::shard::RenderKey::new()
+        .part(text.as_bytes())
+        .part(scene.volume_path.to_string_lossy().as_bytes())
+        .part(&volume_bytes.to_le_bytes())
+        .part(settings_fingerprint(scene).as_bytes()))
+}
+
+/// The settings of `scene` that decide its pixels besides the media, as text for a key.
+pub fn settings_fingerprint(scene: &Scene) -> String {
+    format!(
+        "{:?}|{:?}|macrocell {}",
+        scene.settings,
+        scene.camera,
+        scene.media.medium.majorants().cell_size()
+    )
+}
+
 /// Builds a scene from its parsed description; `path` names the file in errors and anchors
 /// relative paths.
 pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {

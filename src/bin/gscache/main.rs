@@ -1,6 +1,7 @@
 //! `gscache`: the one program. Subcommands:
 //!
-//! - `render`: path-trace a volume scene, optionally with the radiance cache;
+//! - `render`: path-trace a volume scene, optionally with the radiance cache, or one shard of it;
+//! - `merge`: join a sharded render's partial films into its image;
 //! - `splat render | fit | trace`: Gaussian clouds with the rasteriser or the ray tracer;
 //! - `experiment`: methods at budgets against a reference, fly-throughs, ablations, a report;
 //! - `bench ...`: the renderers' speed, as Markdown tables.
@@ -11,6 +12,7 @@
 mod bench;
 mod common;
 mod experiment;
+mod merge;
 mod render;
 mod splat;
 
@@ -33,6 +35,8 @@ struct Cli {
 enum Command {
     /// Path-trace a volume scene (TOML) to EXR and PNG, optionally reading the radiance cache.
     Render(Box<render::RenderArgs>),
+    /// Merge the partial films of a sharded render (`render --shard`) into its image.
+    Merge(merge::MergeArgs),
     /// Render, fit or ray-trace 3D Gaussian clouds (3DGS PLY or .splat).
     #[command(subcommand)]
     Splat(splat::SplatCommand),
@@ -46,6 +50,7 @@ fn main() {
     let cli = Cli::parse();
     let result = cli.global.start_threads().and_then(|()| match cli.command {
         Command::Render(a) => render::run(*a, &cli.global),
+        Command::Merge(a) => merge::run(a),
         Command::Splat(c) => splat::run(c, &cli.global),
         Command::Experiment(a) => experiment::run(a, &cli.global),
         Command::Bench(a) => bench::run(a),

@@ -13,8 +13,10 @@ use indicatif::ProgressBar;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::scene::max_depth_from;
+use volume_pt::scene::scene_render_key;
 use volume_pt::{
-    Film, IntegratorKind, RenderStats, Scene, load_scene, render, sample_cache_points,
+    Film, IntegratorKind, PartialRender, RenderStats, Scene, Shard, load_scene, render,
+    render_samples, sample_cache_points,
 };
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
@@ -56,8 +58,20 @@ pub struct RenderArgs {
     /// PNG tone map (overrides the scene).
     #[arg(long, value_enum)]
     tonemap: Option<ToneMap>,
+    /// Render only shard I/N of the samples (for example 0/4: the first quarter of every
+    /// pixel's samples) into the partial film `--partial`; `gscache merge` joins the shards
+    /// into the image one process would make, bit for bit.
+    #[arg(long, requires = "partial", value_parser = parse_shard)]
+    shard: Option<Shard>,
+    /// Where a shard's partial film goes (written atomically).
+    #[arg(long, requires = "shard")]
+    partial: Option<PathBuf>,
     #[command(flatten)]
     cache: CacheRun,
+}
+
+fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
+    Shard::parse(s).map_err(|e| e.to_string())
 }
 
 /// The GSCache radiance cache (Bauer et al., 2025): read where paths stop, trained between
@@ -126,6 +140,14 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             .map_err(|e| anyhow::anyhow!("--width/--height: {e}"))?;
     }
     check_image_memory(scene.camera.width, scene.camera.height)?;
+    if let (Some(shard), Some(partial)) = (args.shard, &args.partial) {
+        if args.cache.cache {
+            bail!(
+                "--shard with --cache: a cached render's frames train the cache one after the other, so they cannot be split; shard an experiment's seeds instead"
+            );
+        }
+        return render_shard(&args.scene, &scene, shard, partial, global);
+    }
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
     let stem = args
@@ -241,9 +263,58 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     Ok(if stats.cancelled { INTERRUPTED } else { 0 })
 }
 
-/// Bytes a rendered pixel takes: the film's f64 sums and count (28), the f32 image (12) and the
-/// PNG's bytes (4), plus slack for the tiles' bookkeeping.
-const IMAGE_BYTES_PER_PIXEL: u64 = 48;
+/// Renders one shard of the scene's samples and writes its partial film.
+fn render_shard(
+    scene_path: &std::path::Path,
+    scene: &Scene,
+    shard: Shard,
+    partial: &std::path::Path,
+    global: &Global,
+) -> Result<i32> {
+    prepare_output(partial)?;
+    let key = scene_render_key(scene_path, scene)?.hex();
+    let cam = scene.camera;
+    let spp = scene.settings.spp;
+    let samples = shard.samples(spp);
+    let cancel = cancellation()?;
+    let bar = global.progress(
+        samples.len() as u64 * cam.width as u64 * cam.height as u64,
+        "samples",
+    );
+    let mut film = Film::new(cam.width, cam.height);
+    let stats = render_samples(
+        &scene.media,
+        &cam,
+        &scene.settings,
+        samples.clone(),
+        &mut film,
+        &cancel,
+        &|n| bar.inc(n),
+    );
+    bar.finish_and_clear();
+    if stats.cancelled {
+        eprintln!(
+            "interrupted: shard {shard} not written (a partial must hold whole sample ranges); run it again"
+        );
+        return Ok(INTERRUPTED);
+    }
+    PartialRender::from_film(&film, &key, spp, samples.clone()).write(partial)?;
+    println!(
+        "rendered shard {shard} (samples {}..{} of {spp}) of {}x{} in {:.2} s: {:.3} M samples/s; wrote {} (render {key})",
+        samples.start,
+        samples.end,
+        cam.width,
+        cam.height,
+        stats.seconds,
+        stats.samples_per_second() / 1e6,
+        partial.display()
+    );
+    Ok(0)
+}
+
+/// Bytes a rendered pixel takes: the film's exact sums and count (52), the f32 image (12) and
+/// the PNG's bytes (4), plus slack for the tiles' bookkeeping.
+const IMAGE_BYTES_PER_PIXEL: u64 = 80;
 
 /// Refuses an image whose buffers would not fit in the memory available, before any is made.
 fn check_image_memory(width: u32, height: u32) -> Result<()> {

@@ -1,0 +1,101 @@
+//! `gscache merge PARTS...`: joins the partial films of a sharded render (`render --shard`)
+//! into its image, bit for bit the one a single process would have made.
+
+use crate::common::{finite_f32, prepare_output};
+use anyhow::{Result, bail};
+use hdr_image::ToneMap;
+use std::path::PathBuf;
+use volume_pt::PartialRender;
+
+/// Merge partial films (`gscache render --shard I/N --partial FILE`) into an image.
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct MergeArgs {
+    /// Partial films of one render, in any order.
+    #[arg(required = true)]
+    parts: Vec<PathBuf>,
+    /// Linear EXR output.
+    #[arg(short = 'o', long = "output")]
+    output: Option<PathBuf>,
+    /// Tone-mapped PNG output (default: next to the EXR).
+    #[arg(long)]
+    png: Option<PathBuf>,
+    /// PNG exposure in stops.
+    #[arg(long, default_value_t = 0.0, value_parser = finite_f32)]
+    exposure: f32,
+    /// PNG tone map.
+    #[arg(long, value_enum, default_value_t = ToneMap::Clip)]
+    tonemap: ToneMap,
+    /// Write the merged partial film instead of (or beside) the image: merges can form a tree.
+    #[arg(long)]
+    partial: Option<PathBuf>,
+    /// Write an image even when the parts do not hold every sample of the render.
+    #[arg(long)]
+    allow_incomplete: bool,
+}
+
+pub fn run(a: MergeArgs) -> Result<i32> {
+    if a.output.is_none() && a.partial.is_none() {
+        bail!("nothing to write: give -o OUT.exr, --partial OUT, or both");
+    }
+    let png = a
+        .output
+        .as_ref()
+        .map(|o| a.png.clone().unwrap_or_else(|| o.with_extension("png")));
+    for p in [&a.output, &png, &a.partial].into_iter().flatten() {
+        prepare_output(p)?;
+    }
+    let mut merged: Option<PartialRender> = None;
+    for path in &a.parts {
+        let part = PartialRender::read(path)?;
+        match &mut merged {
+            None => merged = Some(part),
+            Some(m) => m
+                .merge(&part)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
+        }
+    }
+    let merged = merged.expect("clap requires at least one part");
+    let ranges: Vec<String> = merged
+        .ranges()
+        .iter()
+        .map(|r| format!("{}..{}", r.start, r.end))
+        .collect();
+    if let Some(p) = &a.partial {
+        merged.write(p)?;
+    }
+    if let (Some(exr), Some(png)) = (&a.output, &png) {
+        if !merged.is_complete() && !a.allow_incomplete {
+            bail!(
+                "the parts hold samples {} of 0..{}: some shards are missing (add them, or pass --allow-incomplete for an image of what is here)",
+                ranges.join(", "),
+                merged.spp()
+            );
+        }
+        let image = merged.image();
+        image.write_exr(exr)?;
+        image.write_png(png, a.exposure, a.tonemap)?;
+    }
+    if merged.nonfinite_samples() > 0 {
+        eprintln!(
+            "warning: {} samples were NaN or infinite and were counted as black",
+            merged.nonfinite_samples()
+        );
+    }
+    let wrote: Vec<String> = [&a.output, &png, &a.partial]
+        .into_iter()
+        .flatten()
+        .map(|p| p.display().to_string())
+        .collect();
+    println!(
+        "merged {} parts of render {} ({}x{}, samples {} of {}); wrote {}",
+        a.parts.len(),
+        merged.key(),
+        merged.width(),
+        merged.height(),
+        ranges.join(", "),
+        merged.spp(),
+        wrote.join(" and ")
+    );
+    Ok(0)
+}

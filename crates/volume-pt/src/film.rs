@@ -34,7 +34,8 @@ impl ExactRgb {
     pub fn from_sample(l: Vec3) -> Option<Self> {
         let mut out = [0i128; 3];
         for (o, c) in out.iter_mut().zip(l.to_array()) {
-            if !(c >= 0.0 && c <= MAX_SAMPLE_RADIANCE) {
+            // `contains` is false for NaN.
+            if !(0.0..=MAX_SAMPLE_RADIANCE).contains(&c) {
                 return None;
             }
             // c * 2^56 <= 2^95: too big for i64 only above 128, where the (slower) i128

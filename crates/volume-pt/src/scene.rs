@@ -180,11 +180,16 @@ pub fn load_scene(path: &Path) -> Result<Scene> {
 }
 
 /// The key of a render of `scene`, loaded from the file at `path` with any overrides applied
-/// (see [`crate::shard::RenderKey`]): the scene file's text, the volume file's path and size,
-/// and every setting that decides a pixel (samples, seed, path settings, camera, macrocells).
-/// Two renders with the same key draw the same samples; a volume edited in place at the same
-/// size is not told apart (hashing a gigavoxel per shard would cost more than it guards).
+/// (see [`crate::shard::RenderKey`]): [`scene_file_key`] and [`settings_fingerprint`].
 pub fn scene_render_key(path: &Path, scene: &Scene) -> Result<crate::shard::RenderKey> {
+    Ok(scene_file_key(path, scene)?
+        .part(settings_fingerprint(&scene.settings, &scene.camera, &scene.media.medium).as_bytes()))
+}
+
+/// The part of a render's key that comes from files: the scene file's text and the volume
+/// file's path and size. A volume edited in place at the same size is not told apart (hashing
+/// a gigavoxel for every shard would cost more than it guards).
+pub fn scene_file_key(path: &Path, scene: &Scene) -> Result<crate::shard::RenderKey> {
     let text = crate::io::read_text_file(path, "a scene file")?;
     let volume_bytes = std::fs::metadata(&scene.volume_path)
         .map_err(|e| Error::io(&scene.volume_path, e))?
@@ -192,27 +197,21 @@ pub fn scene_render_key(path: &Path, scene: &Scene) -> Result<crate::shard::Rend
     Ok(crate::shard::RenderKey::new()
         .part(text.as_bytes())
         .part(scene.volume_path.to_string_lossy().as_bytes())
-        .part(&volume_bytes.to_le_bytes())
-        .part(settings_fingerprint(scene).as_bytes()))
+        .part(&volume_bytes.to_le_bytes()))
 }
 
-/// The settings of `scene` that decide its pixels besides the media, as text for a key.
-pub fn settings_fingerprint(scene: &Scene) -> String {
+/// The settings that decide a render's pixels besides the media (samples, seed, path
+/// settings, camera, macrocells), as text for a key.
+pub fn settings_fingerprint(settings: &RenderSettings, camera: &Camera, medium: &Medium) -> String {
     format!(
-        "{:?}|{:?}|macrocell {}",
-        scene.settings,
-        scene.camera,
-        scene.media.medium.majorants().cell_size()
+        "{settings:?}|{camera:?}|macrocell {}",
+        medium.majorants().cell_size()
     )
 }
 
 /// Builds a scene from its parsed description; `path` names the file in errors and anchors
 /// relative paths.
 pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
-    let scene_err = |m: String| Error::Scene {
-        path: path.into(),
-        message: m,
-    };
     let base = path.parent().unwrap_or(Path::new("."));
     let v = &desc.volume;
     let volume_path = base.join(&v.file);
@@ -226,6 +225,25 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
         },
     };
     let loaded = read_volume(&volume_path, &hints)?;
+    build_scene_with_volume(path, desc, loaded, volume_path)
+}
+
+/// Builds a scene from its description around a volume already in memory (a program's own
+/// array: the Python package's `Volume.from_array`); the description's `volume.file` and its
+/// reading hints are not used, its placement (spacing, origin, filter, macrocell) is.
+/// `volume_path` names the volume in messages.
+pub fn build_scene_with_volume(
+    path: &Path,
+    desc: SceneFile,
+    loaded: crate::io::LoadedVolume,
+    volume_path: PathBuf,
+) -> Result<Scene> {
+    let scene_err = |m: String| Error::Scene {
+        path: path.into(),
+        message: m,
+    };
+    let base = path.parent().unwrap_or(Path::new("."));
+    let v = &desc.volume;
     let grid = loaded.grid;
     let spacing = v.spacing.map(vec3).or(loaded.spacing).unwrap_or(Vec3::ONE);
     let size = grid.dims().as_vec3() * spacing;

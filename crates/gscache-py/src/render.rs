@@ -1,0 +1,258 @@
+//! `render`, `render_partial` and `Partial`: a scene's image as a numpy array, or one shard of
+//! it as an exact partial film that merges with the others bit for bit (volume-pt's `shard`).
+
+use crate::run::run_polled;
+use crate::volume::{Scene, settings_with};
+use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyBytes;
+use std::path::PathBuf;
+use volume_pt::{Film, PartialRender, Shard, render_samples};
+
+/// An image as a float32 numpy array of shape (height, width, 3).
+pub(crate) fn image_array<'py>(
+    py: Python<'py>,
+    width: u32,
+    height: u32,
+    pixels: &[glam::Vec3],
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let flat: Vec<f32> = pixels.iter().flat_map(|p| p.to_array()).collect();
+    PyArray1::from_vec(py, flat).reshape([height as usize, width as usize, 3])
+}
+
+/// Renders sample indices `samples` of `scene` with `settings` on `threads` threads.
+fn render_range(
+    py: Python<'_>,
+    scene: &Scene,
+    settings: &volume_pt::RenderSettings,
+    samples: std::ops::Range<u32>,
+    threads: Option<usize>,
+    progress: Option<&Bound<'_, PyAny>>,
+) -> PyResult<(Film, bool)> {
+    let s = &scene.scene;
+    let mut film = Film::new(s.camera.width, s.camera.height);
+    let outcome = run_polled(py, threads, progress, |cancel, done| {
+        render_samples(
+            &s.media,
+            &s.camera,
+            settings,
+            samples,
+            &mut film,
+            cancel,
+            &|n| {
+                done.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+            },
+        )
+    })?;
+    Ok((film, outcome.interrupted))
+}
+
+/// Renders `scene`; returns (image, samples taken, interrupted, non-finite samples). The
+/// Python layer (`gscache.render`) raises `Interrupted` with the partial image when
+/// interrupted.
+#[pyfunction]
+#[pyo3(name = "_render", signature = (scene, spp=None, seed=None, integrator=None, max_depth=None, threads=None, progress=None))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)] // Python keyword arguments
+pub(crate) fn render_image<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    spp: Option<u32>,
+    seed: Option<u64>,
+    integrator: Option<&str>,
+    max_depth: Option<i64>,
+    threads: Option<usize>,
+    progress: Option<Bound<'py, PyAny>>,
+) -> PyResult<(Bound<'py, PyArray3<f32>>, u64, bool, u64)> {
+    let settings = settings_with(scene, spp, seed, integrator, max_depth)?;
+    let (film, interrupted) = render_range(
+        py,
+        scene,
+        &settings,
+        0..settings.spp,
+        threads,
+        progress.as_ref(),
+    )?;
+    let c = scene.scene.camera;
+    Ok((
+        image_array(py, c.width, c.height, &film.mean())?,
+        film.total_samples(),
+        interrupted,
+        film.nonfinite_samples,
+    ))
+}
+
+/// Renders shard `shard = (i, n)` of `scene`'s samples into a `Partial`; `None` when
+/// interrupted (a partial must hold whole sample ranges).
+#[pyfunction]
+#[pyo3(name = "_render_partial", signature = (scene, shard, spp=None, seed=None, integrator=None, max_depth=None, threads=None, progress=None))]
+#[allow(clippy::too_many_arguments)] // Python keyword arguments
+pub(crate) fn render_partial(
+    py: Python<'_>,
+    scene: &Scene,
+    shard: (u32, u32),
+    spp: Option<u32>,
+    seed: Option<u64>,
+    integrator: Option<&str>,
+    max_depth: Option<i64>,
+    threads: Option<usize>,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<Option<Partial>> {
+    let shard = Shard::new(shard.0, shard.1).map_err(crate::error)?;
+    let settings = settings_with(scene, spp, seed, integrator, max_depth)?;
+    let samples = shard.samples(settings.spp);
+    let (film, interrupted) = render_range(
+        py,
+        scene,
+        &settings,
+        samples.clone(),
+        threads,
+        progress.as_ref(),
+    )?;
+    Ok((!interrupted).then(|| Partial {
+        inner: PartialRender::from_film(&film, &scene.key(&settings), settings.spp, samples),
+    }))
+}
+
+/// The exact film of some sample ranges of one render: merge the shards, then take the image.
+/// Pickles as its file's bytes, so it travels between Dask workers unchanged.
+#[pyclass(frozen, module = "gscache._gscache")]
+#[derive(Clone)]
+pub struct Partial {
+    pub(crate) inner: PartialRender,
+}
+
+#[pymethods]
+impl Partial {
+    /// This partial and `other` merged (a new partial); refused when they belong to different
+    /// renders or hold the same samples.
+    fn merge(&self, other: &Partial) -> PyResult<Partial> {
+        let mut m = self.inner.clone();
+        m.merge(&other.inner).map_err(crate::error)?;
+        Ok(Partial { inner: m })
+    }
+
+    /// Every partial in `parts` merged; the order does not change a bit of the result.
+    #[staticmethod]
+    fn merge_all(parts: Vec<PyRef<'_, Partial>>) -> PyResult<Partial> {
+        let inner = PartialRender::merge_all(parts.iter().map(|p| p.inner.clone()))
+            .map_err(crate::error)?;
+        Ok(Partial { inner })
+    }
+
+    /// Each pixel's mean: float32 (height, width, 3). Refused while samples are missing,
+    /// unless `allow_incomplete`.
+    #[pyo3(signature = (allow_incomplete=false))]
+    fn image<'py>(
+        &self,
+        py: Python<'py>,
+        allow_incomplete: bool,
+    ) -> PyResult<Bound<'py, PyArray3<f32>>> {
+        if !self.inner.is_complete() && !allow_incomplete {
+            return Err(crate::error(format!(
+                "the partial holds samples {} of 0..{}: some shards are missing (merge them, or pass allow_incomplete=True)",
+                self.ranges_text(),
+                self.inner.spp()
+            )));
+        }
+        let img = self.inner.image();
+        image_array(py, img.width(), img.height(), img.pixels())
+    }
+
+    /// Samples per pixel, uint32 (height, width).
+    fn counts<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u32>>> {
+        PyArray1::from_slice(py, self.inner.counts())
+            .reshape([self.inner.height() as usize, self.inner.width() as usize])
+    }
+
+    #[getter]
+    fn key(&self) -> String {
+        self.inner.key().to_string()
+    }
+    #[getter]
+    fn spp(&self) -> u32 {
+        self.inner.spp()
+    }
+    #[getter]
+    fn width(&self) -> u32 {
+        self.inner.width()
+    }
+    #[getter]
+    fn height(&self) -> u32 {
+        self.inner.height()
+    }
+    /// The sample ranges held, as (start, end) pairs.
+    #[getter]
+    fn ranges(&self) -> Vec<(u32, u32)> {
+        self.inner
+            .ranges()
+            .iter()
+            .map(|r| (r.start, r.end))
+            .collect()
+    }
+    #[getter]
+    fn is_complete(&self) -> bool {
+        self.inner.is_complete()
+    }
+    #[getter]
+    fn nonfinite_samples(&self) -> u64 {
+        self.inner.nonfinite_samples()
+    }
+
+    /// Writes the partial file (the program's format: `gscache merge` reads it), atomically.
+    fn write(&self, path: PathBuf) -> PyResult<()> {
+        self.inner.write(&path).map_err(crate::error)
+    }
+
+    #[staticmethod]
+    fn read(path: PathBuf) -> PyResult<Partial> {
+        Ok(Partial {
+            inner: PartialRender::read(&path).map_err(crate::error)?,
+        })
+    }
+
+    fn to_bytes<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &self.inner.to_bytes())
+    }
+
+    #[staticmethod]
+    fn from_bytes(data: &[u8]) -> PyResult<Partial> {
+        let inner = PartialRender::from_bytes(data, std::path::Path::new("<bytes>"))
+            .map_err(crate::error)?;
+        Ok(Partial { inner })
+    }
+
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
+        let from_bytes = slf.get_type().getattr("from_bytes")?;
+        Ok((from_bytes, (slf.get().to_bytes(py),)))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Partial(render {}, {}x{}, samples {} of {})",
+            self.inner.key(),
+            self.inner.width(),
+            self.inner.height(),
+            self.ranges_text(),
+            self.inner.spp()
+        )
+    }
+}
+
+impl Partial {
+    fn ranges_text(&self) -> String {
+        let r: Vec<String> = self
+            .inner
+            .ranges()
+            .iter()
+            .map(|r| format!("{}..{}", r.start, r.end))
+            .collect();
+        if r.is_empty() {
+            "none".into()
+        } else {
+            r.join(", ")
+        }
+    }
+}

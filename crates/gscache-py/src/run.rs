@@ -1,0 +1,100 @@
+//! Running long work from Python: the work runs on its own thread (in a rayon pool of the
+//! requested size) with the GIL released, while the calling thread wakes every 50 ms to report
+//! progress and to check for Ctrl-C. Ctrl-C or an exception raised by the progress callback
+//! sets the cancellation flag; the work stops before its next sample and keeps what it has.
+
+use pyo3::exceptions::PyKeyboardInterrupt;
+use pyo3::prelude::*;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Condvar, Mutex};
+use std::time::Duration;
+
+/// How often the calling thread wakes.
+const POLL: Duration = Duration::from_millis(50);
+
+/// What the work returned, and whether Ctrl-C stopped it.
+pub(crate) struct Outcome<T> {
+    pub value: T,
+    pub interrupted: bool,
+}
+
+/// A pool of `threads` workers (all cores when `None`).
+pub(crate) fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
+    if threads == Some(0) {
+        return Err(crate::error("threads = 0: expected at least 1 thread"));
+    }
+    let mut b = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = threads {
+        b = b.num_threads(t);
+    }
+    b.build().map_err(crate::error)
+}
+
+/// Runs `work(cancel, done)` on `threads` threads with the GIL released; `work` adds the units
+/// it finishes to `done`, which `progress(done)` receives from the calling thread. An
+/// exception from the callback cancels the work and is returned once it has stopped.
+pub(crate) fn run_polled<T: Send>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    progress: Option<&Bound<'_, PyAny>>,
+    work: impl FnOnce(&AtomicBool, &AtomicU64) -> T + Send,
+) -> PyResult<Outcome<T>> {
+    let pool = pool(threads)?;
+    let cancel = AtomicBool::new(false);
+    let done = AtomicU64::new(0);
+    // Set by the worker when it returns; the calling thread waits on it up to `POLL` at a time.
+    let finished = (Mutex::new(false), Condvar::new());
+    let mut failure: Option<PyErr> = None;
+    let mut interrupted = false;
+    let joined = std::thread::scope(|s| {
+        let (cancel, done, pool, signal) = (&cancel, &done, &pool, &finished);
+        let handle = s.spawn(move || {
+            let v = pool.install(|| work(cancel, done));
+            *signal.0.lock().unwrap_or_else(|p| p.into_inner()) = true;
+            signal.1.notify_all();
+            v
+        });
+        let mut reported = u64::MAX;
+        loop {
+            let is_finished = py.detach(|| {
+                let guard = finished.0.lock().unwrap_or_else(|p| p.into_inner());
+                let (guard, _) = finished
+                    .1
+                    .wait_timeout_while(guard, POLL, |f| !*f)
+                    .unwrap_or_else(|p| p.into_inner());
+                *guard
+            });
+            if failure.is_none()
+                && !interrupted
+                && let Err(e) = py.check_signals()
+            {
+                if e.is_instance_of::<PyKeyboardInterrupt>(py) {
+                    interrupted = true;
+                } else {
+                    failure = Some(e);
+                }
+                cancel.store(true, Ordering::SeqCst);
+            }
+            if let Some(cb) = progress.filter(|_| failure.is_none()) {
+                let n = done.load(Ordering::Relaxed);
+                if n != reported {
+                    reported = n;
+                    if let Err(e) = cb.call1((n,)) {
+                        failure = Some(e);
+                        cancel.store(true, Ordering::SeqCst);
+                    }
+                }
+            }
+            if is_finished {
+                break;
+            }
+        }
+        handle.join()
+    });
+    let value =
+        joined.map_err(|_| crate::error("the render thread panicked (a bug: please report it)"))?;
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(Outcome { value, interrupted }),
+    }
+}

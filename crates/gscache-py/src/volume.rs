@@ -1,0 +1,361 @@
+//! `Volume` and `Scene`: what a render reads. A volume comes from a numpy array (any of the
+//! readers' in-memory types, kept as it is: a uint8 CT stays 1 byte a voxel) or from a file
+//! through the program's readers; a scene is the scene format's tables around a volume, or a
+//! scene file, so the package and the program build scenes through the same code.
+
+use numpy::PyReadonlyArray3;
+use pyo3::exceptions::PyTypeError;
+use pyo3::prelude::*;
+use std::path::PathBuf;
+use volume_pt::grid::{ScalarGrid, Voxels};
+use volume_pt::io::{LoadedVolume, RawLayout, ReadHints, read_volume};
+use volume_pt::scene::{SceneFile, build_scene_with_volume, scene_file_key, settings_fingerprint};
+use volume_pt::{RenderKey, RenderSettings};
+
+/// A scalar volume: voxels in their own type, x fastest.
+#[pyclass(frozen, module = "gscache._gscache")]
+pub struct Volume {
+    pub(crate) loaded: LoadedVolume,
+    /// Names the volume in messages: the file, or `<numpy uint8 array>`.
+    pub(crate) name: PathBuf,
+    /// What identifies the voxels in a render's key: a hash of an array's bytes, or a file's
+    /// path and size.
+    pub(crate) identity: RenderKey,
+}
+
+/// Hashes voxels in chunks, so no second copy of a large volume is made.
+fn hash_voxels<T: Copy, const N: usize>(
+    mut key: RenderKey,
+    values: &[T],
+    bytes: impl Fn(T) -> [u8; N],
+) -> RenderKey {
+    let mut buf = Vec::with_capacity(4096 * N);
+    for chunk in values.chunks(4096) {
+        buf.clear();
+        for &v in chunk {
+            buf.extend_from_slice(&bytes(v));
+        }
+        key = key.part(&buf);
+    }
+    key
+}
+
+fn array_voxels(array: &Bound<'_, PyAny>) -> PyResult<(Voxels, [usize; 3], &'static str)> {
+    // `iter()` walks a view in logical (C) order whatever its strides: (z, y, x), x fastest.
+    fn take<T: numpy::Element + Copy>(a: PyReadonlyArray3<'_, T>) -> (Vec<T>, [usize; 3]) {
+        let v = a.as_array();
+        let s = v.shape();
+        let shape = [s[0], s[1], s[2]];
+        (v.iter().copied().collect(), shape)
+    }
+    let ndim: usize = array.getattr("ndim")?.extract()?;
+    let dtype = array.getattr("dtype")?.str()?.to_string();
+    if ndim != 3 {
+        return Err(PyTypeError::new_err(format!(
+            "a {ndim}-D array: expected a 3-D array of shape (nz, ny, nx)"
+        )));
+    }
+    if let Ok(a) = array.extract::<PyReadonlyArray3<'_, u8>>() {
+        let (v, s) = take(a);
+        return Ok((Voxels::U8(v), s, "uint8"));
+    }
+    if let Ok(a) = array.extract::<PyReadonlyArray3<'_, i8>>() {
+        let (v, s) = take(a);
+        return Ok((Voxels::I8(v), s, "int8"));
+    }
+    if let Ok(a) = array.extract::<PyReadonlyArray3<'_, u16>>() {
+        let (v, s) = take(a);
+        return Ok((Voxels::U16(v), s, "uint16"));
+    }
+    if let Ok(a) = array.extract::<PyReadonlyArray3<'_, i16>>() {
+        let (v, s) = take(a);
+        return Ok((Voxels::I16(v), s, "int16"));
+    }
+    if let Ok(a) = array.extract::<PyReadonlyArray3<'_, f32>>() {
+        let (v, s) = take(a);
+        return Ok((Voxels::F32(v), s, "float32"));
+    }
+    Err(PyTypeError::new_err(format!(
+        "an array of {dtype}: expected uint8, int8, uint16, int16 or float32 (convert with \
+         `array.astype(numpy.float32)`; wider integers and float64 are stored as float32 by the \
+         file readers too)"
+    )))
+}
+
+#[pymethods]
+impl Volume {
+    /// A volume from a numpy array of shape (nz, ny, nx); `spacing` is the world size of a
+    /// voxel along (x, y, z).
+    #[staticmethod]
+    #[pyo3(signature = (array, spacing=None))]
+    fn from_array(array: &Bound<'_, PyAny>, spacing: Option<[f32; 3]>) -> PyResult<Self> {
+        let (voxels, [nz, ny, nx], dtype) = array_voxels(array)?;
+        let too_big = |n: usize| u32::try_from(n).is_err();
+        if too_big(nx) || too_big(ny) || too_big(nz) {
+            return Err(crate::error("array dimensions above 2^32 - 1 voxels"));
+        }
+        let dims = glam::UVec3::new(nx as u32, ny as u32, nz as u32);
+        let identity = RenderKey::new()
+            .part(dtype.as_bytes())
+            .part(format!("{dims:?}").as_bytes());
+        let identity = match &voxels {
+            Voxels::U8(v) => identity.part(v),
+            Voxels::I8(v) => hash_voxels(identity, v, i8::to_le_bytes),
+            Voxels::U16(v) => hash_voxels(identity, v, u16::to_le_bytes),
+            Voxels::I16(v) => hash_voxels(identity, v, i16::to_le_bytes),
+            Voxels::F32(v) => hash_voxels(identity, v, f32::to_le_bytes),
+        };
+        let grid = ScalarGrid::from_voxels(dims, voxels, 1.0, 0.0).map_err(crate::error)?;
+        if let Some(s) = spacing
+            && !s.iter().all(|v| v.is_finite() && *v > 0.0)
+        {
+            return Err(crate::error(format!(
+                "spacing {s:?}: expected three finite sizes > 0"
+            )));
+        }
+        Ok(Self {
+            loaded: LoadedVolume {
+                grid,
+                spacing: spacing.map(glam::Vec3::from_array),
+                notes: Vec::new(),
+            },
+            name: PathBuf::from(format!("<numpy {dtype} array>")),
+            identity,
+        })
+    }
+
+    /// A volume read from a file (raw, NRRD, VTK, NIfTI), as a scene's `[volume]` table reads
+    /// it: `dims`, `dtype`, `byte_order` and `header_bytes` describe raw files.
+    #[staticmethod]
+    #[pyo3(signature = (path, *, dims=None, dtype=None, byte_order=None, header_bytes=0))]
+    fn read(
+        path: PathBuf,
+        dims: Option<[u32; 3]>,
+        dtype: Option<&str>,
+        byte_order: Option<&str>,
+        header_bytes: u64,
+    ) -> PyResult<Self> {
+        fn named<T: serde::de::DeserializeOwned>(
+            what: &str,
+            v: Option<&str>,
+        ) -> PyResult<Option<T>> {
+            v.map(|s| {
+                serde_json::from_value(serde_json::Value::String(s.into()))
+                    .map_err(|e| crate::error(format!("{what} `{s}`: {e}")))
+            })
+            .transpose()
+        }
+        let raw = RawLayout {
+            dims: dims.map(glam::UVec3::from_array),
+            dtype: named("dtype", dtype)?,
+            byte_order: named("byte_order", byte_order)?.unwrap_or_default(),
+            header_bytes,
+        };
+        let loaded = read_volume(&path, &ReadHints { format: None, raw }).map_err(crate::error)?;
+        let size = std::fs::metadata(&path).map_err(crate::error)?.len();
+        let identity = RenderKey::new()
+            .part(path.to_string_lossy().as_bytes())
+            .part(&size.to_le_bytes());
+        Ok(Self {
+            loaded,
+            name: path,
+            identity,
+        })
+    }
+
+    /// (nz, ny, nx), as numpy indexes the array.
+    #[getter]
+    fn shape(&self) -> (u32, u32, u32) {
+        let d = self.loaded.grid.dims();
+        (d.z, d.y, d.x)
+    }
+
+    /// The type the voxels are kept in.
+    #[getter]
+    fn dtype(&self) -> &'static str {
+        match self.loaded.grid.voxels() {
+            Voxels::U8(_) => "uint8",
+            Voxels::I8(_) => "int8",
+            Voxels::U16(_) => "uint16",
+            Voxels::I16(_) => "int16",
+            Voxels::F32(_) => "float32",
+        }
+    }
+
+    /// The smallest and largest value (after the file's intensity scaling).
+    #[getter]
+    fn range(&self) -> (f32, f32) {
+        self.loaded.grid.range()
+    }
+
+    /// The world size of a voxel along (x, y, z), when given or stated by the file.
+    #[getter]
+    fn spacing(&self) -> Option<[f32; 3]> {
+        self.loaded.spacing.map(|s| s.to_array())
+    }
+
+    /// Bytes the voxels take in memory.
+    #[getter]
+    fn nbytes(&self) -> usize {
+        self.loaded.grid.bytes()
+    }
+
+    fn __repr__(&self) -> String {
+        let (z, y, x) = self.shape();
+        format!(
+            "Volume({}, shape=({z}, {y}, {x}), dtype={}, range={:?})",
+            self.name.display(),
+            self.dtype(),
+            self.range()
+        )
+    }
+}
+
+/// Where a scene came from: what its render key is built from besides the settings.
+#[derive(Clone)]
+pub(crate) enum Origin {
+    /// A scene file: the key the program computes, so program and package shards merge.
+    File(RenderKey),
+    /// Tables from Python around a volume.
+    Tables(RenderKey),
+}
+
+/// A scene ready to render.
+#[pyclass(frozen, module = "gscache._gscache")]
+pub struct Scene {
+    pub(crate) scene: volume_pt::Scene,
+    pub(crate) origin: Origin,
+}
+
+impl Scene {
+    /// The key of a render of this scene with `settings` (see volume-pt's `shard`).
+    pub(crate) fn key(&self, settings: &RenderSettings) -> String {
+        let base = match &self.origin {
+            Origin::File(k) | Origin::Tables(k) => k.clone(),
+        };
+        base.part(
+            settings_fingerprint(settings, &self.scene.camera, &self.scene.media.medium).as_bytes(),
+        )
+        .hex()
+    }
+}
+
+#[pymethods]
+impl Scene {
+    /// A scene from the scene format's tables (as JSON, without `volume.file`) around `volume`.
+    /// The Python layer (`gscache.Scene`) builds the JSON from keyword arguments.
+    #[new]
+    fn new(volume: &Volume, tables_json: &str) -> PyResult<Self> {
+        let here = std::env::current_dir().unwrap_or_else(|_| PathBuf::from("."));
+        let origin = here.join("<scene from Python>");
+        let desc: SceneFile = serde_json::from_str(tables_json)
+            .map_err(|e| crate::error(format!("{}: scene: {e}", origin.display())))?;
+        let scene =
+            build_scene_with_volume(&origin, desc, volume.loaded.clone(), volume.name.clone())
+                .map_err(crate::error)?;
+        let key = volume.identity.clone().part(tables_json.as_bytes());
+        Ok(Self {
+            scene,
+            origin: Origin::Tables(key),
+        })
+    }
+
+    /// Reads a scene file (TOML), as `gscache render` does.
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Self> {
+        let scene = volume_pt::load_scene(&path).map_err(crate::error)?;
+        let key = scene_file_key(&path, &scene).map_err(crate::error)?;
+        Ok(Self {
+            scene,
+            origin: Origin::File(key),
+        })
+    }
+
+    #[getter]
+    fn width(&self) -> u32 {
+        self.scene.camera.width
+    }
+    #[getter]
+    fn height(&self) -> u32 {
+        self.scene.camera.height
+    }
+    /// Samples per pixel the scene asks for.
+    #[getter]
+    fn spp(&self) -> u32 {
+        self.scene.settings.spp
+    }
+    #[getter]
+    fn seed(&self) -> u64 {
+        self.scene.settings.seed
+    }
+    #[getter]
+    fn integrator(&self) -> String {
+        self.scene.settings.path.integrator.to_string()
+    }
+    /// Largest path length in scattering vertices; -1 for unlimited.
+    #[getter]
+    fn max_depth(&self) -> i64 {
+        self.scene.settings.path.max_depth.map_or(-1, i64::from)
+    }
+    /// The PNG exposure (stops) and tone map the scene asks for.
+    #[getter]
+    fn exposure(&self) -> f32 {
+        self.scene.output.exposure
+    }
+    #[getter]
+    fn tonemap(&self) -> String {
+        format!("{:?}", self.scene.output.tonemap).to_lowercase()
+    }
+    /// What the readers reported and warnings about likely mistakes.
+    #[getter]
+    fn notes(&self) -> Vec<String> {
+        self.scene.notes.clone()
+    }
+    /// The render key of the scene's own settings (shards of one render share it).
+    #[getter]
+    fn render_key(&self) -> String {
+        self.key(&self.scene.settings)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Scene({}, {}x{}, {} spp, {}, seed {})",
+            self.scene.volume_path.display(),
+            self.width(),
+            self.height(),
+            self.spp(),
+            self.integrator(),
+            self.seed()
+        )
+    }
+}
+
+/// The scene's settings with the caller's overrides.
+pub(crate) fn settings_with(
+    scene: &Scene,
+    spp: Option<u32>,
+    seed: Option<u64>,
+    integrator: Option<&str>,
+    max_depth: Option<i64>,
+) -> PyResult<RenderSettings> {
+    let mut s = scene.scene.settings;
+    if let Some(n) = spp {
+        if n == 0 {
+            return Err(crate::error(
+                "spp = 0: expected at least 1 sample per pixel",
+            ));
+        }
+        s.spp = n;
+    }
+    if let Some(v) = seed {
+        s.seed = v;
+    }
+    if let Some(i) = integrator {
+        s.path.integrator = <volume_pt::IntegratorKind as clap::ValueEnum>::from_str(i, true)
+            .map_err(|_| crate::error(format!("integrator `{i}`: expected `uniform` or `nee`")))?;
+    }
+    if let Some(d) = max_depth {
+        s.path.max_depth = volume_pt::scene::max_depth_from(d).map_err(crate::error)?;
+    }
+    Ok(s)
+}

@@ -1,0 +1,248 @@
+"""gscache: volume path tracing with a Gaussian radiance cache (GSCache, Bauer et al. 2025).
+
+The renderer of the ``gscache`` program, from Python:
+
+- ``Volume.from_array`` (numpy, shape (nz, ny, nx); uint8, int8, uint16, int16 or float32,
+  kept in its own type) or ``Volume.read`` (raw, NRRD, VTK, NIfTI files);
+- ``Scene(volume, transfer=..., camera=..., lights=...)`` with the scene format's tables
+  (docs/scene-format.md), or ``Scene.load("scene.toml")``;
+- ``render(scene, spp=...)`` -> float32 array (height, width, 3); Ctrl-C raises
+  ``Interrupted``, which carries the image rendered so far;
+- ``render_partial(scene, shard=(i, n))`` -> ``Partial``: shards of one render merge into
+  the one-process image bit for bit (``gscache.distributed`` runs them on Dask);
+- ``Cache``: the radiance cache, trained frame after frame;
+- ``Cloud``, ``splat_render``, ``splat_trace``: 3D Gaussian clouds;
+- ``read_exr``, ``write_exr``, ``write_png``.
+
+Errors the renderer refuses are ``GscacheError``, with the message the program prints.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Callable, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ._gscache import (
+    Cloud,
+    GscacheError,
+    Partial,
+    Volume,
+    __version__,
+    read_exr,
+    splat_render,
+    splat_trace,
+    write_exr,
+    write_png,
+)
+from . import _gscache
+
+__all__ = [
+    "Cache",
+    "Cloud",
+    "GscacheError",
+    "Interrupted",
+    "Partial",
+    "Scene",
+    "Volume",
+    "__version__",
+    "read_exr",
+    "render",
+    "render_partial",
+    "splat_render",
+    "splat_trace",
+    "write_exr",
+    "write_png",
+]
+
+Progress = Callable[[int], Any]
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a render. ``image`` holds what was rendered (each pixel the mean of the
+    samples it received; ``None`` for a shard, which must hold whole sample ranges) and
+    ``samples`` how many samples were taken."""
+
+    def __init__(self, image: Optional[np.ndarray], samples: int):
+        super().__init__(f"render interrupted after {samples} samples")
+        self.image = image
+        self.samples = samples
+
+
+def _drop_none(d: Mapping[str, Any]) -> dict:
+    return {k: v for k, v in d.items() if v is not None}
+
+
+def Scene(
+    volume: Volume,
+    *,
+    transfer: Mapping[str, Any],
+    camera: Mapping[str, Any],
+    lights: Sequence[Mapping[str, Any]] = (),
+    environment: Optional[Sequence[float]] = None,
+    phase: Optional[Mapping[str, Any]] = None,
+    render: Optional[Mapping[str, Any]] = None,
+    output: Optional[Mapping[str, Any]] = None,
+    spacing: Optional[Sequence[float]] = None,
+    origin: Optional[Sequence[float]] = None,
+    filter: Optional[str] = None,
+    macrocell: Optional[int] = None,
+) -> "_gscache.Scene":
+    """A scene around ``volume`` from the scene format's tables (docs/scene-format.md):
+    ``transfer`` (``window``, ``density_scale``, ``points`` or ``preset``), ``camera``
+    (``eye``, ``target``, ``up``, ``fov_y``, ``width``, ``height``), ``lights`` (each
+    ``center``, ``radius``, ``radiance``), ``environment`` (RGB radiance), ``phase``,
+    ``render`` (``spp``, ``max_depth``, ``integrator``, ``seed``, ``rr_start_depth``),
+    ``output`` (``exposure``, ``tonemap``); ``spacing``, ``origin``, ``filter`` and
+    ``macrocell`` place the volume as the ``[volume]`` table does. Preset paths are relative
+    to the working folder."""
+    tables = {
+        "volume": _drop_none(
+            {
+                "file": "<array>",
+                "spacing": list(spacing) if spacing is not None else None,
+                "origin": list(origin) if origin is not None else None,
+                "filter": filter,
+                "macrocell": macrocell,
+            }
+        ),
+        "transfer": dict(transfer),
+        "camera": dict(camera),
+        "light": [dict(l) for l in lights],
+    }
+    if environment is not None:
+        tables["environment"] = {"radiance": list(environment)}
+    for name, table in (("phase", phase), ("render", render), ("output", output)):
+        if table is not None:
+            tables[name] = dict(table)
+    return _gscache.Scene(volume, json.dumps(tables, default=_json_number))
+
+
+def _json_number(v: Any) -> Any:
+    """numpy scalars and arrays in tables (a window from ``np.percentile``, say)."""
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(f"{type(v).__name__} in a scene table: expected numbers, strings, lists")
+
+
+Scene.load = _gscache.Scene.load  # type: ignore[attr-defined]
+
+
+def render(
+    scene: "_gscache.Scene",
+    spp: Optional[int] = None,
+    *,
+    seed: Optional[int] = None,
+    integrator: Optional[str] = None,
+    max_depth: Optional[int] = None,
+    threads: Optional[int] = None,
+    progress: Optional[Progress] = None,
+) -> np.ndarray:
+    """Path-traces ``scene``: float32 (height, width, 3), linear radiance. ``spp``, ``seed``,
+    ``integrator`` (``"uniform"`` or ``"nee"``) and ``max_depth`` (-1: unlimited) override the
+    scene's. ``progress(samples_done)`` is called from this thread about every 50 ms; an
+    exception it raises stops the render and propagates. The GIL is released while rendering.
+    The image is bit-identical to ``gscache render``'s for the same scene and settings, and
+    does not depend on ``threads``."""
+    image, samples, interrupted, _ = _gscache._render(
+        scene, spp, seed, integrator, max_depth, threads, progress
+    )
+    if interrupted:
+        raise Interrupted(image, samples)
+    return image
+
+
+def render_partial(
+    scene: "_gscache.Scene",
+    shard: Tuple[int, int],
+    spp: Optional[int] = None,
+    *,
+    seed: Optional[int] = None,
+    integrator: Optional[str] = None,
+    max_depth: Optional[int] = None,
+    threads: Optional[int] = None,
+    progress: Optional[Progress] = None,
+) -> Partial:
+    """Renders shard ``(i, n)`` (the i-th of n ranges of every pixel's samples) into a
+    ``Partial``; ``Partial.merge_all`` of all n gives ``render``'s image bit for bit. The
+    partial's file (``Partial.write``) is the one ``gscache render --shard`` writes, so
+    program and package shards merge together."""
+    part = _gscache._render_partial(
+        scene, tuple(shard), spp, seed, integrator, max_depth, threads, progress
+    )
+    if part is None:
+        raise Interrupted(None, 0)
+    return part
+
+
+class Cache:
+    """The GSCache radiance cache for ``scene``: initialised from the volume, read by paths
+    that stop early, trained between frames. ``config`` holds the keys of an experiment file's
+    ``cache`` table (``gscache render --help`` lists them with their defaults)."""
+
+    def __init__(self, scene: "_gscache.Scene", config: Optional[Mapping[str, Any]] = None):
+        self._inner = _gscache.Cache(scene, _config_json(config))
+
+    @classmethod
+    def load(
+        cls,
+        scene: "_gscache.Scene",
+        folder: str,
+        config: Optional[Mapping[str, Any]] = None,
+    ) -> "Cache":
+        """Levels saved by ``save`` (or ``gscache render --save-cache``)."""
+        self = cls.__new__(cls)
+        self._inner = _gscache.Cache.load(scene, str(folder), _config_json(config))
+        return self
+
+    def render(
+        self,
+        frames: int = 1,
+        *,
+        warmup: int = 0,
+        spp: int = 1,
+        threads: Optional[int] = None,
+        progress: Optional[Progress] = None,
+    ) -> np.ndarray:
+        """Renders ``warmup`` frames (trained on, not kept), then ``frames`` frames of
+        ``spp`` samples, trained between them; returns their mean. Frames keep counting across
+        calls. Ctrl-C raises ``Interrupted`` with the frames' image so far."""
+        image, interrupted = self._inner._render(frames, warmup, spp, threads, progress)
+        if interrupted:
+            raise Interrupted(image, 0)
+        return image
+
+    def level_images(self) -> list:
+        """Each level drawn from the scene's camera, level 0 (paths of length 1) first."""
+        return self._inner.level_images()
+
+    def save(self, folder: str) -> None:
+        """Writes the levels as 3DGS PLY files ``length_N.ply``."""
+        self._inner.save(str(folder))
+
+    @property
+    def costs_ms(self) -> dict:
+        """Mean per kept frame: ``trace``, ``lookup`` and ``train`` milliseconds."""
+        return self._inner.costs_ms
+
+    @property
+    def gaussian_count(self) -> int:
+        return self._inner.gaussian_count
+
+    @property
+    def levels(self) -> int:
+        return self._inner.levels
+
+    @property
+    def frames(self) -> int:
+        return self._inner.frames
+
+    def __repr__(self) -> str:
+        return repr(self._inner)
+
+
+def _config_json(config: Optional[Mapping[str, Any]]) -> Optional[str]:
+    return None if config is None else json.dumps(dict(config), default=_json_number)

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# The Python package's tests: a venv in target/py-venv (kept between runs, never committed),
+# the package built into it by maturin (dev profile: the workspace's optimised dependencies),
+# then pytest. Run from anywhere; CI runs it after `cargo test`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+python=${PYTHON:-python3}
+venv=target/py-venv
+if [ ! -x "$venv/bin/python" ]; then
+    "$python" -m venv "$venv"
+fi
+# shellcheck disable=SC1091
+. "$venv/bin/activate"
+python -m pip install --quiet --disable-pip-version-check "maturin>=1.9,<2" "numpy>=1.21" \
+    "pytest>=7" "distributed>=2023.1" "nibabel>=4"
+maturin develop --quiet
+python -m pytest -q python/tests "$@"

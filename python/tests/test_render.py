@@ -1,0 +1,178 @@
+"""Renders from Python against the program's, bit for bit; volumes from numpy; progress,
+Ctrl-C and errors."""
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import gscache
+from conftest import run_program
+
+try:
+    import tomllib
+except ImportError:  # Python < 3.11
+    tomllib = None
+
+SIZE = ["--width", "48", "--height", "40"]
+
+
+def program_exr(program, tmp_path, scene, *flags):
+    out = tmp_path / "program.exr"
+    done = run_program(program, "render", scene, *SIZE, *flags, "-o", out)
+    assert done.returncode == 0, done.stderr
+    return gscache.read_exr(str(out))
+
+
+def default_tables(repo):
+    """The default scene's tables and its volume as numpy reads it (x fastest on disk)."""
+    if tomllib is None:
+        pytest.skip("tomllib needs Python 3.11")
+    tables = tomllib.loads((repo / "data/scenes/default.toml").read_text())
+    raw = np.fromfile(repo / "data/volumes/neghip_64x64x64_uint8.raw", dtype=np.uint8)
+    return tables, raw.reshape(64, 64, 64)
+
+
+def scene_from_tables(tables, volume, width=48, height=40):
+    camera = dict(tables["camera"], width=width, height=height)
+    return gscache.Scene(
+        volume,
+        transfer=tables["transfer"],
+        camera=camera,
+        lights=tables["light"],
+        environment=tables["environment"]["radiance"],
+        phase=tables["phase"],
+        render=tables["render"],
+        output=tables["output"],
+        spacing=tables["volume"]["spacing"],
+    )
+
+
+def test_numpy_volume_renders_the_programs_image_bit_for_bit(repo, program, tmp_path):
+    tables, voxels = default_tables(repo)
+    scene = scene_from_tables(tables, gscache.Volume.from_array(voxels))
+    image = gscache.render(scene, spp=3)
+    expect = program_exr(program, tmp_path, "data/scenes/default.toml", "--spp", "3")
+    assert image.shape == (40, 48, 3) and image.dtype == np.float32
+    assert image.mean() > 0.01
+    assert np.array_equal(image.view(np.uint32), expect.view(np.uint32))
+
+
+def test_scene_file_threads_and_overrides_match_the_program(repo, program, tmp_path):
+    full = gscache.Scene.load(str(repo / "data/scenes/default.toml"))
+    assert (full.width, full.height, full.spp) == (512, 512, 64)
+    # A smaller copy of the scene file, so the test stays fast.
+    text = (repo / "data/scenes/default.toml").read_text()
+    text = text.replace("width = 512", "width = 48").replace("height = 512", "height = 40")
+    text = text.replace('file = "../volumes/', f'file = "{repo}/data/volumes/')
+    small = tmp_path / "small.toml"
+    small.write_text(text)
+    scene = gscache.Scene.load(str(small))
+    for kw, flags in [
+        ({"spp": 2}, ["--spp", "2"]),
+        ({"spp": 2, "seed": 7, "integrator": "uniform", "max_depth": 3},
+         ["--spp", "2", "--seed", "7", "--integrator", "uniform", "--max-depth", "3"]),
+    ]:
+        expect = program_exr(program, tmp_path, small, *flags)
+        for threads in (1, 2):
+            image = gscache.render(scene, threads=threads, **kw)
+            assert np.array_equal(image.view(np.uint32), expect.view(np.uint32)), (kw, threads)
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "int8", "uint16", "int16", "float32"])
+def test_every_reader_dtype_is_kept_and_strides_do_not_matter(repo, dtype):
+    tables, voxels = default_tables(repo)
+    data = voxels.astype(dtype) if dtype != "int8" else (voxels // 2).astype(np.int8)
+    volume = gscache.Volume.from_array(data)
+    assert volume.dtype == dtype and volume.shape == (64, 64, 64)
+    assert volume.nbytes == data.nbytes
+    # The same voxels through a strided view (every other x of a wider array).
+    wide = np.zeros((64, 64, 128), dtype=data.dtype)
+    wide[:, :, ::2] = data
+    strided = gscache.Volume.from_array(wide[:, :, ::2])
+    tables["transfer"]["window"] = [float(data.min()), float(data.max())]
+    a = gscache.render(scene_from_tables(tables, volume, 24, 20), spp=1)
+    b = gscache.render(scene_from_tables(tables, strided, 24, 20), spp=1)
+    assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
+    assert a.mean() > 0.0
+
+
+def test_unsupported_arrays_are_refused_with_what_to_do():
+    with pytest.raises(TypeError, match="float64.*astype"):
+        gscache.Volume.from_array(np.zeros((4, 4, 4)))
+    with pytest.raises(TypeError, match="2-D array"):
+        gscache.Volume.from_array(np.zeros((4, 4), dtype=np.float32))
+    with pytest.raises(gscache.GscacheError, match="finite"):
+        gscache.Volume.from_array(np.full((2, 2, 2), np.nan, dtype=np.float32))
+
+
+def test_progress_counts_every_sample_and_its_exception_stops_the_render(repo):
+    tables, voxels = default_tables(repo)
+    scene = scene_from_tables(tables, gscache.Volume.from_array(voxels))
+    seen = []
+    gscache.render(scene, spp=4, progress=seen.append)
+    assert seen and seen[-1] == 48 * 40 * 4
+    assert seen == sorted(seen)
+
+    class Stop(Exception):
+        pass
+
+    def stop(n):
+        raise Stop(n)
+
+    with pytest.raises(Stop):
+        gscache.render(scene, spp=100_000, progress=stop)
+
+
+def test_ctrl_c_raises_interrupted_with_the_partial_image(repo):
+    script = textwrap.dedent(
+        f"""
+        import os, signal, threading, numpy as np, gscache
+        scene = gscache.Scene.load({str(repo / "data/scenes/default.toml")!r})
+        threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        try:
+            gscache.render(scene, spp=100_000)
+            print("not interrupted")
+        except gscache.Interrupted as e:
+            img = e.image
+            print("interrupted", e.samples, bool(np.isfinite(img).all()), float(img.mean()) > 0.0)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    words = done.stdout.split()
+    assert words[0] == "interrupted", done.stdout
+    assert int(words[1]) > 0 and words[2:] == ["True", "True"], done.stdout
+
+
+def test_bad_input_gives_the_programs_message(program, tmp_path):
+    missing = tmp_path / "missing.toml"
+    done = run_program(program, "render", missing)
+    assert done.returncode != 0
+    with pytest.raises(gscache.GscacheError) as e:
+        gscache.Scene.load(str(missing))
+    assert done.stderr.strip() == "error: " + str(e.value).strip()
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[volume]\nfile = 'x.raw'\n")
+    done = run_program(program, "render", bad)
+    with pytest.raises(gscache.GscacheError) as e:
+        gscache.Scene.load(str(bad))
+    assert "missing field `transfer`" in str(e.value)
+    assert done.stderr.strip() == "error: " + str(e.value).strip()
+
+    volume = gscache.Volume.from_array(np.ones((4, 4, 4), dtype=np.uint8))
+    with pytest.raises(gscache.GscacheError, match="unknown field"):
+        gscache.Scene(volume, transfer={"density_scale": 1.0, "pointz": []}, camera={})
+    with pytest.raises(gscache.GscacheError, match="integrator"):
+        scene = gscache.Scene(
+            volume,
+            transfer={"density_scale": 1.0, "points": [{"value": 0, "color": [1, 1, 1], "opacity": 1}]},
+            camera={"eye": [0, 0, 9], "target": [0, 0, 0], "fov_y": 40, "width": 8, "height": 8},
+        )
+        gscache.render(scene, spp=1, integrator="bidirectional")

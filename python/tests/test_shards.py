@@ -1,0 +1,101 @@
+"""Shards: pickled, merged in any order, equal to the one-process render bit for bit; the
+program's and the package's shards merge together; a 2-worker Dask LocalCluster gives the
+one-process results."""
+
+import pickle
+import random
+
+import numpy as np
+import pytest
+
+import gscache
+from conftest import run_program
+
+
+def small_scene_file(repo, tmp_path):
+    text = (repo / "data/scenes/default.toml").read_text()
+    text = text.replace("width = 512", "width = 40").replace("height = 512", "height = 32")
+    text = text.replace('file = "../volumes/', f'file = "{repo}/data/volumes/')
+    path = tmp_path / "small.toml"
+    path.write_text(text)
+    return path
+
+
+def bits(a):
+    return a.view(np.uint32)
+
+
+def test_pickled_shards_merge_in_any_order_to_the_render(repo, tmp_path):
+    scene = gscache.Scene.load(str(small_scene_file(repo, tmp_path)))
+    whole = gscache.render(scene, spp=5)
+    parts = [pickle.loads(pickle.dumps(gscache.render_partial(scene, (i, 4), spp=5))) for i in range(4)]
+    assert not parts[0].is_complete
+    for seed in range(3):
+        random.Random(seed).shuffle(parts)
+        merged = gscache.Partial.merge_all(parts)
+        assert merged.is_complete and merged.ranges == [(0, 5)]
+        assert np.array_equal(bits(merged.image()), bits(whole))
+    assert (merged.counts() == 5).all()
+    with pytest.raises(gscache.GscacheError, match="given twice"):
+        parts[0].merge(parts[0])
+    other = gscache.render_partial(scene, (0, 4), spp=5, seed=99)
+    with pytest.raises(gscache.GscacheError, match="different renders"):
+        parts[1].merge(other)
+    with pytest.raises(gscache.GscacheError, match="shards are missing"):
+        parts[1].image()
+    assert parts[1].image(allow_incomplete=True).shape == (32, 40, 3)
+
+
+def test_program_and_package_shards_merge_together(repo, program, tmp_path):
+    path = small_scene_file(repo, tmp_path)
+    scene = gscache.Scene.load(str(path))
+    a = tmp_path / "program.part"
+    done = run_program(program, "render", path, "--spp", "4", "--shard", "0/2", "--partial", a)
+    assert done.returncode == 0, done.stderr
+    b = gscache.render_partial(scene, (1, 2), spp=4)
+    b.write(str(tmp_path / "package.part"))
+    merged = gscache.Partial.read(str(a)).merge(b)
+    assert np.array_equal(bits(merged.image()), bits(gscache.render(scene, spp=4)))
+    # ... and the program merges the package's file.
+    out = tmp_path / "merged.exr"
+    done = run_program(program, "merge", a, tmp_path / "package.part", "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert np.array_equal(bits(gscache.read_exr(str(out))), bits(merged.image()))
+
+
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as c:
+        yield c
+
+
+def test_dask_sharded_render_and_sweep_equal_one_process(repo, tmp_path, client):
+    from gscache import distributed as gd
+
+    path = str(small_scene_file(repo, tmp_path))
+    scene = gscache.Scene.load(path)
+    whole = gscache.render(scene, spp=6)
+    image = gd.render_sharded(client, path, 5, spp=6, threads=1)
+    assert np.array_equal(bits(image), bits(whole))
+
+    # A recipe function builds a numpy scene on the worker.
+    def recipe():
+        voxels = np.fromfile(f"{repo}/data/volumes/neghip_64x64x64_uint8.raw", dtype=np.uint8)
+        return gscache.Scene(
+            gscache.Volume.from_array(voxels.reshape(64, 64, 64)),
+            transfer={"window": [0, 255], "density_scale": 0.6,
+                      "points": [{"value": 0.0, "color": [1, 0.8, 0.6], "opacity": 0.0},
+                                 {"value": 0.4, "color": [0.6, 0.8, 1.0], "opacity": 1.0}]},
+            camera={"eye": [60, 45, 95], "target": [0, 0, 0], "fov_y": 38, "width": 24, "height": 20},
+            environment=[1.0, 1.0, 1.0],
+        )
+
+    seeds = [{"seed": s} for s in (1, 2, 3)]
+    images = gd.map_sweep(client, recipe, seeds, spp=2, threads=1)
+    local = [gscache.render(recipe(), spp=2, seed=s) for s in (1, 2, 3)]
+    for a, b in zip(images, local):
+        assert np.array_equal(bits(a), bits(b))
+    assert not np.array_equal(bits(images[0]), bits(images[1]))

@@ -259,3 +259,98 @@ fn the_reports_command_line_renders_the_runners_image() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The tiny experiment in 3 shards (one through the program on 1 thread), merged: every
+/// spp-budget metric, seed spread and bias, and every fly-through error has the one-process
+/// run's bits. A missing, doubled or stale shard is refused.
+#[test]
+fn sharded_experiment_merges_to_the_one_process_results() {
+    use gscache_cli::experiment::measure::Budget;
+    let dir = scratch("shards");
+    let file = tiny_experiment(&dir);
+    let quiet = |_: &str| {};
+    let whole = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let part = |i: u32| dir.join(format!("shard-{i}.json"));
+    for i in [0, 2] {
+        let shard = volume_pt::Shard::new(i, 3).unwrap();
+        gscache_cli::experiment::run_experiment_shard(&file, shard, &part(i), &quiet).unwrap();
+    }
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .args(["-q", "--threads", "1", "experiment"])
+        .arg(&file)
+        .args(["--shard", "1/3", "--shard-output"])
+        .arg(part(1))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let parts = [part(2), part(0), part(1)];
+    let merged_dir = dir.join("merged");
+    let merged =
+        gscache_cli::experiment::merge_experiment(&file, &parts, Some(&merged_dir), &quiet)
+            .unwrap();
+    assert!(merged_dir.join("report.md").exists());
+    assert_eq!(merged.runs.len(), whole.runs.len());
+    let mut compared = 0;
+    for (a, b) in whole.runs.iter().zip(&merged.runs) {
+        assert_eq!((&a.method, a.budget, a.seed), (&b.method, b.budget, b.seed));
+        if matches!(a.budget, Budget::Spp(_)) {
+            assert_eq!(a.spp, b.spp);
+            for (x, y) in [
+                (a.rel_mse, b.rel_mse),
+                (a.psnr_hdr, b.psnr_hdr),
+                (a.psnr_tonemapped, b.psnr_tonemapped),
+                (a.smape, b.smape),
+            ] {
+                assert_eq!(x.to_bits(), y.to_bits(), "{a:?} vs {b:?}");
+            }
+            compared += 1;
+        }
+    }
+    assert_eq!(
+        compared,
+        12 + 6,
+        "2 methods x 2 spp budgets x 3 seeds + the ablation's 6"
+    );
+    for (a, b) in whole.summary.iter().zip(&merged.summary) {
+        if matches!(a.budget, Budget::Spp(_)) {
+            assert_eq!(a.rel_mse.to_bits(), b.rel_mse.to_bits(), "{}", a.method);
+            assert_eq!(a.rel_mse_sd.to_bits(), b.rel_mse_sd.to_bits());
+            let (x, y) = (a.bias.unwrap(), b.bias.unwrap());
+            assert_eq!(x.rel_bias_sq.to_bits(), y.rel_bias_sq.to_bits());
+            assert_eq!(x.brightness.to_bits(), y.brightness.to_bits());
+        }
+    }
+    assert_eq!(whole.flythroughs.len(), merged.flythroughs.len());
+    let errors = |r: &gscache_cli::experiment::Results| -> Vec<Option<u64>> {
+        r.flythroughs
+            .iter()
+            .map(|f| f.rel_mse.map(f64::to_bits))
+            .collect()
+    };
+    assert_eq!(errors(&whole), errors(&merged));
+    assert!(errors(&whole).iter().flatten().count() > 0);
+
+    let merge = |files: &[PathBuf]| {
+        gscache_cli::experiment::merge_experiment(&file, files, Some(&merged_dir), &quiet)
+            .unwrap_err()
+            .to_string()
+    };
+    let e = merge(&[part(0), part(1)]);
+    assert!(e.contains("are missing"), "{e}");
+    let e = merge(&[part(0), part(1), part(2), part(1)]);
+    assert!(e.contains("given twice"), "{e}");
+    // The experiment file changed after the shards ran: they are stale.
+    let text = std::fs::read_to_string(&file).unwrap();
+    std::fs::write(
+        &file,
+        text.replace("seeds = [1, 2, 3]", "seeds = [1, 2, 4]"),
+    )
+    .unwrap();
+    let e = merge(&parts);
+    assert!(e.contains("another version of the experiment"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -18,7 +18,7 @@ use std::time::Instant;
 use volume_pt::{Film, Scene, load_scene, render};
 
 /// One frame of one method.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct FrameRecord {
     pub flythrough: String,
     pub method: String,

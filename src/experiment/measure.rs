@@ -14,7 +14,7 @@ use std::time::Instant;
 use volume_pt::{Film, Scene, render, sample_cache_points};
 
 /// A budget: samples per pixel, or wall-clock seconds per image.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(tag = "kind", content = "value", rename_all = "lowercase")]
 pub enum Budget {
     Spp(u32),
@@ -31,18 +31,19 @@ impl std::fmt::Display for Budget {
 }
 
 /// The image a progressive run had when it reached a budget.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Snapshot {
     pub budget: Budget,
     /// Passes (samples per pixel) in the image.
     pub spp: u32,
     /// Wall-clock seconds of those passes (for a cache: tracing, lookup and training).
     pub seconds: f64,
+    #[serde(with = "super::shard::image_bits")]
     pub image: Vec<Vec3>,
 }
 
 /// What a cached run leaves besides its snapshots.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub struct CacheRecord {
     pub init_seconds: f64,
     pub warmup_seconds: f64,
@@ -55,6 +56,7 @@ pub struct CacheRecord {
     /// Measured frames traced without the cache after its handoff.
     pub handed_off: u32,
     /// The levels as last drawn, at the scene camera.
+    #[serde(with = "super::shard::image_bits::many")]
     pub level_images: Vec<Vec<Vec3>>,
     pub parameter_bytes: usize,
     pub nonfinite_samples: u64,

@@ -3,13 +3,14 @@
 //! is measured, so an interrupted experiment keeps what it measured.
 
 use super::config::{Budgets, Experiment, Method};
-use super::flythrough::{FrameRecord, fly};
-use super::measure::{Budget, CacheRecord, Snapshot, run_method};
+use super::flythrough::FrameRecord;
+use super::measure::{Budget, CacheRecord, Snapshot};
 use super::reference::reference;
+use super::shard::{UnitResult, measure_unit, units};
 use crate::metrics::{
     BiasEstimate, SeedSpread, efficiency, flip, hdr_peak, psnr, psnr_8bit, rel_mse, smape,
 };
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use hdr_image::tone_map;
 use serde::Serialize;
@@ -188,14 +189,28 @@ fn budgets_of(b: &Budgets) -> Vec<Budget> {
         .collect()
 }
 
-struct Setup<'a> {
+/// Where the assembly gets unit `k`'s measurements: measured on the spot (one process), or
+/// from shard files (a merge).
+pub type UnitSource<'a> = dyn FnMut(usize) -> Result<UnitResult> + 'a;
+
+struct Setup<'a, 's> {
     scene: &'a Scene,
     reference: &'a [Vec3],
     reference_ldr: Vec<u8>,
     peak: f64,
     seeds: &'a [u64],
-    centre: Vec3,
     csv: std::fs::File,
+    source: &'a mut UnitSource<'s>,
+    /// The next unit the assembly reads (the order of `shard::units`).
+    next_unit: usize,
+}
+
+impl Setup<'_, '_> {
+    fn next(&mut self) -> Result<UnitResult> {
+        let k = self.next_unit;
+        self.next_unit += 1;
+        (self.source)(k)
+    }
 }
 
 fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evaluation> {
@@ -208,7 +223,17 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
     let mut cache = None;
     let mut first_snapshots = Vec::new();
     for (si, &seed) in cx.seeds.iter().enumerate() {
-        let (snaps, record) = run_method(cx.scene, method, seed, budgets, cx.centre)?;
+        let UnitResult::Method {
+            snapshots: snaps,
+            record,
+        } = cx.next()?
+        else {
+            bail!(
+                "unit {} is not a run of `{}`: the shards do not match the experiment",
+                cx.next_unit - 1,
+                method.name
+            );
+        };
         let warmup_seconds = record.as_ref().map_or(0.0, |r| r.warmup_seconds);
         let nonfinite = record.as_ref().map_or(0, |r| r.nonfinite_samples);
         for snap in &snaps {
@@ -312,12 +337,58 @@ fn compare_with(rows: &mut [SummaryRow], baseline: &[SummaryRow]) {
     }
 }
 
-/// Runs the experiment; `progress` receives one line per step.
-pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
+/// The experiment's scene at the experiment's image size.
+pub fn experiment_scene(exp: &Experiment) -> Result<Scene> {
     let mut scene = volume_pt::load_scene(&exp.scene)?;
     if let Some((w, h)) = exp.size {
         scene.camera = scene.camera.with_size(w, h)?;
     }
+    Ok(scene)
+}
+
+/// The main budgets and each ablation's.
+pub fn all_budgets(exp: &Experiment) -> (Vec<Budget>, Vec<Vec<Budget>>) {
+    (
+        budgets_of(&exp.budgets),
+        exp.ablations
+            .iter()
+            .map(|a| budgets_of(&a.budgets))
+            .collect(),
+    )
+}
+
+/// Runs the experiment in one process; `progress` receives one line per step.
+pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
+    let scene = experiment_scene(exp)?;
+    let (main, ablation) = all_budgets(exp);
+    let units = units(exp, &main, &ablation);
+    assemble(exp, &scene, progress, &mut |k| {
+        measure_unit(exp, &scene, units[k], progress)
+    })
+}
+
+/// Runs the experiment from units measured by shards (`shard::gather_units`).
+pub fn merge(
+    exp: &Experiment,
+    mut measured: std::collections::BTreeMap<usize, UnitResult>,
+    progress: &dyn Fn(&str),
+) -> Result<Results> {
+    let scene = experiment_scene(exp)?;
+    assemble(exp, &scene, progress, &mut |k| {
+        measured
+            .remove(&k)
+            .with_context(|| format!("unit {k} is missing from the shards"))
+    })
+}
+
+/// Everything but the measuring: the reference, the metrics of every unit read from `source`
+/// in the order of `shard::units`, summaries and comparisons, `runs.csv`.
+fn assemble(
+    exp: &Experiment,
+    scene: &Scene,
+    progress: &dyn Fn(&str),
+    source: &mut UnitSource<'_>,
+) -> Result<Results> {
     let (w, h) = (scene.camera.width, scene.camera.height);
     std::fs::create_dir_all(&exp.output)
         .with_context(|| format!("{}: cannot create the output folder", exp.output.display()))?;
@@ -325,7 +396,7 @@ pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
         &exp.reference.dir,
         &exp.scene,
         "",
-        &scene,
+        scene,
         &scene.camera,
         exp.reference.spp,
     )?;
@@ -340,19 +411,19 @@ pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
         )
     });
     let peak = hdr_peak(&r.image);
-    let (lo, hi) = scene.media.medium.bounds();
     let csv_path = exp.output.join("runs.csv");
     let mut csv = std::fs::File::create(&csv_path)
         .with_context(|| format!("{}: cannot write", csv_path.display()))?;
     writeln!(csv, "{}", RunRow::CSV_HEADER)?;
     let mut cx = Setup {
-        scene: &scene,
+        scene,
         reference: &r.image,
-        reference_ldr: ldr(&r.image, &scene),
+        reference_ldr: ldr(&r.image, scene),
         peak,
         seeds: &exp.seeds,
-        centre: 0.5 * (lo + hi),
         csv,
+        source,
+        next_unit: 0,
     };
     let budgets = budgets_of(&exp.budgets);
     let mut results = Results {
@@ -405,12 +476,6 @@ pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
     };
     compare_with(&mut results.summary, &base_rows);
     for fl in &exp.flythroughs {
-        let methods: Vec<&Method> = exp
-            .methods
-            .iter()
-            .filter(|m| fl.methods.is_empty() || fl.methods.contains(&m.name))
-            .collect();
-        let seed = exp.seeds[0];
         for e in &fl.events {
             let mut probe = scene.clone();
             let what = super::flythrough::apply_event(&mut probe, e)?;
@@ -418,15 +483,14 @@ pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
                 .flythrough_events
                 .push((fl.name.clone(), e.frame, what));
         }
-        results.flythroughs.extend(fly(
-            &scene,
-            &exp.scene,
-            fl,
-            &methods,
-            seed,
-            &exp.reference.dir,
-            progress,
-        )?);
+        let UnitResult::Fly(frames) = cx.next()? else {
+            bail!(
+                "unit {} is not fly-through `{}`: the shards do not match the experiment",
+                cx.next_unit - 1,
+                fl.name
+            );
+        };
+        results.flythroughs.extend(frames);
     }
     for a in &exp.ablations {
         let budgets = budgets_of(&a.budgets);

@@ -6,9 +6,13 @@
 use crate::common::Global;
 use anyhow::Result;
 use std::path::PathBuf;
+use volume_pt::Shard;
 
 #[derive(clap::Args, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct ExperimentArgs {
+    #[command(subcommand)]
+    merge: Option<MergeCommand>,
     /// Experiment files, run one after the other.
     #[arg(required = true)]
     experiments: Vec<PathBuf>,
@@ -16,15 +20,64 @@ pub struct ExperimentArgs {
     /// one experiment file.
     #[arg(long)]
     output: Option<PathBuf>,
+    /// Measure only shard I/N of the experiment's units (each method or ablation variant with
+    /// each seed, and each fly-through; unit k when k mod N = I) into `--shard-output`; then
+    /// `gscache experiment merge FILE SHARDS...` writes the report. A SLURM job array runs
+    /// one shard per task.
+    #[arg(long, requires = "shard_output", value_parser = parse_shard)]
+    shard: Option<Shard>,
+    /// Where a shard's measured units go (JSON, written atomically).
+    #[arg(long, requires = "shard")]
+    shard_output: Option<PathBuf>,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum MergeCommand {
+    /// Merge the shard files of one experiment and write its tables, plots and report.
+    Merge {
+        /// The experiment file the shards ran.
+        experiment: PathBuf,
+        /// Every shard's file (`--shard-output`), in any order.
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        /// Output folder (default: the file's `output`).
+        #[arg(long)]
+        output: Option<PathBuf>,
+    },
+}
+
+fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
+    Shard::parse(s).map_err(|e| e.to_string())
 }
 
 pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
-    if cli.output.is_some() && cli.experiments.len() > 1 {
-        anyhow::bail!("--output names one folder: give one experiment file with it");
+    let start = std::time::Instant::now();
+    let progress = |line: &str| eprintln!("[{:7.1} s] {line}", start.elapsed().as_secs_f64());
+    if let Some(MergeCommand::Merge {
+        experiment,
+        shards,
+        output,
+    }) = &cli.merge
+    {
+        gscache_cli::experiment::merge_experiment(
+            experiment,
+            shards,
+            output.as_deref(),
+            &progress,
+        )?;
+        return Ok(0);
+    }
+    if (cli.output.is_some() || cli.shard.is_some()) && cli.experiments.len() > 1 {
+        anyhow::bail!(
+            "--output and --shard name one experiment: give one experiment file with them"
+        );
+    }
+    if let (Some(shard), Some(out)) = (cli.shard, &cli.shard_output) {
+        crate::common::prepare_output(out)?;
+        gscache_cli::experiment::run_experiment_shard(&cli.experiments[0], shard, out, &progress)?;
+        return Ok(0);
     }
     for path in &cli.experiments {
-        let start = std::time::Instant::now();
-        let progress = |line: &str| eprintln!("[{:7.1} s] {line}", start.elapsed().as_secs_f64());
         gscache_cli::experiment::run_experiment(path, cli.output.as_deref(), &progress)?;
     }
     Ok(0)

@@ -13,7 +13,7 @@ mod vtk;
 
 pub use budget::{
     MAX_TEXT_FILE_BYTES, VolumeSize, available_memory, check_volume_size, human_bytes,
-    read_text_file,
+    read_regular, read_text_file,
 };
 pub use raw::{RawLayout, parse_raw_file_name};
 

@@ -1,0 +1,297 @@
+//! Experiments split into shards: the independent units of work (each method or ablation
+//! variant with each seed, and each fly-through), a shard's file of measured units, and the
+//! merge that hands them to the same assembly a one-process run uses.
+//!
+//! A unit is a pure function of the experiment file (its images are bit-identical for a seed,
+//! whatever the machine or thread count), so `experiment FILE --shard I/N` on N machines
+//! followed by `experiment merge FILE SHARDS...` writes the tables and report one process would
+//! write: the spp-budget metrics, the seed spreads and biases and the fly-through errors bit for
+//! bit. Times, and so the time budgets' snapshots, are measured wherever a unit ran.
+//!
+//! Unit `k` belongs to shard `i/n` when `k mod n = i`. A shard file holds the experiment's key
+//! (a hash of the experiment and scene files), so a merge refuses shards of another version of
+//! the experiment, a unit given twice and a missing one.
+
+use super::config::{Experiment, Method};
+use super::flythrough::{FrameRecord, fly};
+use super::measure::{Budget, CacheRecord, Snapshot, run_method};
+use anyhow::{Context, Result, bail};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+use volume_pt::{RenderKey, Scene, Shard};
+
+/// One unit of an experiment's work.
+#[derive(Debug, Clone, Copy)]
+pub enum UnitSpec<'a> {
+    /// `method` with `seed` at `budgets` (a main method or an ablation variant).
+    Method {
+        method: &'a Method,
+        seed: u64,
+        budgets: &'a [Budget],
+    },
+    /// Fly-through number `index` of the file.
+    Fly { index: usize },
+}
+
+/// What a unit measured.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub enum UnitResult {
+    Method {
+        snapshots: Vec<Snapshot>,
+        record: Option<CacheRecord>,
+    },
+    Fly(Vec<FrameRecord>),
+}
+
+/// Every unit of `exp` in the order the assembly reads them: the methods' seeds, then the
+/// fly-throughs, then the ablation variants' seeds. `budgets` holds the main budgets and each
+/// ablation's, as `run` computes them.
+pub fn units<'a>(
+    exp: &'a Experiment,
+    main_budgets: &'a [Budget],
+    ablation_budgets: &'a [Vec<Budget>],
+) -> Vec<UnitSpec<'a>> {
+    let mut out = Vec::new();
+    for m in &exp.methods {
+        for &seed in &exp.seeds {
+            out.push(UnitSpec::Method {
+                method: m,
+                seed,
+                budgets: main_budgets,
+            });
+        }
+    }
+    out.extend((0..exp.flythroughs.len()).map(|index| UnitSpec::Fly { index }));
+    for (a, budgets) in exp.ablations.iter().zip(ablation_budgets) {
+        for (_, m) in &a.variants {
+            for &seed in &exp.seeds {
+                out.push(UnitSpec::Method {
+                    method: m,
+                    seed,
+                    budgets,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Measures one unit.
+pub fn measure_unit(
+    exp: &Experiment,
+    scene: &Scene,
+    spec: UnitSpec<'_>,
+    progress: &dyn Fn(&str),
+) -> Result<UnitResult> {
+    let (lo, hi) = scene.media.medium.bounds();
+    let centre = 0.5 * (lo + hi);
+    Ok(match spec {
+        UnitSpec::Method {
+            method,
+            seed,
+            budgets,
+        } => {
+            let (snapshots, record) = run_method(scene, method, seed, budgets, centre)?;
+            UnitResult::Method { snapshots, record }
+        }
+        UnitSpec::Fly { index } => {
+            let fl = &exp.flythroughs[index];
+            let methods: Vec<&Method> = exp
+                .methods
+                .iter()
+                .filter(|m| fl.methods.is_empty() || fl.methods.contains(&m.name))
+                .collect();
+            UnitResult::Fly(fly(
+                scene,
+                &exp.scene,
+                fl,
+                &methods,
+                exp.seeds[0],
+                &exp.reference.dir,
+                progress,
+            )?)
+        }
+    })
+}
+
+/// The key of an experiment: its file's text, its scene file's text and its unit count.
+pub fn experiment_key(path: &Path, exp: &Experiment, unit_count: usize) -> Result<String> {
+    let read = |p: &Path| std::fs::read(p).with_context(|| format!("{}: cannot read", p.display()));
+    Ok(RenderKey::new()
+        .part(&read(path)?)
+        .part(&read(&exp.scene)?)
+        .part(&(unit_count as u64).to_le_bytes())
+        .hex())
+}
+
+/// A shard's measured units.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShardFile {
+    pub format: u32,
+    pub experiment: String,
+    pub key: String,
+    /// `I/N`.
+    pub shard: String,
+    pub unit_count: usize,
+    pub units: Vec<(usize, UnitResult)>,
+}
+
+const FORMAT: u32 = 1;
+
+/// Measures the units of `shard`.
+pub fn run_shard(
+    path: &Path,
+    exp: &Experiment,
+    scene: &Scene,
+    units: &[UnitSpec<'_>],
+    shard: Shard,
+    progress: &dyn Fn(&str),
+) -> Result<ShardFile> {
+    let mut measured = Vec::new();
+    for (k, spec) in units.iter().enumerate().filter(|(k, _)| shard.owns(*k)) {
+        measured.push((k, measure_unit(exp, scene, *spec, progress)?));
+        progress(&format!(
+            "shard {shard}: unit {k} of {} measured",
+            units.len()
+        ));
+    }
+    Ok(ShardFile {
+        format: FORMAT,
+        experiment: exp.name.clone(),
+        key: experiment_key(path, exp, units.len())?,
+        shard: shard.to_string(),
+        unit_count: units.len(),
+        units: measured,
+    })
+}
+
+impl ShardFile {
+    /// Writes the file atomically.
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let text = serde_json::to_string(self)?;
+        hdr_image::write_atomically(path, |tmp| {
+            std::fs::write(tmp, text.as_bytes()).map_err(|e| e.to_string())
+        })?;
+        Ok(())
+    }
+
+    pub fn read(path: &Path) -> Result<Self> {
+        // Images make shard files large (a 320x180 snapshot is 0.9 MB of base64); a quarter of
+        // the memory available bounds what is read.
+        let limit = volume_pt::io::available_memory() / 4;
+        let bytes = volume_pt::io::read_regular(path, limit, "an experiment shard file")?;
+        let f: ShardFile = serde_json::from_slice(&bytes).with_context(|| {
+            format!(
+                "{}: not an experiment shard file (written by `gscache experiment --shard`)",
+                path.display()
+            )
+        })?;
+        if f.format != FORMAT {
+            bail!(
+                "{}: shard file format {}: expected {FORMAT}",
+                path.display(),
+                f.format
+            );
+        }
+        Ok(f)
+    }
+}
+
+/// Every unit from `files`, checked against the experiment's key and unit count: none
+/// missing, none twice.
+pub fn gather_units(
+    files: &[(std::path::PathBuf, ShardFile)],
+    key: &str,
+    unit_count: usize,
+) -> Result<BTreeMap<usize, UnitResult>> {
+    let mut out = BTreeMap::new();
+    for (path, f) in files {
+        if f.key != key || f.unit_count != unit_count {
+            bail!(
+                "{}: a shard of another version of the experiment (key {}, {} units; this file gives key {key}, {unit_count} units): run the shards again",
+                path.display(),
+                f.key,
+                f.unit_count
+            );
+        }
+        for (k, r) in &f.units {
+            if *k >= unit_count || out.insert(*k, r.clone()).is_some() {
+                bail!(
+                    "{}: unit {k} is given twice or does not exist: each shard may be merged once",
+                    path.display()
+                );
+            }
+        }
+    }
+    let missing: Vec<String> = (0..unit_count)
+        .filter(|k| !out.contains_key(k))
+        .map(|k| k.to_string())
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "units {} of {unit_count} are missing: merge every shard's file",
+            missing.join(", ")
+        );
+    }
+    Ok(out)
+}
+
+/// Images in shard files: f32 bits in base64 (exact, and a third the size of decimal text).
+pub mod image_bits {
+    use super::Vec3;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn encode(image: &[Vec3]) -> String {
+        let bytes: Vec<u8> = image
+            .iter()
+            .flat_map(|p| p.to_array())
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        base64::encode(bytes)
+    }
+
+    pub fn decode(text: &str) -> Result<Vec<Vec3>, String> {
+        let bytes = base64::decode(text).map_err(|e| e.to_string())?;
+        if bytes.len() % 12 != 0 {
+            return Err(format!(
+                "{} bytes is not a whole number of RGB pixels",
+                bytes.len()
+            ));
+        }
+        Ok(bytes
+            .chunks_exact(12)
+            .map(|c| {
+                let f = |i: usize| f32::from_le_bytes(c[i..i + 4].try_into().expect("4 bytes"));
+                Vec3::new(f(0), f(4), f(8))
+            })
+            .collect())
+    }
+
+    pub fn serialize<S: Serializer>(image: &[Vec3], s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&encode(image))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec3>, D::Error> {
+        decode(&String::deserialize(d)?).map_err(serde::de::Error::custom)
+    }
+
+    /// A list of images.
+    pub mod many {
+        use super::Vec3;
+        use serde::{Deserialize, Deserializer, Serializer};
+
+        pub fn serialize<S: Serializer>(images: &[Vec<Vec3>], s: S) -> Result<S::Ok, S::Error> {
+            s.collect_seq(images.iter().map(|i| super::encode(i)))
+        }
+
+        pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<Vec3>>, D::Error> {
+            Vec::<String>::deserialize(d)?
+                .iter()
+                .map(|t| super::decode(t).map_err(serde::de::Error::custom))
+                .collect()
+        }
+    }
+}

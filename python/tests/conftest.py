@@ -31,3 +31,14 @@ def run_program(program: str, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [program, "-q", *map(str, args)], capture_output=True, text=True, cwd=REPO
     )
+
+
+def small_default_scene(repo: pathlib.Path, folder: pathlib.Path, width: int, height: int) -> pathlib.Path:
+    """The bundled default scene at `width` x `height`, written into `folder` (its volume path
+    made absolute), so a test renders it in milliseconds."""
+    text = (repo / "data/scenes/default.toml").read_text()
+    text = text.replace("width = 512", f"width = {width}").replace("height = 512", f"height = {height}")
+    text = text.replace('file = "../volumes/', f'file = "{repo}/data/volumes/')
+    path = folder / f"default_{width}x{height}.toml"
+    path.write_text(text)
+    return path

@@ -10,19 +10,14 @@ import numpy as np
 import pytest
 
 import gscache
-from conftest import run_program
+from conftest import run_program, small_default_scene
 
 ASSET = "data/splats/fruit_drops_minimal.ply"
 VIEW = {"eye": [0.76, -0.2, -1.4], "target": [0.76, 0.13, -2.1], "width": 64, "height": 48}
 
 
 def small_scene(repo, tmp_path):
-    text = (repo / "data/scenes/default.toml").read_text()
-    text = text.replace("width = 512", "width = 64").replace("height = 512", "height = 48")
-    text = text.replace('file = "../volumes/', f'file = "{repo}/data/volumes/')
-    path = tmp_path / "small.toml"
-    path.write_text(text)
-    return gscache.Scene.load(str(path))
+    return gscache.Scene.load(str(small_default_scene(repo, tmp_path, 64, 48)))
 
 
 def test_cache_trains_saves_and_loads(repo, tmp_path):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import gscache
-from conftest import run_program
+from conftest import run_program, small_default_scene
 
 try:
     import tomllib
@@ -67,11 +67,7 @@ def test_scene_file_threads_and_overrides_match_the_program(repo, program, tmp_p
     full = gscache.Scene.load(str(repo / "data/scenes/default.toml"))
     assert (full.width, full.height, full.spp) == (512, 512, 64)
     # A smaller copy of the scene file, so the test stays fast.
-    text = (repo / "data/scenes/default.toml").read_text()
-    text = text.replace("width = 512", "width = 48").replace("height = 512", "height = 40")
-    text = text.replace('file = "../volumes/', f'file = "{repo}/data/volumes/')
-    small = tmp_path / "small.toml"
-    small.write_text(text)
+    small = small_default_scene(repo, tmp_path, 48, 40)
     scene = gscache.Scene.load(str(small))
     for kw, flags in [
         ({"spp": 2}, ["--spp", "2"]),

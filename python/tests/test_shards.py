@@ -9,16 +9,11 @@ import numpy as np
 import pytest
 
 import gscache
-from conftest import run_program
+from conftest import run_program, small_default_scene
 
 
 def small_scene_file(repo, tmp_path):
-    text = (repo / "data/scenes/default.toml").read_text()
-    text = text.replace("width = 512", "width = 40").replace("height = 512", "height = 32")
-    text = text.replace('file = "../volumes/', f'file = "{repo}/data/volumes/')
-    path = tmp_path / "small.toml"
-    path.write_text(text)
-    return path
+    return small_default_scene(repo, tmp_path, 40, 32)
 
 
 def bits(a):

@@ -74,49 +74,81 @@ def _drop_none(d: Mapping[str, Any]) -> dict:
     return {k: v for k, v in d.items() if v is not None}
 
 
-def Scene(
-    volume: Volume,
-    *,
-    transfer: Mapping[str, Any],
-    camera: Mapping[str, Any],
-    lights: Sequence[Mapping[str, Any]] = (),
-    environment: Optional[Sequence[float]] = None,
-    phase: Optional[Mapping[str, Any]] = None,
-    render: Optional[Mapping[str, Any]] = None,
-    output: Optional[Mapping[str, Any]] = None,
-    spacing: Optional[Sequence[float]] = None,
-    origin: Optional[Sequence[float]] = None,
-    filter: Optional[str] = None,
-    macrocell: Optional[int] = None,
-) -> "_gscache.Scene":
-    """A scene around ``volume`` from the scene format's tables (docs/scene-format.md):
-    ``transfer`` (``window``, ``density_scale``, ``points`` or ``preset``), ``camera``
-    (``eye``, ``target``, ``up``, ``fov_y``, ``width``, ``height``), ``lights`` (each
-    ``center``, ``radius``, ``radiance``), ``environment`` (RGB radiance), ``phase``,
-    ``render`` (``spp``, ``max_depth``, ``integrator``, ``seed``, ``rr_start_depth``),
-    ``output`` (``exposure``, ``tonemap``); ``spacing``, ``origin``, ``filter`` and
-    ``macrocell`` place the volume as the ``[volume]`` table does. Preset paths are relative
-    to the working folder."""
-    tables = {
-        "volume": _drop_none(
-            {
-                "file": "<array>",
-                "spacing": list(spacing) if spacing is not None else None,
-                "origin": list(origin) if origin is not None else None,
-                "filter": filter,
-                "macrocell": macrocell,
-            }
-        ),
-        "transfer": dict(transfer),
-        "camera": dict(camera),
-        "light": [dict(l) for l in lights],
-    }
-    if environment is not None:
-        tables["environment"] = {"radiance": list(environment)}
-    for name, table in (("phase", phase), ("render", render), ("output", output)):
-        if table is not None:
-            tables[name] = dict(table)
-    return _gscache.Scene(volume, json.dumps(tables, default=_json_number))
+class Scene:
+    """A scene ready to render: the scene format's tables (docs/scene-format.md) around a
+    ``Volume``, or a scene file (``Scene.load``).
+
+    ``transfer`` (``window``, ``density_scale``, ``points`` or ``preset``), ``camera`` (``eye``,
+    ``target``, ``up``, ``fov_y``, ``width``, ``height``), ``lights`` (each ``center``,
+    ``radius``, ``radiance``), ``environment`` (RGB radiance), ``phase``, ``render`` (``spp``,
+    ``max_depth``, ``integrator``, ``seed``, ``rr_start_depth``), ``output`` (``exposure``,
+    ``tonemap``); ``spacing``, ``origin``, ``filter`` and ``macrocell`` place the volume as the
+    ``[volume]`` table does. Preset paths are relative to the working folder. The tables are
+    parsed by the program's own code, so a mistake gets the program's message."""
+
+    def __init__(
+        self,
+        volume: Volume,
+        *,
+        transfer: Mapping[str, Any],
+        camera: Mapping[str, Any],
+        lights: Sequence[Mapping[str, Any]] = (),
+        environment: Optional[Sequence[float]] = None,
+        phase: Optional[Mapping[str, Any]] = None,
+        render: Optional[Mapping[str, Any]] = None,
+        output: Optional[Mapping[str, Any]] = None,
+        spacing: Optional[Sequence[float]] = None,
+        origin: Optional[Sequence[float]] = None,
+        filter: Optional[str] = None,
+        macrocell: Optional[int] = None,
+    ):
+        tables = {
+            "volume": _drop_none(
+                {
+                    "file": "<array>",
+                    "spacing": spacing,
+                    "origin": origin,
+                    "filter": filter,
+                    "macrocell": macrocell,
+                }
+            ),
+            "transfer": dict(transfer),
+            "camera": dict(camera),
+            "light": [dict(l) for l in lights],
+        }
+        if environment is not None:
+            tables["environment"] = {"radiance": environment}
+        for name, table in (("phase", phase), ("render", render), ("output", output)):
+            if table is not None:
+                tables[name] = dict(table)
+        self._inner = _gscache.Scene(volume, json.dumps(tables, default=_json_number))
+
+    @classmethod
+    def load(cls, path: str) -> "Scene":
+        """Reads a scene file (TOML), as ``gscache render`` does."""
+        self = cls.__new__(cls)
+        self._inner = _gscache.Scene.load(str(path))
+        return self
+
+    width = property(lambda self: self._inner.width)
+    height = property(lambda self: self._inner.height)
+    spp = property(lambda self: self._inner.spp, doc="Samples per pixel the scene asks for.")
+    seed = property(lambda self: self._inner.seed)
+    integrator = property(lambda self: self._inner.integrator)
+    max_depth = property(lambda self: self._inner.max_depth, doc="-1: unlimited.")
+    exposure = property(lambda self: self._inner.exposure)
+    tonemap = property(lambda self: self._inner.tonemap)
+    notes = property(
+        lambda self: self._inner.notes,
+        doc="What the readers reported, and warnings about likely mistakes.",
+    )
+    render_key = property(
+        lambda self: self._inner.render_key,
+        doc="The key of a render with the scene's own settings (its shards share it).",
+    )
+
+    def __repr__(self) -> str:
+        return repr(self._inner)
 
 
 def _json_number(v: Any) -> Any:
@@ -128,11 +160,8 @@ def _json_number(v: Any) -> Any:
     raise TypeError(f"{type(v).__name__} in a scene table: expected numbers, strings, lists")
 
 
-Scene.load = _gscache.Scene.load  # type: ignore[attr-defined]
-
-
 def render(
-    scene: "_gscache.Scene",
+    scene: Scene,
     spp: Optional[int] = None,
     *,
     seed: Optional[int] = None,
@@ -148,7 +177,7 @@ def render(
     The image is bit-identical to ``gscache render``'s for the same scene and settings, and
     does not depend on ``threads``."""
     image, samples, interrupted, _ = _gscache._render(
-        scene, spp, seed, integrator, max_depth, threads, progress
+        scene._inner, spp, seed, integrator, max_depth, threads, progress
     )
     if interrupted:
         raise Interrupted(image, samples)
@@ -156,7 +185,7 @@ def render(
 
 
 def render_partial(
-    scene: "_gscache.Scene",
+    scene: Scene,
     shard: Tuple[int, int],
     spp: Optional[int] = None,
     *,
@@ -171,7 +200,7 @@ def render_partial(
     partial's file (``Partial.write``) is the one ``gscache render --shard`` writes, so
     program and package shards merge together."""
     part = _gscache._render_partial(
-        scene, tuple(shard), spp, seed, integrator, max_depth, threads, progress
+        scene._inner, tuple(shard), spp, seed, integrator, max_depth, threads, progress
     )
     if part is None:
         raise Interrupted(None, 0)
@@ -183,19 +212,19 @@ class Cache:
     that stop early, trained between frames. ``config`` holds the keys of an experiment file's
     ``cache`` table (``gscache render --help`` lists them with their defaults)."""
 
-    def __init__(self, scene: "_gscache.Scene", config: Optional[Mapping[str, Any]] = None):
-        self._inner = _gscache.Cache(scene, _config_json(config))
+    def __init__(self, scene: Scene, config: Optional[Mapping[str, Any]] = None):
+        self._inner = _gscache.Cache(scene._inner, _config_json(config))
 
     @classmethod
     def load(
         cls,
-        scene: "_gscache.Scene",
+        scene: Scene,
         folder: str,
         config: Optional[Mapping[str, Any]] = None,
     ) -> "Cache":
         """Levels saved by ``save`` (or ``gscache render --save-cache``)."""
         self = cls.__new__(cls)
-        self._inner = _gscache.Cache.load(scene, str(folder), _config_json(config))
+        self._inner = _gscache.Cache.load(scene._inner, str(folder), _config_json(config))
         return self
 
     def render(

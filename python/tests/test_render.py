@@ -56,6 +56,7 @@ def scene_from_tables(tables, volume, width=48, height=40):
 def test_numpy_volume_renders_the_programs_image_bit_for_bit(repo, program, tmp_path):
     tables, voxels = default_tables(repo)
     scene = scene_from_tables(tables, gscache.Volume.from_array(voxels))
+    assert isinstance(scene, gscache.Scene) and (scene.width, scene.spp) == (48, 64)
     image = gscache.render(scene, spp=3)
     expect = program_exr(program, tmp_path, "data/scenes/default.toml", "--spp", "3")
     assert image.shape == (40, 48, 3) and image.dtype == np.float32

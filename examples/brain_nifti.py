@@ -14,7 +14,6 @@ import time
 
 import nibabel
 import numpy as np
-from nibabel.testing import data_path
 
 import gscache
 
@@ -28,6 +27,8 @@ size = int(os.environ.get("GSCACHE_EXAMPLE_SIZE", "256"))
 # as they are, without a copy in Python.
 
 # %%
+# nibabel's test data folder (nibabel.testing would import pytest; the path alone does not).
+data_path = os.path.join(os.path.dirname(nibabel.__file__), "tests", "data")
 image = nibabel.load(os.path.join(data_path, "anatomical.nii"))
 data = np.asarray(image.dataobj).astype(np.float32)
 spacing = [float(z) for z in image.header.get_zooms()[:3]]

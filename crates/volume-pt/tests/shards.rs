@@ -68,8 +68,9 @@ fn merged_shards_equal_the_whole_render_bit_for_bit() {
 
 #[test]
 fn exact_sums_do_not_depend_on_grouping() {
-    // Values whose f64 sum does depend on grouping: 1 + 2^-53 + 2^-53 rounds to 1 when added
-    // left to right, but to 1 + 2^-52 when the small ones go first.
+    // Values whose f64 sum depends on the order of the additions (tiny ones next to 1 and 5e3
+    // lose different low bits whether they are added before or after the large ones); the
+    // assertion below checks that they do.
     let values = [1.0f32, 1.0e-9, 3.0e-9, 7.0e-10, 2.0e-9, 5.0e3, 1.0e-9];
     let f64_left = values.iter().fold(0.0f64, |a, &v| a + v as f64);
     let f64_right = values.iter().rev().fold(0.0f64, |a, &v| a + v as f64);

@@ -78,7 +78,14 @@ def render_sharded(
     """Renders ``recipe``'s scene in ``shards`` shard tasks on ``client``'s workers and returns
     the merged image: float32 (height, width, 3), equal bit for bit to ``gscache.render`` of
     the same scene and options in one process."""
-    merged = tree_merge(client, submit_shards(client, recipe, shards, **options))
+    from distributed import wait
+
+    futures = submit_shards(client, recipe, shards, **options)
+    # The merges are submitted once every shard is done: submitted with the shards, they make
+    # the scheduler place sibling shards together for locality, and two workers then took
+    # 4.6-4.8 s where they take 4.0 s this way (tools/dask_scaling.py, 160x160, 8 shards).
+    wait(futures)
+    merged = tree_merge(client, futures)
     return client.submit(_image, merged, allow_incomplete).result()
 
 

@@ -5,6 +5,7 @@
 use super::config::Method;
 use super::measure::pass_seed;
 use gs_cache::CacheConfig;
+use nrc_cache::NrcConfig;
 use std::path::Path;
 
 /// `--cache-KEY VALUE` for every cache setting that differs from the default: the experiment
@@ -23,6 +24,22 @@ pub fn cache_args(config: &CacheConfig) -> Vec<String> {
             toml::Value::String(s) => s.clone(),
             other => other.to_string(),
         });
+    }
+    args
+}
+
+/// `--nrc-set KEY=VALUE` for each neural cache setting that differs from its default.
+pub fn nrc_args(config: &NrcConfig) -> Vec<String> {
+    let table = toml::Table::try_from(config).expect("nrc settings are plain TOML values");
+    let defaults =
+        toml::Table::try_from(NrcConfig::default()).expect("nrc settings are plain TOML values");
+    let mut args = Vec::new();
+    for (key, value) in &table {
+        if defaults.get(key) == Some(value) {
+            continue;
+        }
+        args.push("--nrc-set".into());
+        args.push(format!("{key}={value}"));
     }
     args
 }
@@ -48,10 +65,20 @@ pub fn render_args(
         "--integrator".into(),
         method.integrator.to_string(),
     ];
-    match &method.cache {
+    match (&method.cache, &method.nrc) {
         // Plain methods render pass k with seed pass_seed(seed, k); the first image is pass 0.
-        None => args.extend(["--seed".into(), pass_seed(seed, 0).to_string()]),
-        Some(c) => {
+        (None, None) => args.extend(["--seed".into(), pass_seed(seed, 0).to_string()]),
+        (None, Some(n)) => {
+            args.extend(["--seed".into(), seed.to_string(), "--nrc".into()]);
+            args.extend(nrc_args(&n.settings));
+            args.extend([
+                "--warmup".into(),
+                n.warmup.to_string(),
+                "--warmup-orbit".into(),
+                n.warmup_orbit_degrees.to_string(),
+            ]);
+        }
+        (Some(c), _) => {
             args.extend(["--seed".into(), seed.to_string(), "--cache".into()]);
             args.extend(cache_args(&c.settings));
             args.extend([

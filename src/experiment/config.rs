@@ -5,6 +5,7 @@
 use crate::camera_path::{Keyframe, check_keyframes};
 use anyhow::{Context, Result, bail};
 use gs_cache::CacheConfig;
+use nrc_cache::NrcConfig;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use volume_pt::IntegratorKind;
@@ -79,13 +80,15 @@ impl Default for Budgets {
     }
 }
 
-/// One method: an integrator, optionally reading a cache.
+/// One method: an integrator, optionally reading a cache: the Gaussian cache (`cache`) or the
+/// neural radiance cache (`nrc`).
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MethodDesc {
     pub name: String,
     pub integrator: IntegratorKind,
     pub cache: Option<CacheDesc>,
+    pub nrc: Option<NrcDesc>,
 }
 
 /// A cache's settings in the experiment file: the library's [`CacheConfig`], key for key (the
@@ -111,33 +114,49 @@ impl Default for CacheDesc {
     }
 }
 
+/// Takes a cache table's warm-up keys out: `(warmup, warmup_orbit_degrees)`, the defaults for
+/// keys not given.
+fn take_warmup(table: &mut toml::Table) -> std::result::Result<(u32, f32), String> {
+    let d = CacheDesc::default();
+    let warmup = match table.remove("warmup") {
+        None => d.warmup,
+        Some(v) => v
+            .as_integer()
+            .and_then(|n| u32::try_from(n).ok())
+            .ok_or_else(|| format!("warmup = {v}: expected a frame count >= 0"))?,
+    };
+    let warmup_orbit_degrees = match table.remove("warmup_orbit_degrees") {
+        None => d.warmup_orbit_degrees,
+        Some(v) => {
+            let x = v.as_float().or_else(|| v.as_integer().map(|n| n as f64));
+            match x {
+                Some(x) if x.is_finite() => x as f32,
+                _ => {
+                    return Err(format!(
+                        "warmup_orbit_degrees = {v}: expected a finite angle"
+                    ));
+                }
+            }
+        }
+    };
+    Ok((warmup, warmup_orbit_degrees))
+}
+
+/// A warm-up's keys added back to a cache's settings table.
+fn put_warmup(t: &mut toml::Table, warmup: u32, warmup_orbit_degrees: f32) {
+    t.insert("warmup".into(), toml::Value::Integer(warmup.into()));
+    t.insert(
+        "warmup_orbit_degrees".into(),
+        toml::Value::Float(warmup_orbit_degrees.into()),
+    );
+}
+
 impl TryFrom<toml::Table> for CacheDesc {
     type Error = String;
     /// Takes the warm-up keys out and reads every other key as a [`CacheConfig`] key (unknown
     /// keys are refused by it).
     fn try_from(mut table: toml::Table) -> std::result::Result<Self, String> {
-        let d = CacheDesc::default();
-        let warmup = match table.remove("warmup") {
-            None => d.warmup,
-            Some(v) => v
-                .as_integer()
-                .and_then(|n| u32::try_from(n).ok())
-                .ok_or_else(|| format!("warmup = {v}: expected a frame count >= 0"))?,
-        };
-        let warmup_orbit_degrees = match table.remove("warmup_orbit_degrees") {
-            None => d.warmup_orbit_degrees,
-            Some(v) => {
-                let x = v.as_float().or_else(|| v.as_integer().map(|n| n as f64));
-                match x {
-                    Some(x) if x.is_finite() => x as f32,
-                    _ => {
-                        return Err(format!(
-                            "warmup_orbit_degrees = {v}: expected a finite angle"
-                        ));
-                    }
-                }
-            }
-        };
+        let (warmup, warmup_orbit_degrees) = take_warmup(&mut table)?;
         let settings =
             CacheConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
         Ok(Self {
@@ -152,12 +171,59 @@ impl From<CacheDesc> for toml::Table {
     fn from(d: CacheDesc) -> toml::Table {
         let mut t =
             toml::Table::try_from(d.settings).expect("cache settings are plain TOML values");
-        t.insert("warmup".into(), toml::Value::Integer(d.warmup.into()));
-        t.insert(
-            "warmup_orbit_degrees".into(),
-            toml::Value::Float(d.warmup_orbit_degrees.into()),
-        );
+        put_warmup(&mut t, d.warmup, d.warmup_orbit_degrees);
         t
+    }
+}
+
+/// The neural radiance cache's settings in the experiment file (its `nrc` table): nrc-cache's
+/// [`NrcConfig`], key for key, plus the same warm-up keys as the Gaussian cache's table.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(try_from = "toml::Table", into = "toml::Table")]
+pub struct NrcDesc {
+    pub settings: NrcConfig,
+    pub warmup: u32,
+    pub warmup_orbit_degrees: f32,
+}
+
+impl Default for NrcDesc {
+    fn default() -> Self {
+        let d = CacheDesc::default();
+        Self {
+            settings: NrcConfig::default(),
+            warmup: d.warmup,
+            warmup_orbit_degrees: d.warmup_orbit_degrees,
+        }
+    }
+}
+
+impl TryFrom<toml::Table> for NrcDesc {
+    type Error = String;
+    fn try_from(mut table: toml::Table) -> std::result::Result<Self, String> {
+        let (warmup, warmup_orbit_degrees) = take_warmup(&mut table)?;
+        let settings =
+            NrcConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
+        Ok(Self {
+            settings,
+            warmup,
+            warmup_orbit_degrees,
+        })
+    }
+}
+
+impl From<NrcDesc> for toml::Table {
+    fn from(d: NrcDesc) -> toml::Table {
+        let mut t = toml::Table::try_from(d.settings).expect("nrc settings are plain TOML values");
+        put_warmup(&mut t, d.warmup, d.warmup_orbit_degrees);
+        t
+    }
+}
+
+impl NrcDesc {
+    /// The library configuration, checked.
+    pub fn config(&self) -> Result<NrcConfig> {
+        self.settings.validate()?;
+        Ok(self.settings.clone())
     }
 }
 
@@ -243,6 +309,23 @@ pub struct Method {
     pub name: String,
     pub integrator: IntegratorKind,
     pub cache: Option<CacheDesc>,
+    pub nrc: Option<NrcDesc>,
+}
+
+impl Method {
+    /// Warm-up frames before the method is measured (0 without a cache).
+    pub fn warmup(&self) -> u32 {
+        match (&self.cache, &self.nrc) {
+            (Some(c), _) => c.warmup,
+            (_, Some(n)) => n.warmup,
+            _ => 0,
+        }
+    }
+
+    /// Whether the method reads a cache of either kind.
+    pub fn has_cache(&self) -> bool {
+        self.cache.is_some() || self.nrc.is_some()
+    }
 }
 
 /// The parsed file with its paths resolved and every method checked.
@@ -313,7 +396,12 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         if methods.iter().any(|x: &Method| x.name == m.name) {
             bail!("method `{}` is defined twice", m.name);
         }
-        methods.push(method(m.name.clone(), m.integrator, m.cache.clone())?);
+        methods.push(method(
+            m.name.clone(),
+            m.integrator,
+            m.cache.clone(),
+            m.nrc.clone(),
+        )?);
     }
     let find = |name: &str, what: &str| -> Result<&Method> {
         methods.iter().find(|m| m.name == name).with_context(|| {
@@ -391,7 +479,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         let m = find(&a.method, &format!("ablation `{}`", a.name))?;
         let Some(cache) = &m.cache else {
             bail!(
-                "ablation `{}` varies method `{}`, which has no cache",
+                "ablation `{}` varies method `{}`, which has no Gaussian cache (ablations vary a `cache` table's keys; to compare neural cache settings, give each its own [[method]])",
                 a.name,
                 a.method
             );
@@ -407,7 +495,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
                 .with_context(|| format!("ablation `{}`", a.name))?;
             let label = value_label(v);
             let name = format!("{} [{}={}]", m.name, a.parameter, label);
-            variants.push((label, method(name, m.integrator, Some(varied))?));
+            variants.push((label, method(name, m.integrator, Some(varied), None)?));
         }
         ablations.push(Ablation {
             name: a.name.clone(),
@@ -446,7 +534,24 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     })
 }
 
-fn method(name: String, integrator: IntegratorKind, cache: Option<CacheDesc>) -> Result<Method> {
+fn method(
+    name: String,
+    integrator: IntegratorKind,
+    cache: Option<CacheDesc>,
+    nrc: Option<NrcDesc>,
+) -> Result<Method> {
+    if cache.is_some() && nrc.is_some() {
+        bail!("method `{name}`: both `cache` and `nrc`: a method reads one cache");
+    }
+    if let Some(n) = &nrc {
+        if integrator != IntegratorKind::Nee {
+            bail!(
+                "method `{name}`: the neural cache needs `integrator = \"nee\"` (its training paths are NEE paths)"
+            );
+        }
+        n.config()
+            .with_context(|| format!("method `{name}`: nrc"))?;
+    }
     if let Some(c) = &cache {
         if integrator != IntegratorKind::Nee {
             bail!(
@@ -460,6 +565,7 @@ fn method(name: String, integrator: IntegratorKind, cache: Option<CacheDesc>) ->
         name,
         integrator,
         cache,
+        nrc,
     })
 }
 

@@ -5,11 +5,12 @@
 //! edit this is the adaptation curve: how many frames the cache takes to learn the new scene.
 
 use super::config::{EventDesc, FlythroughDesc, Method};
-use super::measure::{new_cache, pass_seed};
+use super::measure::{new_cache, new_nrc, pass_seed};
 use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
 use crate::metrics::rel_mse;
 use anyhow::{Context, Result};
+use cached_pt::nrc::render_nrc_frame;
 use cached_pt::render_cached_frame;
 use glam::Vec3;
 use std::path::Path;
@@ -89,6 +90,10 @@ pub fn fly(
             Some(desc) => Some(new_cache(&scene, desc.config()?, seed)?.0),
             None => None,
         };
+        let mut nrc = match &method.nrc {
+            Some(desc) => Some(new_nrc(desc.config()?, seed)?.0),
+            None => None,
+        };
         let edit_frames: Vec<u32> = fly.events.iter().map(|e| e.frame).collect();
         for f in 0..total {
             for e in fly.events.iter().filter(|e| e.frame == f) {
@@ -108,15 +113,27 @@ pub fn fly(
             let mut film = Film::new(cam.width, cam.height);
             let start = Instant::now();
             let (mut trace, mut splat, mut train, mut level_mse) = (0.0, 0.0, 0.0, Vec::new());
-            match &mut cache {
-                None => {
+            match (&mut cache, &mut nrc) {
+                (None, Some(n)) => {
+                    let s = render_nrc_frame(
+                        &scene.media,
+                        &cam,
+                        &settings,
+                        f,
+                        Some(&mut film),
+                        n,
+                        &cancel,
+                    );
+                    (trace, splat, train) = (s.trace_seconds, s.inference_seconds, s.train_seconds);
+                }
+                (None, None) => {
                     let s = volume_pt::RenderSettings {
                         seed: pass_seed(seed, f as u64),
                         ..settings
                     };
                     render(&scene.media, &cam, &s, &mut film, &cancel, &|_| {});
                 }
-                Some(c) => {
+                (Some(c), _) => {
                     let s = render_cached_frame(
                         &scene.media,
                         &cam,
@@ -131,7 +148,7 @@ pub fn fly(
                 }
             }
             let total_s = start.elapsed().as_secs_f64();
-            if method.cache.is_none() {
+            if !method.has_cache() {
                 trace = total_s;
             }
             // Evaluated: every `error_every` frames, the last, and the few frames right after

@@ -4,11 +4,14 @@
 //! user watching it would see them. Times are wall-clock around each pass.
 
 use super::config::Method;
+use super::config::NrcDesc;
 use crate::camera_path::orbit;
 use anyhow::Result;
+use cached_pt::nrc::render_nrc_frame;
 use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache};
+use nrc_cache::{NeuralCache, NrcConfig};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use volume_pt::{Film, Scene, render, sample_cache_points};
@@ -49,8 +52,8 @@ pub struct CacheRecord {
     pub warmup_seconds: f64,
     /// Per frame (warm-up, then measured): per level, the MSE before the step.
     pub level_mse: Vec<Vec<Option<f64>>>,
-    /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting) and
-    /// training. Frames after the handoff (plain path tracing) are counted in `handed_off`
+    /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting, or
+    /// the neural cache's inference and composition) and training. Frames after the handoff (plain path tracing) are counted in `handed_off`
     /// instead, so the cache's per-frame cost is that of the frames that pay it.
     pub frame_seconds: Vec<[f64; 3]>,
     /// Measured frames traced without the cache after its handoff.
@@ -129,6 +132,10 @@ pub fn run_method(
     settings.spp = 1;
     settings.path.integrator = method.integrator;
     let cancel = AtomicBool::new(false);
+    if let Some(desc) = &method.nrc {
+        settings.seed = seed;
+        return run_nrc(scene, desc, &settings, budgets, centre);
+    }
     let Some(desc) = &method.cache else {
         let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
             let s = volume_pt::RenderSettings {
@@ -191,6 +198,63 @@ pub fn run_method(
             })
             .collect();
     }
+    Ok((snaps, Some(record)))
+}
+
+/// A new neural cache for `scene` with `seed` (its weights' seed mixed with the run's), and
+/// the seconds it took.
+pub fn new_nrc(config: NrcConfig, seed: u64) -> Result<(NeuralCache, f64)> {
+    let start = Instant::now();
+    let config = NrcConfig {
+        seed: config.seed ^ pass_seed(seed, u64::MAX),
+        ..config
+    };
+    let cache = NeuralCache::new(config)?;
+    Ok((cache, start.elapsed().as_secs_f64()))
+}
+
+/// The neural cache's run: warm-up frames along the orbit, then measured frames, as for the
+/// Gaussian cache. Its per-frame costs are (trace, inference and composition, training).
+fn run_nrc(
+    scene: &Scene,
+    desc: &NrcDesc,
+    settings: &volume_pt::RenderSettings,
+    budgets: &[Budget],
+    centre: Vec3,
+) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
+    let cam = scene.camera;
+    let cancel = AtomicBool::new(false);
+    let (mut cache, init_seconds) = new_nrc(desc.config()?, settings.seed)?;
+    let mut record = CacheRecord {
+        init_seconds,
+        parameter_bytes: cache.parameter_bytes(),
+        ..Default::default()
+    };
+    let start = Instant::now();
+    for f in 0..desc.warmup {
+        let view = orbit(&cam, centre, desc.warmup_orbit_degrees, f, desc.warmup + 1);
+        let s = render_nrc_frame(&scene.media, &view, settings, f, None, &mut cache, &cancel);
+        record.nonfinite_samples += s.nonfinite_samples;
+    }
+    record.warmup_seconds = start.elapsed().as_secs_f64();
+    let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
+        let start = Instant::now();
+        let s = render_nrc_frame(
+            &scene.media,
+            &cam,
+            settings,
+            desc.warmup + k,
+            Some(film),
+            &mut cache,
+            &cancel,
+        );
+        let secs = start.elapsed().as_secs_f64();
+        record.nonfinite_samples += s.nonfinite_samples;
+        record
+            .frame_seconds
+            .push([s.trace_seconds, s.inference_seconds, s.train_seconds]);
+        Ok(secs)
+    })?;
     Ok((snaps, Some(record)))
 }
 

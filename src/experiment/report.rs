@@ -179,15 +179,18 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     );
     let _ = writeln!(md, "## Methods\n");
     for m in &r.methods {
-        let cache = m.cache.as_ref().map_or(String::new(), |c| {
-            format!(
+        let table = |t: String| t.replace('\n', ", ").trim_end_matches(", ").to_string();
+        let cache = match (&m.cache, &m.nrc) {
+            (Some(c), _) => format!(
                 ": cache `{}`",
-                toml::to_string(c)
-                    .unwrap_or_default()
-                    .replace('\n', ", ")
-                    .trim_end_matches(", ")
-            )
-        });
+                table(toml::to_string(c).unwrap_or_default())
+            ),
+            (_, Some(n)) => format!(
+                ": neural cache `{}`",
+                table(toml::to_string(n).unwrap_or_default())
+            ),
+            _ => String::new(),
+        };
         let _ = writeln!(md, "- `{}`: {}{cache}", m.name, m.integrator);
         let _ = writeln!(
             md,
@@ -206,7 +209,8 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     if !r.caches.is_empty() {
         let _ = writeln!(md, "\n## Caches (first seed)\n");
         md.push_str("Per-frame costs are over the measured frames that used the cache; the frames after its handoff to plain path tracing (`handoff_frames`) are counted apart.\n\n");
-        md.push_str("| method | init ms | warm-up frames | warm-up s | trace ms per frame | splat ms | train ms | (splat + train) / trace | frames with the cache / handed off | MB |\n|---|---|---|---|---|---|---|---|---|---|\n");
+        md.push_str("`read ms` is splatting (or ray tracing) the levels for the Gaussian cache, and inference with composition for the neural cache (the GSCache paper's ST and IT); `train ms` is OT.\n\n");
+        md.push_str("| method | init ms | warm-up frames | warm-up s | trace ms per frame | read ms | train ms | (read + train) / trace | frames with the cache / handed off | MB |\n|---|---|---|---|---|---|---|---|---|---|\n");
         for c in &r.caches {
             let _ = writeln!(
                 md,

@@ -261,14 +261,14 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
             runs.push(row);
         }
         if si == 0 {
-            if let (Some(desc), Some(r)) = (&method.cache, record) {
+            if let (true, Some(r)) = (method.has_cache(), record) {
                 let n = r.frame_seconds.len().max(1) as f64;
                 let mean = |k: usize| r.frame_seconds.iter().map(|s| s[k]).sum::<f64>() / n * 1e3;
                 cache = Some(CacheSummary {
                     method: method.name.clone(),
                     init_seconds: r.init_seconds,
                     warmup_seconds: r.warmup_seconds,
-                    warmup_frames: desc.warmup,
+                    warmup_frames: method.warmup(),
                     parameter_bytes: r.parameter_bytes,
                     trace_ms: mean(0),
                     splat_ms: mean(1),

@@ -10,6 +10,8 @@
 //! - [`GsFrame`], [`GsPath`]: the adapter (the level index stays inside gs-cache).
 //! - [`render_cached_frame`]: one frame that draws the cache, traces paths reading it, and
 //!   trains it on their samples.
+//! - [`nrc`] (feature `nrc`): the same for the neural radiance cache (nrc-cache), the baseline
+//!   the GSCache paper compares with.
 
 use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets, TrainingTargets};
 use splat_raster::Camera;
@@ -20,13 +22,16 @@ use volume_pt::{
 
 pub use volume_pt::sample_cache_points;
 
+#[cfg(feature = "nrc")]
+pub mod nrc;
+
 /// One path's hooks: gs-cache's bookkeeping seen through volume-pt's seam.
 #[derive(Debug, Clone)]
 pub struct GsPath<'a>(pub CachedPath<'a>);
 
 impl PathHooks for GsPath<'_> {
-    fn vertex(&mut self, albedo: glam::Vec3) {
-        self.0.vertex(albedo);
+    fn vertex(&mut self, vertex: &volume_pt::Vertex) {
+        self.0.vertex(vertex.albedo);
     }
     fn scale(&mut self, factor: glam::Vec3) {
         self.0.scale(factor);

@@ -14,12 +14,26 @@ use crate::tracking::free_flight;
 use glam::Vec3;
 use rayon::prelude::*;
 
+/// A real scattering vertex as a cache sees it: where it is, how the path got there, and what
+/// the transfer function says of it. A path-space cache (gs-cache) reads only the albedo; a
+/// world-space cache (a neural radiance cache) is queried and trained at the position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Vertex {
+    /// World-space position.
+    pub position: Vec3,
+    /// Unit direction of the ray that arrived at it.
+    pub direction: Vec3,
+    /// Single-scattering albedo, by which the throughput has just been multiplied.
+    pub albedo: Vec3,
+    /// The transfer function's argument there: the data value, normalised to its range.
+    pub value: f32,
+}
+
 /// One path's view of a cache. The integrator keeps its own throughput `W` and radiance `L` and
 /// reports every change to them; every default does nothing, which is the plain path tracer.
 pub trait PathHooks {
-    /// A new real scattering vertex with single-scattering albedo `albedo`, by which the
-    /// throughput has just been multiplied.
-    fn vertex(&mut self, _albedo: Vec3) {}
+    /// A new real scattering vertex, whose albedo the throughput has just been multiplied by.
+    fn vertex(&mut self, _vertex: &Vertex) {}
     /// The throughput was multiplied by `factor` (e.g. `1 / p` after surviving Russian roulette
     /// with probability `p`).
     fn scale(&mut self, _factor: Vec3) {}

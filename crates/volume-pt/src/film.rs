@@ -145,6 +145,24 @@ impl Film {
             .sum()
     }
 
+    /// Adds `l` to pixel `(x, y)`'s sum without counting a sample: the deferred part of
+    /// samples already counted, such as a neural cache's value composed after the frame's
+    /// paths are traced. Refused (false, and counted in `nonfinite_samples`) like a sample
+    /// that is NaN, negative, infinite or too bright, or a pixel outside the film.
+    pub fn add_deferred(&mut self, x: u32, y: u32, l: Vec3) -> bool {
+        if x >= self.width || y >= self.height {
+            return false;
+        }
+        let Some(v) = ExactRgb::from_sample(l) else {
+            self.nonfinite_samples += 1;
+            return false;
+        };
+        let tiles_x = self.width.div_ceil(TILE_SIZE);
+        let t = &mut self.tiles[((y / TILE_SIZE) * tiles_x + x / TILE_SIZE) as usize];
+        t.sum[((y - t.y0) * t.width + x - t.x0) as usize] += v;
+        true
+    }
+
     /// Mean radiance per pixel, row-major with row 0 at the top; pixels without samples are 0.
     pub fn mean(&self) -> Vec<Vec3> {
         let mut out = vec![Vec3::ZERO; (self.width * self.height) as usize];

@@ -10,7 +10,7 @@
 //! Russian roulette at volume vertices from `rr_start_depth` on: continue with probability
 //! `max(throughput)`, dividing the throughput by it.
 
-use crate::cache::PathHooks;
+use crate::cache::{PathHooks, Vertex};
 use crate::lights::Lights;
 use crate::medium::Medium;
 use crate::phase::Phase;
@@ -127,13 +127,20 @@ pub fn radiance_with<H: PathHooks>(
             break;
         }
         let x = o + d * t;
-        let albedo = medium.albedo(ray.at(t));
+        let value = medium.value(ray.at(t));
+        let tf = medium.transfer_function();
+        let albedo = tf.albedo(value);
         beta *= albedo;
         depth += 1;
         if !(beta.max_element() > 0.0) {
             break;
         }
-        hooks.vertex(albedo);
+        hooks.vertex(&Vertex {
+            position: x,
+            direction: d,
+            albedo,
+            value: tf.normalise(value),
+        });
         let q = hooks.continue_probability();
         if q < 1.0 && rng.next_f32() >= q {
             l += beta * hooks.stop_into_cache();

@@ -31,7 +31,7 @@ pub mod shard;
 pub mod tracking;
 pub mod transfer;
 
-pub use cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, sample_cache_points};
+pub use cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, Vertex, sample_cache_points};
 pub use error::{Error, Result};
 pub use film::{ExactRgb, Film};
 pub use grid::{Filter, ScalarGrid};

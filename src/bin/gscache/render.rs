@@ -5,11 +5,15 @@ use crate::common::{
     Global, INTERRUPTED, cancellation, finite_f32, prepare_folder, prepare_output,
 };
 use anyhow::{Context, Result, bail};
+use cached_pt::nrc::render_nrc_frame;
 use cached_pt::render_cached_frame;
 use gs_cache::{CacheConfig, GsCache};
 use gscache_cli::camera_path::orbit;
+use gscache_cli::experiment::measure::new_nrc;
 use hdr_image::{RgbImage, ToneMap};
 use indicatif::ProgressBar;
+use nrc_cache::NrcConfig;
+use serde::Deserialize;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::scene::max_depth_from;
@@ -79,8 +83,16 @@ fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
 #[derive(clap::Args, Debug)]
 pub struct CacheRun {
     /// Read and train the radiance cache.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "nrc")]
     cache: bool,
+    /// Read and train the neural radiance cache (Müller et al., 2021: a hash grid and an MLP
+    /// on burn) instead: the baseline the GSCache paper compares with.
+    #[arg(long)]
+    nrc: bool,
+    /// A neural cache setting, `KEY=VALUE` with the keys of an experiment file's `nrc` table
+    /// (for example `hidden_layers=5`); repeat for several.
+    #[arg(long = "nrc-set", value_name = "KEY=VALUE", requires = "nrc")]
+    nrc_set: Vec<String>,
     #[command(flatten)]
     settings: CacheConfig,
     /// Frames of `--spp` samples each, trained between them; the image is their mean.
@@ -141,9 +153,9 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     }
     check_image_memory(scene.camera.width, scene.camera.height)?;
     if let (Some(shard), Some(partial)) = (args.shard, &args.partial) {
-        if args.cache.cache {
+        if args.cache.cache || args.cache.nrc {
             bail!(
-                "--shard with --cache: a cached render's frames train the cache one after the other, so they cannot be split; shard an experiment's seeds instead"
+                "--shard with --cache or --nrc: a cached render's frames train the cache one after the other, so they cannot be split; shard an experiment's seeds instead"
             );
         }
         return render_shard(&args.scene, &scene, shard, partial, global);
@@ -171,14 +183,24 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     {
         prepare_folder(dir)?;
     }
+    if args.cache.nrc
+        && (args.cache.save_cache.is_some()
+            || args.cache.load_cache.is_some()
+            || args.cache.cache_images.is_some())
+    {
+        bail!(
+            "--save-cache, --load-cache and --cache-images are the Gaussian cache's: not with --nrc"
+        );
+    }
     if !args.cache.cache
+        && !args.cache.nrc
         && (args.cache.frames != 1
             || args.cache.warmup != 0
             || args.cache.save_cache.is_some()
             || args.cache.load_cache.is_some()
             || args.cache.cache_images.is_some())
     {
-        bail!("--frames, --warmup and the cache's files need the cache: add --cache");
+        bail!("--frames, --warmup and the cache's files need a cache: add --cache (or --nrc)");
     }
     if scene.settings.spp == 0 {
         bail!("--spp 0: expected at least 1 sample per pixel");
@@ -206,7 +228,10 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let total = scene.settings.spp as u64 * cam.width as u64 * cam.height as u64;
     let bar = global.progress(total, "samples");
     let mut film = Film::new(cam.width, cam.height);
-    let stats = if !args.cache.cache {
+    let stats = if args.cache.nrc {
+        bar.set_length(total * args.cache.frames as u64);
+        render_with_nrc(&scene, &args.cache, &mut film, &cancel, &bar)?
+    } else if !args.cache.cache {
         render(
             &scene.media,
             &cam,
@@ -244,6 +269,11 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         format!(
             "{} frames of {} spp with the cache ({:?} lookup)",
             args.cache.frames, scene.settings.spp, args.cache.settings.lookup
+        )
+    } else if args.cache.nrc {
+        format!(
+            "{} frames of {} spp with the neural cache",
+            args.cache.frames, scene.settings.spp
         )
     } else {
         format!("{} spp", scene.settings.spp)
@@ -333,6 +363,97 @@ fn check_image_memory(width: u32, height: u32) -> Result<()> {
 
 /// Initialises (or loads) the cache, renders the warm-up and the accumulated frames, prints
 /// the per-frame costs, and saves the cache when asked.
+/// The neural cache's settings from `--nrc-set KEY=VALUE` arguments, read as the keys of an
+/// experiment file's `nrc` table (so unknown keys and bad values get the same messages).
+fn nrc_config(sets: &[String]) -> Result<NrcConfig> {
+    let mut table = toml::Table::new();
+    for s in sets {
+        let Some((key, value)) = s.split_once('=') else {
+            bail!("--nrc-set {s}: expected KEY=VALUE (for example hidden_layers=5)");
+        };
+        let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .with_context(|| {
+                format!("--nrc-set {s}: `{value}` is not a number, true/false or a quoted string")
+            })?;
+        table.insert(key.trim().to_string(), value);
+    }
+    let config = NrcConfig::deserialize(toml::Value::Table(table))
+        .map_err(|e| anyhow::anyhow!("--nrc-set: {e}"))?;
+    config.validate()?;
+    Ok(config)
+}
+
+/// `--nrc`: warm-up frames (along the orbit) and then `--frames` frames with the neural cache.
+fn render_with_nrc(
+    scene: &Scene,
+    a: &CacheRun,
+    film: &mut Film,
+    cancel: &AtomicBool,
+    bar: &ProgressBar,
+) -> Result<RenderStats> {
+    // The experiment runner's construction, so its "one frame of it" commands reproduce it.
+    let (mut cache, _) = new_nrc(nrc_config(&a.nrc_set)?, scene.settings.seed)?;
+    eprintln!(
+        "neural cache: {} levels of 2^{} entries, {} hidden layers of {} ({:.1} MB of parameters and optimiser state)",
+        cache.config().grid_levels,
+        cache.config().grid_log2_table,
+        cache.config().hidden_layers,
+        cache.config().hidden_width,
+        cache.parameter_bytes() as f64 / 1e6
+    );
+    let start = std::time::Instant::now();
+    let (mut pt, mut it, mut ot, mut samples, mut nonfinite) = (0.0, 0.0, 0.0, 0u64, 0u64);
+    let mut counted = 0u32;
+    let (lo, hi) = scene.media.medium.bounds();
+    let centre = 0.5 * (lo + hi);
+    for f in 0..a.warmup + a.frames {
+        if cancel.load(Ordering::Relaxed) {
+            break;
+        }
+        let accumulate = f >= a.warmup;
+        let camera = if accumulate || a.warmup_orbit == 0.0 {
+            scene.camera
+        } else {
+            orbit(&scene.camera, centre, a.warmup_orbit, f, a.warmup + 1)
+        };
+        let s = render_nrc_frame(
+            &scene.media,
+            &camera,
+            &scene.settings,
+            f,
+            accumulate.then_some(&mut *film),
+            &mut cache,
+            cancel,
+        );
+        nonfinite += s.nonfinite_samples;
+        if accumulate {
+            bar.inc(s.samples);
+            samples += s.samples;
+            pt += s.trace_seconds;
+            it += s.inference_seconds;
+            ot += s.train_seconds;
+            counted += 1;
+        }
+    }
+    if counted > 0 {
+        let n = counted as f64 * 1e-3;
+        eprintln!(
+            "per frame: path tracing {:.1} ms, inference and composition {:.1} ms, training {:.1} ms",
+            pt / n,
+            it / n,
+            ot / n
+        );
+    }
+    Ok(RenderStats {
+        samples,
+        seconds: start.elapsed().as_secs_f64(),
+        cancelled: cancel.load(Ordering::Relaxed),
+        nonfinite_samples: nonfinite,
+    })
+}
+
 fn render_with_cache(
     scene: &Scene,
     a: &CacheRun,

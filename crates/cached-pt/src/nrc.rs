@@ -1,0 +1,291 @@
+//! volume-pt's path tracer with the neural radiance cache (nrc-cache): the adapter and the
+//! cached frame.
+//!
+//! A network cannot be evaluated one vertex at a time inside the path loop at any useful speed,
+//! so the read is deferred, as in Müller et al. (2021): a path that stops into the cache files
+//! its vertex and throughput, the frame's stops are evaluated in one batch after every path is
+//! traced, and each `W * N(x)` is added to its pixel's sum (the sample was counted when its
+//! path ended). Training paths (a fixed fraction of pixels each frame, chosen by a hash of the
+//! pixel and the frame) never stop: they are traced to their end, their pixels get plain
+//! unbiased samples, and each vertex they pass gives a training record.
+
+use gs_cache::TerminationConfig;
+use gs_cache::termination::continue_probability;
+use nrc_cache::random::mix64;
+use nrc_cache::{NeuralCache, NrcConfig, Query, TrainReport, TrainingRecord};
+use splat_raster::Camera;
+use std::sync::atomic::{AtomicBool, Ordering};
+use volume_pt::{
+    FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect, Vertex,
+    render_frame_with,
+};
+
+use glam::Vec3;
+
+/// Vertices of a training path that give records; deeper ones give none (paths this long carry
+/// little throughput, and a fixed bound keeps a path's bookkeeping on the stack).
+pub const MAX_TRAINING_VERTICES: usize = 16;
+
+/// One frame's view of the cache: how vertices map to the cache's unit cube, who trains, when
+/// paths stop.
+#[derive(Debug, Clone, Copy)]
+pub struct NrcFrame {
+    origin: Vec3,
+    inv_extent: Vec3,
+    termination: TerminationConfig,
+    /// Paths stop into the cache only once it has been trained.
+    ready: bool,
+    /// A pixel traces training paths this frame when its hash is below this.
+    training_threshold: u64,
+    frame_hash: u64,
+}
+
+impl NrcFrame {
+    /// The frame `frame_index` of `seed` over a volume with world bounds `bounds`.
+    pub fn new(
+        config: &NrcConfig,
+        bounds: (Vec3, Vec3),
+        ready: bool,
+        seed: u64,
+        frame_index: u32,
+    ) -> Self {
+        let extent = (bounds.1 - bounds.0).max(Vec3::splat(1e-30));
+        Self {
+            origin: bounds.0,
+            inv_extent: extent.recip(),
+            termination: termination(config),
+            ready,
+            training_threshold: (config.training_fraction as f64 * u64::MAX as f64) as u64,
+            frame_hash: mix64(seed ^ mix64(frame_index as u64 ^ 0x006e_7263)),
+        }
+    }
+
+    fn is_training(&self, pixel: u64) -> bool {
+        mix64(self.frame_hash ^ pixel) < self.training_threshold
+    }
+
+    fn query(&self, v: &Vertex) -> Query {
+        Query {
+            position: (v.position - self.origin) * self.inv_extent,
+            direction: v.direction,
+            albedo: v.albedo,
+            value: v.value,
+        }
+    }
+}
+
+/// Algorithm 1 with the NRC's coefficient and threshold; no natural termination and no
+/// survivor weights (neither exists in NRC).
+pub fn termination(config: &NrcConfig) -> TerminationConfig {
+    TerminationConfig {
+        coefficient: config.c,
+        threshold: config.threshold,
+        early: true,
+        natural: false,
+        survivor_weights: false,
+    }
+}
+
+/// One path's bookkeeping.
+#[derive(Debug, Clone)]
+pub struct NrcPath<'a> {
+    frame: &'a NrcFrame,
+    training: bool,
+    /// The renderer's throughput, kept from the changes it reports.
+    throughput: Vec3,
+    albedo_product: Vec3,
+    /// The current vertex, as the cache would be queried there.
+    current: Query,
+    length: usize,
+    /// Where the path stopped into the cache, with its throughput there.
+    stop: Option<(Query, Vec3)>,
+    /// Training paths: per recorded vertex, its query, the throughput since it (a product, so
+    /// never a division by a tiny throughput) and the radiance gathered from it on.
+    records: usize,
+    queries: [Query; MAX_TRAINING_VERTICES],
+    relative: [Vec3; MAX_TRAINING_VERTICES],
+    sums: [Vec3; MAX_TRAINING_VERTICES],
+}
+
+impl PathHooks for NrcPath<'_> {
+    fn vertex(&mut self, v: &Vertex) {
+        for m in 0..self.records {
+            self.relative[m] *= v.albedo;
+        }
+        self.throughput *= v.albedo;
+        self.albedo_product *= v.albedo;
+        self.length += 1;
+        self.current = self.frame.query(v);
+        if self.training && self.records < MAX_TRAINING_VERTICES {
+            let m = self.records;
+            self.queries[m] = self.current;
+            self.relative[m] = Vec3::ONE;
+            self.sums[m] = Vec3::ZERO;
+            self.records += 1;
+        }
+    }
+    fn scale(&mut self, factor: Vec3) {
+        for m in 0..self.records {
+            self.relative[m] *= factor;
+        }
+        self.throughput *= factor;
+    }
+    fn radiance(&mut self, x: Vec3) {
+        for m in 0..self.records {
+            self.sums[m] += self.relative[m] * x;
+        }
+    }
+    fn continue_probability(&self) -> f32 {
+        if self.training || !self.frame.ready || self.length == 0 {
+            return 1.0;
+        }
+        continue_probability(&self.frame.termination, self.albedo_product)
+    }
+    fn stop_into_cache(&mut self) -> Vec3 {
+        // The value is added after the frame's batch of queries (the read is deferred).
+        self.stop = Some((self.current, self.throughput));
+        Vec3::ZERO
+    }
+}
+
+/// What one tile's paths leave: their stops (pixel in the tile, throughput, query) and the
+/// training records of its training paths.
+#[derive(Debug, Clone, Default)]
+pub struct NrcTile {
+    pub stops: Vec<(u32, Vec3, Query)>,
+    pub records: Vec<TrainingRecord>,
+}
+
+impl FrameCache for NrcFrame {
+    type Path<'b> = NrcPath<'b>;
+    type TileRecord = NrcTile;
+
+    fn tile_record(&self, tile: TileRect) -> NrcTile {
+        let pixels = (tile.width * tile.height) as usize;
+        NrcTile {
+            stops: Vec::with_capacity(pixels),
+            records: Vec::new(),
+        }
+    }
+    fn path(&self, pixel: TilePixel) -> NrcPath<'_> {
+        NrcPath {
+            frame: self,
+            training: self.is_training(pixel.pixel),
+            throughput: Vec3::ONE,
+            albedo_product: Vec3::ONE,
+            current: Query::default(),
+            length: 0,
+            stop: None,
+            records: 0,
+            queries: [Query::default(); MAX_TRAINING_VERTICES],
+            relative: [Vec3::ZERO; MAX_TRAINING_VERTICES],
+            sums: [Vec3::ZERO; MAX_TRAINING_VERTICES],
+        }
+    }
+    fn path_ended(&self, path: NrcPath<'_>, pixel: TilePixel, record: &mut NrcTile) {
+        if let Some((query, throughput)) = path.stop {
+            record.stops.push((pixel.in_tile as u32, throughput, query));
+        }
+        for m in 0..path.records {
+            record.records.push(TrainingRecord {
+                query: path.queries[m],
+                target: path.sums[m],
+            });
+        }
+    }
+}
+
+/// What one frame with the neural cache did.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NrcFrameStats {
+    /// Path tracing (the GSCache paper's PT).
+    pub trace_seconds: f64,
+    /// Inference and composition (IT).
+    pub inference_seconds: f64,
+    /// Training (OT).
+    pub train_seconds: f64,
+    /// Paths that stopped into the cache.
+    pub queries: usize,
+    pub samples: u64,
+    pub nonfinite_samples: u64,
+    pub train: TrainReport,
+    pub cancelled: bool,
+}
+
+/// Frame `frame_index`: trace `settings.spp` paths per pixel (accumulated into `film` when one
+/// is given), read the cache at their stops in one batch and compose the values into the film,
+/// then train on the training paths' records (unless cancelled). Without a film (warm-up
+/// frames) nothing is read: the stops' values would go nowhere.
+pub fn render_nrc_frame(
+    scene: &SceneMedia,
+    camera: &Camera,
+    settings: &RenderSettings,
+    frame_index: u32,
+    film: Option<&mut volume_pt::Film>,
+    cache: &mut NeuralCache,
+    cancel: &AtomicBool,
+) -> NrcFrameStats {
+    let frame = NrcFrame::new(
+        cache.config(),
+        scene.medium.bounds(),
+        cache.steps() > 0,
+        settings.seed,
+        frame_index,
+    );
+    let mut scratch;
+    let has_film = film.is_some();
+    let film = match film {
+        Some(film) => film,
+        None => {
+            scratch = volume_pt::Film::new(camera.width, camera.height);
+            &mut scratch
+        }
+    };
+    let nonfinite_before = film.nonfinite_samples;
+    let traced = render_frame_with(scene, camera, settings, frame_index, film, &frame, cancel);
+    let mut stats = NrcFrameStats {
+        trace_seconds: traced.trace_seconds,
+        samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
+        ..Default::default()
+    };
+
+    let start = std::time::Instant::now();
+    let stops: usize = traced.records.iter().map(|(_, t)| t.stops.len()).sum();
+    stats.queries = stops;
+    if has_film && stops > 0 {
+        let queries: Vec<Query> = traced
+            .records
+            .iter()
+            .flat_map(|(_, t)| t.stops.iter().map(|s| s.2))
+            .collect();
+        let values = cache.predict(&queries);
+        let mut k = 0;
+        for (rect, tile) in &traced.records {
+            for &(in_tile, throughput, _) in &tile.stops {
+                let (x, y) = (
+                    rect.x0 + in_tile % rect.width,
+                    rect.y0 + in_tile / rect.width,
+                );
+                film.add_deferred(x, y, throughput * values[k]);
+                k += 1;
+            }
+        }
+    }
+    stats.inference_seconds = start.elapsed().as_secs_f64();
+    // The traced samples and the composed values that were refused.
+    stats.nonfinite_samples = film.nonfinite_samples - nonfinite_before;
+
+    stats.cancelled = traced.cancelled || cancel.load(Ordering::Relaxed);
+    if !stats.cancelled {
+        let start = std::time::Instant::now();
+        let records: Vec<TrainingRecord> = traced
+            .records
+            .into_iter()
+            .flat_map(|(_, t)| t.records)
+            .collect();
+        let shuffle = mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e));
+        stats.train = cache.train(&records, shuffle);
+        stats.train_seconds = start.elapsed().as_secs_f64();
+    }
+    stats
+}

@@ -1,0 +1,312 @@
+//! The cache: a [`HashGrid`] and an [`Mlp`], read in batches ([`NeuralCache::predict`]) and
+//! trained in batches ([`NeuralCache::train`]) with the relative L2 loss and Adam.
+
+use crate::config::{ConfigError, NrcConfig};
+use crate::encoding::HashGrid;
+use crate::network::Mlp;
+use crate::random::SplitMix;
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor, TensorData};
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// Where the cache is read: a path vertex.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Query {
+    /// The vertex in the unit cube of the volume's bounds.
+    pub position: Vec3,
+    /// Unit direction the path arrived along.
+    pub direction: Vec3,
+    /// Single-scattering albedo at the vertex.
+    pub albedo: Vec3,
+    /// The data value at the vertex (the transfer function's argument), in [0, 1].
+    pub value: f32,
+}
+
+/// A training record: a vertex of a training path, and the radiance the path gathered from
+/// that vertex on per unit of its throughput there (the cache's target quantity).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TrainingRecord {
+    pub query: Query,
+    pub target: Vec3,
+}
+
+/// What one call to [`NeuralCache::train`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TrainReport {
+    /// Optimiser steps taken.
+    pub steps: u32,
+    /// Records the steps used.
+    pub records: usize,
+    /// Records refused (a target negative or not finite).
+    pub refused: usize,
+    /// Steps skipped because the loss was not finite (no parameter changed).
+    pub skipped_steps: u32,
+    /// Mean loss over the steps taken (before each step).
+    pub mean_loss: f64,
+}
+
+/// Rows per inference batch: bounds the activations' memory (rows x width floats per layer).
+const INFERENCE_ROWS: usize = 16384;
+
+/// A neural radiance cache (Müller et al., 2021).
+pub struct NeuralCache {
+    config: NrcConfig,
+    grid: HashGrid,
+    /// The network, on the autodiff device.
+    mlp: Mlp,
+    optim: ModuleOptimizer,
+    device: Device,
+    /// The tables' gradient, kept between steps so no step allocates it.
+    grid_grad: Vec<f32>,
+    steps: u64,
+}
+
+impl NeuralCache {
+    /// A fresh cache (tables near zero, network He-initialised) from `config`, after checking it.
+    pub fn new(config: NrcConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        let device = Device::flex().autodiff();
+        let grid = HashGrid::new(&config, config.seed);
+        let mlp = Mlp::new(
+            config.input_width(),
+            config.hidden_width as usize,
+            config.hidden_layers as usize,
+            config.seed ^ 0x004d_4c50,
+            &device,
+        );
+        let optim = AdamConfig::new()
+            .with_beta_1(config.beta1 as f32)
+            .with_beta_2(config.beta2 as f32)
+            .with_epsilon(config.epsilon as f32)
+            .init();
+        let grid_grad = vec![0.0; grid.params().len()];
+        Ok(Self {
+            config,
+            grid,
+            mlp,
+            optim,
+            device,
+            grid_grad,
+            steps: 0,
+        })
+    }
+
+    pub fn config(&self) -> &NrcConfig {
+        &self.config
+    }
+
+    pub fn grid(&self) -> &HashGrid {
+        &self.grid
+    }
+
+    pub fn grid_mut(&mut self) -> &mut HashGrid {
+        &mut self.grid
+    }
+
+    /// Optimiser steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Bytes of parameters (tables and weights) and optimiser state.
+    pub fn parameter_bytes(&self) -> usize {
+        // The weights, and Adam's two moments of each.
+        self.grid.bytes() + 3 * 4 * self.mlp.num_params()
+    }
+
+    /// Multiply-adds of one inference (the network only; the encoding adds 8 gathers per level).
+    pub fn macs_per_query(&self) -> usize {
+        self.mlp.macs_per_row()
+    }
+
+    /// The network's input rows for `n` queries.
+    fn inputs(&self, queries: &[Query], out: &mut Vec<f32>) {
+        let width = self.config.input_width();
+        let grid_width = self.grid.output_width();
+        out.clear();
+        out.resize(queries.len() * width, 0.0);
+        let (albedo, value, direction) = (
+            self.config.input_albedo,
+            self.config.input_value,
+            self.config.input_direction,
+        );
+        out.par_chunks_mut(width)
+            .zip(queries.par_iter())
+            .for_each(|(row, q)| {
+                self.grid.encode(q.position, &mut row[..grid_width]);
+                let mut k = grid_width;
+                if albedo {
+                    row[k..k + 3].copy_from_slice(&q.albedo.to_array());
+                    k += 3;
+                }
+                if value {
+                    row[k] = q.value;
+                    k += 1;
+                }
+                if direction {
+                    row[k..k + 9].copy_from_slice(&spherical_harmonics_2(q.direction));
+                }
+            });
+    }
+
+    /// The cached radiance at each query: never negative, never NaN (a NaN output reads as 0).
+    pub fn predict(&self, queries: &[Query]) -> Vec<Vec3> {
+        let width = self.config.input_width();
+        let net = self.mlp.valid();
+        let device = Device::flex();
+        let mut rows = Vec::new();
+        let mut out = Vec::with_capacity(queries.len());
+        for chunk in queries.chunks(INFERENCE_ROWS) {
+            self.inputs(chunk, &mut rows);
+            let x = Tensor::<2>::from_data(
+                TensorData::new(std::mem::take(&mut rows), [chunk.len(), width]),
+                &device,
+            );
+            let y: Vec<f32> = net
+                .forward(x)
+                .into_data()
+                .try_to_vec::<f32>()
+                .expect("the network outputs f32");
+            out.extend(y.chunks_exact(3).map(|c| {
+                // `max` returns the other operand for NaN: a NaN channel becomes 0.
+                Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0)).min(Vec3::splat(f32::MAX))
+            }));
+        }
+        out
+    }
+
+    /// Trains on `records` (a frame's training paths): shuffles them with `shuffle_seed`, then
+    /// takes up to `steps_per_frame` Adam steps of `batch_size` records each, fewer when there
+    /// are fewer records. Records whose target is negative or not finite are refused.
+    pub fn train(&mut self, records: &[TrainingRecord], shuffle_seed: u64) -> TrainReport {
+        let mut report = TrainReport::default();
+        let mut usable: Vec<TrainingRecord> = records
+            .iter()
+            .filter(|r| {
+                let ok = r.target.is_finite()
+                    && r.target.min_element() >= 0.0
+                    && r.query.position.is_finite()
+                    && r.query.albedo.is_finite()
+                    && r.query.direction.is_finite()
+                    && r.query.value.is_finite();
+                if !ok {
+                    report.refused += 1;
+                }
+                ok
+            })
+            .copied()
+            .collect();
+        let mut rng = SplitMix::new(shuffle_seed);
+        for i in (1..usable.len()).rev() {
+            let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+            usable.swap(i, j);
+        }
+        let batch = self.config.batch_size as usize;
+        let mut loss_sum = 0.0;
+        for chunk in usable
+            .chunks(batch)
+            .take(self.config.steps_per_frame as usize)
+        {
+            // A tail much smaller than a batch would be a noisy step: only full batches, or
+            // the one batch there is.
+            if chunk.len() < batch / 2 && report.steps > 0 {
+                break;
+            }
+            match self.step(chunk) {
+                Some(loss) => {
+                    report.steps += 1;
+                    report.records += chunk.len();
+                    loss_sum += loss;
+                }
+                None => report.skipped_steps += 1,
+            }
+        }
+        if report.steps > 0 {
+            report.mean_loss = loss_sum / report.steps as f64;
+        }
+        report
+    }
+
+    /// One Adam step on `batch`; the loss before it, or `None` (nothing changed) when the loss
+    /// or a gradient is not finite.
+    fn step(&mut self, batch: &[TrainingRecord]) -> Option<f64> {
+        let width = self.config.input_width();
+        let n = batch.len();
+        let queries: Vec<Query> = batch.iter().map(|r| r.query).collect();
+        let positions: Vec<Vec3> = batch.iter().map(|r| r.query.position).collect();
+        let mut rows = Vec::new();
+        self.inputs(&queries, &mut rows);
+        let targets: Vec<f32> = batch.iter().flat_map(|r| r.target.to_array()).collect();
+
+        let x =
+            Tensor::<2>::from_data(TensorData::new(rows, [n, width]), &self.device).require_grad();
+        let target = Tensor::<2>::from_data(TensorData::new(targets, [n, 3]), &self.device);
+        let prediction = self.mlp.forward(x.clone());
+        // Relative L2 (Müller et al., 2021): the prediction held constant in the denominator,
+        // so the minimiser over noisy targets is their mean, at any radiance scale.
+        let held = prediction.clone().detach();
+        let denominator = held.clone() * held + self.config.loss_epsilon;
+        let diff = prediction - target;
+        let loss = (diff.clone() * diff / denominator).mean();
+        let loss_value = loss
+            .clone()
+            .into_data()
+            .try_to_vec::<f32>()
+            .ok()?
+            .first()
+            .copied()? as f64;
+        if !loss_value.is_finite() {
+            return None;
+        }
+        let mut grads = loss.backward();
+        let input_grad: Vec<f32> = x
+            .grad_remove(&mut grads)?
+            .into_data()
+            .try_to_vec::<f32>()
+            .ok()?;
+        if !input_grad.iter().all(|g| g.is_finite()) {
+            return None;
+        }
+        let params = GradientsParams::from_grads(grads, &self.mlp);
+        self.grid
+            .backward(&positions, &input_grad, width, &mut self.grid_grad);
+        let lr = self.config.learning_rate;
+        self.mlp = self.optim.step(lr, self.mlp.clone(), params);
+        self.grid.adam_step(
+            &mut self.grid_grad,
+            lr,
+            self.config.beta1,
+            self.config.beta2,
+            self.config.epsilon,
+        );
+        self.steps += 1;
+        Some(loss_value)
+    }
+}
+
+impl std::fmt::Debug for NeuralCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NeuralCache")
+            .field("config", &self.config)
+            .field("steps", &self.steps)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Real spherical harmonics of bands 0 to 2 at a unit direction.
+pub fn spherical_harmonics_2(d: Vec3) -> [f32; 9] {
+    let (x, y, z) = (d.x, d.y, d.z);
+    [
+        0.282_094_8,
+        0.488_602_5 * y,
+        0.488_602_5 * z,
+        0.488_602_5 * x,
+        1.092_548_4 * x * y,
+        1.092_548_4 * y * z,
+        0.315_391_57 * (3.0 * z * z - 1.0),
+        1.092_548_4 * x * z,
+        0.546_274_2 * (x * x - y * y),
+    ]
+}

@@ -1,0 +1,271 @@
+//! What a neural radiance cache is asked to be: its encoding, its network, how it learns and how
+//! many paths teach it. One flat list, so the experiment file's `nrc` table and this struct have
+//! the same keys. Defaults follow Müller et al. (2021) where a CPU can afford them; the
+//! docs of each key say where and why they differ.
+
+use serde::{Deserialize, Serialize};
+
+/// Everything that defines a neural radiance cache.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NrcConfig {
+    /// Levels of the multiresolution hash grid (Müller et al., 2022: 16).
+    pub grid_levels: u32,
+    /// Features per level (2, as in the hash-grid paper).
+    pub grid_features: u32,
+    /// log2 of the entries per level's table. 2^16 (not the GPU's 2^19): on a CPU the Adam
+    /// step and the cache misses of the lookup grow with the table, and a 256^3 volume's
+    /// radiance has far less detail than a scene's appearance.
+    pub grid_log2_table: u32,
+    /// Cells along each axis of the coarsest level.
+    pub grid_base_resolution: u32,
+    /// Cells along each axis of the finest level; the levels are spaced geometrically between.
+    pub grid_finest_resolution: u32,
+    /// Neurons per hidden layer (64, as in the NRC paper).
+    pub hidden_width: u32,
+    /// Hidden layers. The NRC paper uses 5; 2 is the default here because inference runs on
+    /// every path's last vertex each frame and on a CPU it is the cache's largest cost (measured
+    /// in BENCHMARKS.md).
+    pub hidden_layers: u32,
+    /// The albedo at the vertex as an input (the NRC paper feeds the material's albedo).
+    pub input_albedo: bool,
+    /// The data value at the vertex (the transfer function's argument) as an input.
+    pub input_value: bool,
+    /// The direction the path arrived from as an input (second-order spherical harmonics).
+    /// Off by default: the GSCache paper found positions alone better for volumes, whose
+    /// radiance past the first bounce is nearly isotropic (exact for an isotropic phase).
+    pub input_direction: bool,
+    /// Adam's learning rate (the NRC paper: 1e-2 for the grid and the network alike).
+    pub learning_rate: f64,
+    /// Adam's first-moment decay.
+    pub beta1: f64,
+    /// Adam's second-moment decay (0.99, the hash-grid paper's choice for sparse updates).
+    pub beta2: f64,
+    /// Adam's epsilon.
+    pub epsilon: f64,
+    /// The relative L2 loss's `eps` in `(prediction - target)^2 / (prediction^2 + eps)`
+    /// (prediction held constant in the denominator).
+    pub loss_epsilon: f32,
+    /// Training records per optimiser step.
+    pub batch_size: u32,
+    /// Largest number of optimiser steps per frame (the NRC paper: 4); fewer when the frame
+    /// produced fewer than `steps_per_frame * batch_size` records.
+    pub steps_per_frame: u32,
+    /// Fraction of each frame's paths traced to their end as training paths (the NRC paper:
+    /// about 3% of 1920x1080; more here because CPU frames are small).
+    pub training_fraction: f32,
+    /// The GSCache paper's Algorithm 1 coefficient C, shared with the Gaussian cache: the
+    /// GSCache paper compares NRC with the same termination heuristic.
+    pub c: f32,
+    /// Algorithm 1's threshold.
+    pub threshold: f32,
+    /// Seed of the weights' initialisation.
+    pub seed: u64,
+}
+
+impl Default for NrcConfig {
+    fn default() -> Self {
+        Self {
+            grid_levels: 16,
+            grid_features: 2,
+            grid_log2_table: 16,
+            grid_base_resolution: 16,
+            grid_finest_resolution: 512,
+            hidden_width: 64,
+            hidden_layers: 2,
+            input_albedo: true,
+            input_value: true,
+            input_direction: false,
+            learning_rate: 1e-2,
+            beta1: 0.9,
+            beta2: 0.99,
+            epsilon: 1e-15,
+            loss_epsilon: 1e-2,
+            batch_size: 4096,
+            steps_per_frame: 4,
+            training_fraction: 0.06,
+            c: 0.5,
+            threshold: 0.9,
+            seed: 0,
+        }
+    }
+}
+
+/// A setting outside what the cache can work with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("nrc setting `{key}` = {value}: expected {expected}")]
+pub struct ConfigError {
+    pub key: &'static str,
+    pub value: String,
+    pub expected: &'static str,
+}
+
+impl NrcConfig {
+    /// Checks every setting; NaN fails every range check.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        fn check(
+            ok: bool,
+            key: &'static str,
+            value: impl std::fmt::Display,
+            expected: &'static str,
+        ) -> Result<(), ConfigError> {
+            if ok {
+                Ok(())
+            } else {
+                Err(ConfigError {
+                    key,
+                    value: value.to_string(),
+                    expected,
+                })
+            }
+        }
+        let c = self;
+        check(
+            (1..=32).contains(&c.grid_levels),
+            "grid_levels",
+            c.grid_levels,
+            "1 to 32",
+        )?;
+        check(
+            matches!(c.grid_features, 1 | 2 | 4 | 8),
+            "grid_features",
+            c.grid_features,
+            "1, 2, 4 or 8",
+        )?;
+        check(
+            (8..=24).contains(&c.grid_log2_table),
+            "grid_log2_table",
+            c.grid_log2_table,
+            "8 to 24",
+        )?;
+        check(
+            (2..=4096).contains(&c.grid_base_resolution),
+            "grid_base_resolution",
+            c.grid_base_resolution,
+            "2 to 4096",
+        )?;
+        check(
+            c.grid_finest_resolution >= c.grid_base_resolution
+                && c.grid_finest_resolution <= 1 << 16,
+            "grid_finest_resolution",
+            c.grid_finest_resolution,
+            "at least grid_base_resolution and at most 65536",
+        )?;
+        check(
+            (1..=1024).contains(&c.hidden_width),
+            "hidden_width",
+            c.hidden_width,
+            "1 to 1024",
+        )?;
+        check(
+            (1..=16).contains(&c.hidden_layers),
+            "hidden_layers",
+            c.hidden_layers,
+            "1 to 16",
+        )?;
+        check(
+            c.learning_rate > 0.0 && c.learning_rate < 10.0,
+            "learning_rate",
+            c.learning_rate,
+            "a rate in (0, 10)",
+        )?;
+        check(
+            c.beta1 >= 0.0 && c.beta1 < 1.0,
+            "beta1",
+            c.beta1,
+            "a decay in [0, 1)",
+        )?;
+        check(
+            c.beta2 >= 0.0 && c.beta2 < 1.0,
+            "beta2",
+            c.beta2,
+            "a decay in [0, 1)",
+        )?;
+        check(
+            c.epsilon > 0.0 && c.epsilon < 1.0,
+            "epsilon",
+            c.epsilon,
+            "a value in (0, 1)",
+        )?;
+        check(
+            c.loss_epsilon > 0.0 && c.loss_epsilon.is_finite(),
+            "loss_epsilon",
+            c.loss_epsilon,
+            "a finite value > 0",
+        )?;
+        check(
+            (1..=1 << 20).contains(&c.batch_size),
+            "batch_size",
+            c.batch_size,
+            "1 to 1048576",
+        )?;
+        check(
+            c.steps_per_frame <= 64,
+            "steps_per_frame",
+            c.steps_per_frame,
+            "0 to 64",
+        )?;
+        check(
+            c.training_fraction >= 0.0 && c.training_fraction <= 1.0,
+            "training_fraction",
+            c.training_fraction,
+            "a fraction in [0, 1]",
+        )?;
+        check(
+            c.c >= 0.0 && c.c.is_finite(),
+            "c",
+            c.c,
+            "a finite value >= 0",
+        )?;
+        check(
+            c.threshold >= 0.0 && c.threshold <= 1.0,
+            "threshold",
+            c.threshold,
+            "a probability in [0, 1]",
+        )?;
+        Ok(())
+    }
+
+    /// Inputs beside the grid's features: albedo (3), value (1), direction (9).
+    pub fn extra_inputs(&self) -> usize {
+        3 * self.input_albedo as usize
+            + self.input_value as usize
+            + 9 * self.input_direction as usize
+    }
+
+    /// Width of the network's input: the grid's features and the extra inputs.
+    pub fn input_width(&self) -> usize {
+        (self.grid_levels * self.grid_features) as usize + self.extra_inputs()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_nan_is_refused() {
+        NrcConfig::default().validate().unwrap();
+        let bad = NrcConfig {
+            learning_rate: f64::NAN,
+            ..Default::default()
+        };
+        let e = bad.validate().unwrap_err();
+        assert_eq!(e.key, "learning_rate");
+        let bad = NrcConfig {
+            training_fraction: f32::NAN,
+            ..Default::default()
+        };
+        assert_eq!(bad.validate().unwrap_err().key, "training_fraction");
+        let bad = NrcConfig {
+            grid_features: 3,
+            ..Default::default()
+        };
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("1, 2, 4 or 8")
+        );
+    }
+}

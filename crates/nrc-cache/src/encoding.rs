@@ -1,0 +1,242 @@
+//! The multiresolution hash encoding (Müller, Evans, Schied and Keller, "Instant neural graphics
+//! primitives with a multiresolution hash encoding", 2022), forward and backward, in plain Rust:
+//! a gather of eight corners per level is not a tensor operation burn does well, and its
+//! backward is a scatter-add, so both are written here and joined to burn's network at the
+//! input tensor (the network's input gradient comes back from burn and is scattered here).
+//!
+//! Level `l` has `N_l = floor(N_min b^l)` cells per axis, `b` spacing the levels geometrically
+//! from `N_min` to `N_max`. A point `p` in the unit cube falls in cell `floor(p N_l)`; its eight
+//! corners index the level's table directly when the level's `(N_l + 1)^3` corners fit, and
+//! through the spatial hash `(x * 1) xor (y * 2654435761) xor (z * 805459861) mod T` when they
+//! do not. The level's features are the trilinear blend of its corners' entries.
+//!
+//! Training updates the tables with Adam, entry by entry, skipping entries no record touched
+//! (the hash-grid paper's sparse update): a step costs the batch, not the table.
+
+use crate::config::NrcConfig;
+use glam::Vec3;
+use rayon::prelude::*;
+
+const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+
+/// The tables and their Adam moments.
+#[derive(Debug, Clone)]
+pub struct HashGrid {
+    levels: usize,
+    features: usize,
+    /// Entries per level (a power of two).
+    table_size: usize,
+    /// Cells per axis, per level.
+    resolutions: Vec<u32>,
+    /// `levels * table_size * features` values, level-major, then entry, then feature.
+    params: Vec<f32>,
+    first_moment: Vec<f32>,
+    second_moment: Vec<f32>,
+    /// Adam steps taken by each entry (the bias correction of sparse Adam is per entry).
+    entry_steps: Vec<u32>,
+}
+
+/// One level's eight corners for a point: table entries and trilinear weights.
+#[derive(Debug, Clone, Copy)]
+struct Corners {
+    entries: [u32; 8],
+    weights: [f32; 8],
+}
+
+impl HashGrid {
+    /// Tables with every entry drawn uniformly from `[-1e-4, 1e-4]` (the hash-grid paper's
+    /// initialisation), from `seed`.
+    pub fn new(config: &NrcConfig, seed: u64) -> Self {
+        let levels = config.grid_levels as usize;
+        let features = config.grid_features as usize;
+        let table_size = 1usize << config.grid_log2_table;
+        let n_min = config.grid_base_resolution as f64;
+        let n_max = config.grid_finest_resolution as f64;
+        let growth = if levels > 1 {
+            ((n_max.ln() - n_min.ln()) / (levels - 1) as f64).exp()
+        } else {
+            1.0
+        };
+        let resolutions = (0..levels)
+            .map(|l| (n_min * growth.powi(l as i32) + 1e-9).floor() as u32)
+            .collect();
+        let n = levels * table_size * features;
+        let mut rng = crate::random::SplitMix::new(seed);
+        let params = (0..n)
+            .map(|_| (rng.next_f32() * 2.0 - 1.0) * 1e-4)
+            .collect();
+        Self {
+            levels,
+            features,
+            table_size,
+            resolutions,
+            params,
+            first_moment: vec![0.0; n],
+            second_moment: vec![0.0; n],
+            entry_steps: vec![0; levels * table_size],
+        }
+    }
+
+    /// Width of a point's encoding: levels times features.
+    pub fn output_width(&self) -> usize {
+        self.levels * self.features
+    }
+
+    /// Cells per axis of each level.
+    pub fn resolutions(&self) -> &[u32] {
+        &self.resolutions
+    }
+
+    /// The parameters, level-major (for tests and persistence).
+    pub fn params(&self) -> &[f32] {
+        &self.params
+    }
+
+    /// Mutable parameters (for finite-difference tests).
+    pub fn params_mut(&mut self) -> &mut [f32] {
+        &mut self.params
+    }
+
+    /// Bytes of parameters and optimiser state.
+    pub fn bytes(&self) -> usize {
+        (self.params.len() * 3 + self.entry_steps.len()) * 4
+    }
+
+    #[inline]
+    fn corners(&self, level: usize, p: Vec3) -> Corners {
+        let res = self.resolutions[level];
+        // Points outside the unit cube are clamped onto it (a vertex on the volume's boundary
+        // may sit a rounding error outside).
+        let q = p.clamp(Vec3::ZERO, Vec3::ONE) * res as f32;
+        let cell = q.floor().min(Vec3::splat(res as f32 - 1.0));
+        let f = q - cell;
+        let c = [cell.x as u32, cell.y as u32, cell.z as u32];
+        let side = res as u64 + 1;
+        let dense = side * side * side <= self.table_size as u64;
+        let mask = self.table_size as u32 - 1;
+        let mut out = Corners {
+            entries: [0; 8],
+            weights: [0.0; 8],
+        };
+        for k in 0..8 {
+            let (dx, dy, dz) = ((k & 1) as u32, ((k >> 1) & 1) as u32, ((k >> 2) & 1) as u32);
+            let (x, y, z) = (c[0] + dx, c[1] + dy, c[2] + dz);
+            out.entries[k] = if dense {
+                (x as u64 + side * (y as u64 + side * z as u64)) as u32
+            } else {
+                (x.wrapping_mul(PRIMES[0]) ^ y.wrapping_mul(PRIMES[1]) ^ z.wrapping_mul(PRIMES[2]))
+                    & mask
+            };
+            let wx = if dx == 1 { f.x } else { 1.0 - f.x };
+            let wy = if dy == 1 { f.y } else { 1.0 - f.y };
+            let wz = if dz == 1 { f.z } else { 1.0 - f.z };
+            out.weights[k] = wx * wy * wz;
+        }
+        out
+    }
+
+    /// Writes the encoding of `p` (a point of the unit cube) into `out` (`output_width` values).
+    pub fn encode(&self, p: Vec3, out: &mut [f32]) {
+        let f = self.features;
+        for level in 0..self.levels {
+            let c = self.corners(level, p);
+            let table = &self.params[level * self.table_size * f..];
+            let dst = &mut out[level * f..(level + 1) * f];
+            dst.fill(0.0);
+            for k in 0..8 {
+                let e = c.entries[k] as usize * f;
+                for j in 0..f {
+                    dst[j] += c.weights[k] * table[e + j];
+                }
+            }
+        }
+    }
+
+    /// Encodes every point into the rows of `out` (row stride `stride`, encoding in the
+    /// first `output_width` columns), in parallel.
+    pub fn encode_rows(&self, points: &[Vec3], out: &mut [f32], stride: usize) {
+        out.par_chunks_mut(stride)
+            .zip(points.par_iter())
+            .for_each(|(row, &p)| self.encode(p, &mut row[..self.output_width()]));
+    }
+
+    /// Adds the gradient of a loss with respect to the tables into `grad` (same layout as the
+    /// parameters), given its gradient with respect to the encodings: rows of `encoding_grad`
+    /// with stride `stride`, the encoding in the first `output_width` columns. Levels own
+    /// disjoint slices of the tables, so they run in parallel without atomics.
+    pub fn backward(
+        &self,
+        points: &[Vec3],
+        encoding_grad: &[f32],
+        stride: usize,
+        grad: &mut [f32],
+    ) {
+        let f = self.features;
+        grad.par_chunks_mut(self.table_size * f)
+            .enumerate()
+            .for_each(|(level, g)| {
+                for (i, &p) in points.iter().enumerate() {
+                    let src = &encoding_grad[i * stride + level * f..i * stride + (level + 1) * f];
+                    if src.iter().all(|&x| x == 0.0) {
+                        continue;
+                    }
+                    let c = self.corners(level, p);
+                    for k in 0..8 {
+                        let e = c.entries[k] as usize * f;
+                        for j in 0..f {
+                            g[e + j] += c.weights[k] * src[j];
+                        }
+                    }
+                }
+            });
+    }
+
+    /// One Adam step on the entries whose gradient is not zero; `grad` is zeroed as it is
+    /// read, ready for the next step. A gradient that is not finite skips its entry (and is
+    /// counted in the returned number) so that no NaN reaches a parameter.
+    pub fn adam_step(
+        &mut self,
+        grad: &mut [f32],
+        lr: f64,
+        beta1: f64,
+        beta2: f64,
+        eps: f64,
+    ) -> u64 {
+        let f = self.features;
+        let (b1, b2) = (beta1 as f32, beta2 as f32);
+        let skipped = std::sync::atomic::AtomicU64::new(0);
+        self.params
+            .par_chunks_mut(f * 4096)
+            .zip(self.first_moment.par_chunks_mut(f * 4096))
+            .zip(self.second_moment.par_chunks_mut(f * 4096))
+            .zip(self.entry_steps.par_chunks_mut(4096))
+            .zip(grad.par_chunks_mut(f * 4096))
+            .for_each(|((((p, m), v), steps), g)| {
+                for (e, step) in steps.iter_mut().enumerate() {
+                    let ge = &mut g[e * f..(e + 1) * f];
+                    if ge.iter().all(|&x| x == 0.0) {
+                        continue;
+                    }
+                    if !ge.iter().all(|x| x.is_finite()) {
+                        skipped.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        ge.fill(0.0);
+                        continue;
+                    }
+                    *step += 1;
+                    let t = (*step).min(i32::MAX as u32) as i32;
+                    // Per-entry bias correction: an entry touched for the first time gets the
+                    // full first step, however many steps the table has taken.
+                    let step_size = (lr / (1.0 - beta1.powi(t))) as f32;
+                    let c2_sqrt = (1.0 - beta2.powi(t)).sqrt() as f32;
+                    for j in e * f..(e + 1) * f {
+                        let gj = g[j];
+                        m[j] = b1 * m[j] + (1.0 - b1) * gj;
+                        v[j] = b2 * v[j] + (1.0 - b2) * gj * gj;
+                        p[j] -= step_size * m[j] / (v[j].sqrt() / c2_sqrt + eps as f32);
+                        g[j] = 0.0;
+                    }
+                }
+            });
+        skipped.into_inner()
+    }
+}

@@ -60,7 +60,9 @@ impl NrcFrame {
         }
     }
 
-    fn is_training(&self, pixel: u64) -> bool {
+    /// Whether `pixel`'s paths are training paths this frame (traced to their end, never
+    /// reading the cache).
+    pub fn is_training(&self, pixel: u64) -> bool {
         mix64(self.frame_hash ^ pixel) < self.training_threshold
     }
 

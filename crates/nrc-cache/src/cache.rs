@@ -48,7 +48,7 @@ pub struct TrainReport {
 }
 
 /// Rows per inference batch: bounds the activations' memory (rows x width floats per layer).
-const INFERENCE_ROWS: usize = 16384;
+const INFERENCE_ROWS: usize = 1024;
 
 /// A neural radiance cache (Müller et al., 2021).
 pub struct NeuralCache {
@@ -152,29 +152,34 @@ impl NeuralCache {
     }
 
     /// The cached radiance at each query: never negative, never NaN (a NaN output reads as 0).
+    /// Chunks of queries run in parallel, each through the whole network: small matrices stay
+    /// in cache, which measured faster than one large product per layer (BENCHMARKS.md).
     pub fn predict(&self, queries: &[Query]) -> Vec<Vec3> {
         let width = self.config.input_width();
         let net = self.mlp.valid();
         let device = Device::flex();
-        let mut rows = Vec::new();
-        let mut out = Vec::with_capacity(queries.len());
-        for chunk in queries.chunks(INFERENCE_ROWS) {
-            self.inputs(chunk, &mut rows);
-            let x = Tensor::<2>::from_data(
-                TensorData::new(std::mem::take(&mut rows), [chunk.len(), width]),
-                &device,
-            );
-            let y: Vec<f32> = net
-                .forward(x)
-                .into_data()
-                .try_to_vec::<f32>()
-                .expect("the network outputs f32");
-            out.extend(y.chunks_exact(3).map(|c| {
-                // `max` returns the other operand for NaN: a NaN channel becomes 0.
-                Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0)).min(Vec3::splat(f32::MAX))
-            }));
-        }
-        out
+        let parts: Vec<Vec<Vec3>> = queries
+            .par_chunks(INFERENCE_ROWS)
+            .map(|chunk| {
+                let mut rows = Vec::new();
+                self.inputs(chunk, &mut rows);
+                let x =
+                    Tensor::<2>::from_data(TensorData::new(rows, [chunk.len(), width]), &device);
+                let y: Vec<f32> = net
+                    .forward(x)
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .expect("the network outputs f32");
+                y.chunks_exact(3)
+                    .map(|c| {
+                        // `max` returns the other operand for NaN: a NaN channel becomes 0.
+                        Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0))
+                            .min(Vec3::splat(f32::MAX))
+                    })
+                    .collect()
+            })
+            .collect();
+        parts.concat()
     }
 
     /// Trains on `records` (a frame's training paths): shuffles them with `shuffle_seed`, then

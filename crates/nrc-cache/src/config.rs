@@ -9,27 +9,33 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct NrcConfig {
-    /// Levels of the multiresolution hash grid (Müller et al., 2022: 16).
+    /// Levels of the multiresolution hash grid (Müller et al., 2022: 16; 8 here: as good on
+    /// the bundled volumes, whose radiance is smooth, and half the gathers).
     pub grid_levels: u32,
     /// Features per level (2, as in the hash-grid paper).
     pub grid_features: u32,
-    /// log2 of the entries per level's table. 2^16 (not the GPU's 2^19): on a CPU the Adam
-    /// step and the cache misses of the lookup grow with the table, and a 256^3 volume's
-    /// radiance has far less detail than a scene's appearance.
+    /// log2 of the entries per level's table. 2^14 (not the GPU's 2^19): on a CPU the lookup's
+    /// cache misses grow with the table (a 2^16 table made the encoding 3x slower), and a
+    /// volume's scattered radiance has far less detail than a scene's appearance.
     pub grid_log2_table: u32,
     /// Cells along each axis of the coarsest level.
     pub grid_base_resolution: u32,
     /// Cells along each axis of the finest level; the levels are spaced geometrically between.
+    /// 64: finer grids (256, 512) measured no better and trained slower on the bundled
+    /// volumes, whose multiply-scattered radiance varies over several voxels.
     pub grid_finest_resolution: u32,
     /// Neurons per hidden layer (64, as in the NRC paper).
     pub hidden_width: u32,
-    /// Hidden layers. The NRC paper uses 5; 2 is the default here because inference runs on
-    /// every path's last vertex each frame and on a CPU it is the cache's largest cost (measured
-    /// in BENCHMARKS.md).
+    /// Hidden layers. The NRC paper uses 5; 2 here: 5 measured no lower error on the bundled
+    /// volumes at 320x180 and cost 1.5-2x the inference and training time.
     pub hidden_layers: u32,
-    /// The albedo at the vertex as an input (the NRC paper feeds the material's albedo).
+    /// The albedo at the vertex as an input (the NRC paper feeds the material's albedo). Off by
+    /// default: the cached quantity is per unit of throughput, the albedo already divided out,
+    /// and with it as an input the error at equal time was 1.3x higher on neghip (the GSCache
+    /// paper also found positions alone best).
     pub input_albedo: bool,
-    /// The data value at the vertex (the transfer function's argument) as an input.
+    /// The data value at the vertex (the transfer function's argument) as an input (off by
+    /// default, as the albedo).
     pub input_value: bool,
     /// The direction the path arrived from as an input (second-order spherical harmonics).
     /// Off by default: the GSCache paper found positions alone better for volumes, whose
@@ -66,15 +72,15 @@ pub struct NrcConfig {
 impl Default for NrcConfig {
     fn default() -> Self {
         Self {
-            grid_levels: 16,
+            grid_levels: 8,
             grid_features: 2,
-            grid_log2_table: 16,
+            grid_log2_table: 14,
             grid_base_resolution: 16,
-            grid_finest_resolution: 512,
+            grid_finest_resolution: 64,
             hidden_width: 64,
             hidden_layers: 2,
-            input_albedo: true,
-            input_value: true,
+            input_albedo: false,
+            input_value: false,
             input_direction: false,
             learning_rate: 1e-2,
             beta1: 0.9,

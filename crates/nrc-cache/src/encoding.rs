@@ -105,38 +105,66 @@ impl HashGrid {
     #[inline]
     fn corners(&self, level: usize, p: Vec3) -> Corners {
         let res = self.resolutions[level];
+        let side = res + 1;
+        // Dense when the level's corners fit its table (then `side^3 <= 2^24`, no overflow).
+        let dense = (side as u64).pow(3) <= self.table_size as u64;
         // Points outside the unit cube are clamped onto it (a vertex on the volume's boundary
-        // may sit a rounding error outside).
-        let q = p.clamp(Vec3::ZERO, Vec3::ONE) * res as f32;
+        // may sit a rounding error outside); NaN becomes 0 (`max` returns the other operand).
+        let q = p.max(Vec3::ZERO).min(Vec3::ONE) * res as f32;
         let cell = q.floor().min(Vec3::splat(res as f32 - 1.0));
         let f = q - cell;
-        let c = [cell.x as u32, cell.y as u32, cell.z as u32];
-        let side = res as u64 + 1;
-        let dense = side * side * side <= self.table_size as u64;
+        let (cx, cy, cz) = (cell.x as u32, cell.y as u32, cell.z as u32);
+        // Per axis: the two corner coordinates' contributions to the index, and the weights.
+        let (ix, iy, iz) = if dense {
+            (
+                [cx, cx + 1],
+                [cy * side, (cy + 1) * side],
+                [cz * side * side, (cz + 1) * side * side],
+            )
+        } else {
+            (
+                [cx.wrapping_mul(PRIMES[0]), (cx + 1).wrapping_mul(PRIMES[0])],
+                [cy.wrapping_mul(PRIMES[1]), (cy + 1).wrapping_mul(PRIMES[1])],
+                [cz.wrapping_mul(PRIMES[2]), (cz + 1).wrapping_mul(PRIMES[2])],
+            )
+        };
+        let (wx, wy, wz) = ([1.0 - f.x, f.x], [1.0 - f.y, f.y], [1.0 - f.z, f.z]);
         let mask = self.table_size as u32 - 1;
         let mut out = Corners {
             entries: [0; 8],
             weights: [0.0; 8],
         };
         for k in 0..8 {
-            let (dx, dy, dz) = ((k & 1) as u32, ((k >> 1) & 1) as u32, ((k >> 2) & 1) as u32);
-            let (x, y, z) = (c[0] + dx, c[1] + dy, c[2] + dz);
+            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
             out.entries[k] = if dense {
-                (x as u64 + side * (y as u64 + side * z as u64)) as u32
+                ix[dx] + iy[dy] + iz[dz]
             } else {
-                (x.wrapping_mul(PRIMES[0]) ^ y.wrapping_mul(PRIMES[1]) ^ z.wrapping_mul(PRIMES[2]))
-                    & mask
+                (ix[dx] ^ iy[dy] ^ iz[dz]) & mask
             };
-            let wx = if dx == 1 { f.x } else { 1.0 - f.x };
-            let wy = if dy == 1 { f.y } else { 1.0 - f.y };
-            let wz = if dz == 1 { f.z } else { 1.0 - f.z };
-            out.weights[k] = wx * wy * wz;
+            out.weights[k] = wx[dx] * wy[dy] * wz[dz];
         }
         out
     }
 
     /// Writes the encoding of `p` (a point of the unit cube) into `out` (`output_width` values).
     pub fn encode(&self, p: Vec3, out: &mut [f32]) {
+        if self.features == 2 {
+            // The default width, unrolled: the gather is the encoding's whole cost.
+            for level in 0..self.levels {
+                let c = self.corners(level, p);
+                let table =
+                    &self.params[level * self.table_size * 2..(level + 1) * self.table_size * 2];
+                let (mut a, mut b) = (0.0f32, 0.0f32);
+                for k in 0..8 {
+                    let e = c.entries[k] as usize * 2;
+                    a += c.weights[k] * table[e];
+                    b += c.weights[k] * table[e + 1];
+                }
+                out[level * 2] = a;
+                out[level * 2 + 1] = b;
+            }
+            return;
+        }
         let f = self.features;
         for level in 0..self.levels {
             let c = self.corners(level, p);

@@ -623,3 +623,50 @@ fn sharded_render_merges_to_the_same_bytes() {
     assert!(e.contains("cannot be split"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// `render --nrc` renders with the neural cache, prints its per-frame costs and writes the
+/// image; a bad `--nrc-set` names the key, the value and what was expected, before any work.
+#[test]
+fn the_neural_cache_renders_and_its_bad_settings_are_named() {
+    let d = scratch("nrc");
+    let exr = d.join("nrc.exr");
+    let scene = repo().join("data/scenes/default.toml");
+    let out = gscache()
+        .arg("render")
+        .arg(&scene)
+        .args(["--width", "48", "--height", "32", "--spp", "1", "--nrc"])
+        .args(["--warmup", "4", "--frames", "2", "-q", "-o"])
+        .arg(&exr)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("inference and composition"), "{err}");
+    let image = hdr_image::RgbImage::read_exr(&exr).unwrap();
+    assert!(image.pixels().iter().all(|p| p.is_finite()));
+    assert!(image.pixels().iter().any(|p| p.max_element() > 0.0));
+    let cases: [(&[&str], &str); 5] = [
+        (&["--nrc-set", "hidden_layers=0"], "hidden_layers"),
+        (&["--nrc-set", "learning_rate=nan"], "learning_rate"),
+        (&["--nrc-set", "no_such_key=1"], "no_such_key"),
+        (&["--nrc-set", "hidden_layers"], "KEY=VALUE"),
+        (&["--cache"], "cannot be used with"),
+    ];
+    for (args, expected) in cases {
+        let out = gscache()
+            .arg("render")
+            .arg(&scene)
+            .args(["--width", "16", "--height", "16", "--nrc"])
+            .args(args)
+            .arg("-o")
+            .arg(d.join("bad.exr"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains(expected),
+            "{args:?}: {err}"
+        );
+        assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
+    }
+}

@@ -188,6 +188,11 @@ fn cache_levels(dir: &Path, r: &Results, scene: &Scene) -> Result<Vec<Figure>> {
 fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
     let mut figs = Vec::new();
     for (i, c) in r.caches.iter().enumerate() {
+        // The neural cache files one "level": its training steps' mean relative L2 loss.
+        let neural = r
+            .methods
+            .iter()
+            .any(|m| m.name == c.method && m.nrc.is_some());
         let levels = c
             .record
             .level_mse
@@ -197,7 +202,11 @@ fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             .unwrap_or(0);
         let series = (0..levels)
             .map(|l| Series {
-                name: format!("length {}", l + 1),
+                name: if neural {
+                    "relative L2 loss".into()
+                } else {
+                    format!("length {}", l + 1)
+                },
                 points: c
                     .record
                     .level_mse
@@ -208,13 +217,18 @@ fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
                 ..Default::default()
             })
             .collect();
+        let (what, y_label) = if neural {
+            (
+                "relative L2 loss of the frame's training steps",
+                "mean loss of the steps",
+            )
+        } else {
+            ("MSE to the frame's samples", "MSE before the step")
+        };
         let chart = Chart {
-            title: format!(
-                "{}: loss over frames (MSE to the frame's samples)",
-                c.method
-            ),
+            title: format!("{}: loss over frames ({what})", c.method),
             x_label: "frame".into(),
-            y_label: "MSE before the step".into(),
+            y_label: y_label.into(),
             log_y: true,
             series,
             marks: vec![(c.warmup_frames as f64, "measured from here".into())],
@@ -224,8 +238,13 @@ fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
             dir,
             &format!("loss_{i}"),
             format!(
-                "{}: per-level loss over the warm-up and measured frames",
-                c.method
+                "{}: {} over the warm-up and measured frames",
+                c.method,
+                if neural {
+                    "training loss"
+                } else {
+                    "per-level loss"
+                }
             ),
             &chart,
         )?);

@@ -5,7 +5,7 @@
 //! edit this is the adaptation curve: how many frames the cache takes to learn the new scene.
 
 use super::config::{EventDesc, FlythroughDesc, Method};
-use super::measure::{new_cache, new_nrc, pass_seed};
+use super::measure::{new_cache, new_nrc, nrc_loss, pass_seed};
 use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
 use crate::metrics::rel_mse;
@@ -125,6 +125,7 @@ pub fn fly(
                         &cancel,
                     );
                     (trace, splat, train) = (s.trace_seconds, s.inference_seconds, s.train_seconds);
+                    level_mse = vec![nrc_loss(&s)];
                 }
                 (None, None) => {
                     let s = volume_pt::RenderSettings {

@@ -50,7 +50,8 @@ pub struct Snapshot {
 pub struct CacheRecord {
     pub init_seconds: f64,
     pub warmup_seconds: f64,
-    /// Per frame (warm-up, then measured): per level, the MSE before the step.
+    /// Per frame (warm-up, then measured): per level, the MSE before the step (the neural
+    /// cache: one entry, its steps' mean relative L2 loss).
     pub level_mse: Vec<Vec<Option<f64>>>,
     /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting, or
     /// the neural cache's inference and composition) and training. Frames after the handoff (plain path tracing) are counted in `handed_off`
@@ -213,6 +214,12 @@ pub fn new_nrc(config: NrcConfig, seed: u64) -> Result<(NeuralCache, f64)> {
     Ok((cache, start.elapsed().as_secs_f64()))
 }
 
+/// A neural cache frame's training loss, where the record keeps a level's MSE (none when the
+/// frame took no step).
+pub fn nrc_loss(s: &cached_pt::nrc::NrcFrameStats) -> Option<f64> {
+    (s.train.steps > 0).then_some(s.train.mean_loss)
+}
+
 /// The neural cache's run: warm-up frames along the orbit, then measured frames, as for the
 /// Gaussian cache. Its per-frame costs are (trace, inference and composition, training).
 fn run_nrc(
@@ -235,6 +242,7 @@ fn run_nrc(
         let view = orbit(&cam, centre, desc.warmup_orbit_degrees, f, desc.warmup + 1);
         let s = render_nrc_frame(&scene.media, &view, settings, f, None, &mut cache, &cancel);
         record.nonfinite_samples += s.nonfinite_samples;
+        record.level_mse.push(vec![nrc_loss(&s)]);
     }
     record.warmup_seconds = start.elapsed().as_secs_f64();
     let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
@@ -250,6 +258,7 @@ fn run_nrc(
         );
         let secs = start.elapsed().as_secs_f64();
         record.nonfinite_samples += s.nonfinite_samples;
+        record.level_mse.push(vec![nrc_loss(&s)]);
         record
             .frame_seconds
             .push([s.trace_seconds, s.inference_seconds, s.train_seconds]);

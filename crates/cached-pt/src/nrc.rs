@@ -88,11 +88,31 @@ pub fn termination(config: &NrcConfig) -> TerminationConfig {
     }
 }
 
+/// A training path's records: per recorded vertex, its query, the throughput since it (a
+/// product, so never a division by a tiny throughput) and the radiance gathered from it on.
+#[derive(Debug, Clone)]
+pub struct TrainingSuffix {
+    len: usize,
+    queries: [Query; MAX_TRAINING_VERTICES],
+    relative: [Vec3; MAX_TRAINING_VERTICES],
+    sums: [Vec3; MAX_TRAINING_VERTICES],
+}
+
+impl TrainingSuffix {
+    fn new() -> Self {
+        Self {
+            len: 0,
+            queries: [Query::default(); MAX_TRAINING_VERTICES],
+            relative: [Vec3::ZERO; MAX_TRAINING_VERTICES],
+            sums: [Vec3::ZERO; MAX_TRAINING_VERTICES],
+        }
+    }
+}
+
 /// One path's bookkeeping.
 #[derive(Debug, Clone)]
 pub struct NrcPath<'a> {
     frame: &'a NrcFrame,
-    training: bool,
     /// The renderer's throughput, kept from the changes it reports.
     throughput: Vec3,
     albedo_product: Vec3,
@@ -101,44 +121,46 @@ pub struct NrcPath<'a> {
     length: usize,
     /// Where the path stopped into the cache, with its throughput there.
     stop: Option<(Query, Vec3)>,
-    /// Training paths: per recorded vertex, its query, the throughput since it (a product, so
-    /// never a division by a tiny throughput) and the radiance gathered from it on.
-    records: usize,
-    queries: [Query; MAX_TRAINING_VERTICES],
-    relative: [Vec3; MAX_TRAINING_VERTICES],
-    sums: [Vec3; MAX_TRAINING_VERTICES],
+    /// Training paths only (the others never fill, so never initialise, the arrays).
+    training: Option<TrainingSuffix>,
 }
 
 impl PathHooks for NrcPath<'_> {
     fn vertex(&mut self, v: &Vertex) {
-        for m in 0..self.records {
-            self.relative[m] *= v.albedo;
-        }
         self.throughput *= v.albedo;
         self.albedo_product *= v.albedo;
         self.length += 1;
         self.current = self.frame.query(v);
-        if self.training && self.records < MAX_TRAINING_VERTICES {
-            let m = self.records;
-            self.queries[m] = self.current;
-            self.relative[m] = Vec3::ONE;
-            self.sums[m] = Vec3::ZERO;
-            self.records += 1;
+        if let Some(t) = &mut self.training {
+            for m in 0..t.len {
+                t.relative[m] *= v.albedo;
+            }
+            if t.len < MAX_TRAINING_VERTICES {
+                let m = t.len;
+                t.queries[m] = self.current;
+                t.relative[m] = Vec3::ONE;
+                t.sums[m] = Vec3::ZERO;
+                t.len += 1;
+            }
         }
     }
     fn scale(&mut self, factor: Vec3) {
-        for m in 0..self.records {
-            self.relative[m] *= factor;
-        }
         self.throughput *= factor;
+        if let Some(t) = &mut self.training {
+            for m in 0..t.len {
+                t.relative[m] *= factor;
+            }
+        }
     }
     fn radiance(&mut self, x: Vec3) {
-        for m in 0..self.records {
-            self.sums[m] += self.relative[m] * x;
+        if let Some(t) = &mut self.training {
+            for m in 0..t.len {
+                t.sums[m] += t.relative[m] * x;
+            }
         }
     }
     fn continue_probability(&self) -> f32 {
-        if self.training || !self.frame.ready || self.length == 0 {
+        if self.training.is_some() || !self.frame.ready || self.length == 0 {
             return 1.0;
         }
         continue_probability(&self.frame.termination, self.albedo_product)
@@ -172,27 +194,25 @@ impl FrameCache for NrcFrame {
     fn path(&self, pixel: TilePixel) -> NrcPath<'_> {
         NrcPath {
             frame: self,
-            training: self.is_training(pixel.pixel),
             throughput: Vec3::ONE,
             albedo_product: Vec3::ONE,
             current: Query::default(),
             length: 0,
             stop: None,
-            records: 0,
-            queries: [Query::default(); MAX_TRAINING_VERTICES],
-            relative: [Vec3::ZERO; MAX_TRAINING_VERTICES],
-            sums: [Vec3::ZERO; MAX_TRAINING_VERTICES],
+            training: self.is_training(pixel.pixel).then(TrainingSuffix::new),
         }
     }
     fn path_ended(&self, path: NrcPath<'_>, pixel: TilePixel, record: &mut NrcTile) {
         if let Some((query, throughput)) = path.stop {
             record.stops.push((pixel.in_tile as u32, throughput, query));
         }
-        for m in 0..path.records {
-            record.records.push(TrainingRecord {
-                query: path.queries[m],
-                target: path.sums[m],
-            });
+        if let Some(t) = &path.training {
+            for m in 0..t.len {
+                record.records.push(TrainingRecord {
+                    query: t.queries[m],
+                    target: t.sums[m],
+                });
+            }
         }
     }
 }

@@ -79,6 +79,10 @@ fn main() {
         cache.grid().encode_rows(&points, &mut rows, width);
         println!("encoding alone: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
     }
+    if args.iter().any(|a| a == "--burn-encoding") {
+        burn_encoding(&cache, &points, config.batch_size as usize);
+        return;
+    }
     for round in 0..6 {
         let t = Instant::now();
         let out = cache.predict(&queries);
@@ -102,6 +106,79 @@ fn main() {
             train * 1e3 / r.steps.max(1) as f64,
             r.mean_loss,
             err
+        );
+    }
+}
+
+/// The encoding's gather and its backward done by burn (`select` on the table, whose autodiff
+/// backward is a scatter-add), the corner indices and weights computed in Rust, against the
+/// plain-Rust encoding and backward: forward over every query, and forward plus backward over
+/// one training batch.
+fn burn_encoding(cache: &NeuralCache, points: &[Vec3], batch: usize) {
+    use burn::module::Param;
+    use burn::tensor::{Device, Int, Tensor, TensorData};
+    let grid = cache.grid();
+    let width = grid.output_width();
+    let levels = width / 2;
+    let table_rows = grid.params().len() / 2;
+    let device = Device::flex().autodiff();
+    let table: Param<Tensor<2>> = Param::from_data(
+        TensorData::new(grid.params().to_vec(), [table_rows, 2]),
+        &device,
+    );
+    let encode = |pts: &[Vec3], table: &Param<Tensor<2>>| -> Tensor<2> {
+        let (rows, weights) = grid.corner_rows(pts);
+        let n = rows.len();
+        let idx = Tensor::<1, Int>::from_data(TensorData::new(rows, [n]), &device);
+        let w = Tensor::<2>::from_data(TensorData::new(weights, [n, 1]), &device);
+        let corners = table.val().select(0, idx) * w;
+        corners
+            .reshape([pts.len() * levels, 8, 2])
+            .sum_dim(1)
+            .reshape([pts.len(), width])
+    };
+    for round in 0..4 {
+        let t = Instant::now();
+        let _ = grid.corner_rows(points);
+        let indices = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let e = encode(points, &table);
+        let _ = e.into_data();
+        let burn_forward = t.elapsed().as_secs_f64();
+        let mut rows = vec![0.0f32; points.len() * width];
+        let t = Instant::now();
+        grid.encode_rows(points, &mut rows, width);
+        let rust_forward = t.elapsed().as_secs_f64();
+
+        let pts = &points[..batch.min(points.len())];
+        let upstream = vec![1.0f32; pts.len() * width];
+        let t = Instant::now();
+        let e = encode(pts, &table);
+        let g = Tensor::<2>::from_data(
+            TensorData::new(upstream.clone(), [pts.len(), width]),
+            &device,
+        );
+        let grads = (e * g).sum().backward();
+        let table_grad = table.val().grad(&grads).expect("the table has a gradient");
+        let _ = table_grad.into_data();
+        let burn_train = t.elapsed().as_secs_f64();
+        let mut grad = vec![0.0f32; grid.params().len()];
+        let t = Instant::now();
+        let mut rows = vec![0.0f32; pts.len() * width];
+        grid.encode_rows(pts, &mut rows, width);
+        grid.backward(pts, &upstream, width, &mut grad);
+        let rust_train = t.elapsed().as_secs_f64();
+        println!(
+            "round {round}: forward of {} points: burn {:.1} ms (of which {:.1} ms the corner indices, one thread), Rust {:.1} ms ({:.1}x); forward + backward of {}: burn {:.1} ms, Rust {:.1} ms ({:.1}x)",
+            points.len(),
+            burn_forward * 1e3,
+            indices * 1e3,
+            rust_forward * 1e3,
+            burn_forward / rust_forward,
+            pts.len(),
+            burn_train * 1e3,
+            rust_train * 1e3,
+            burn_train / rust_train
         );
     }
 }

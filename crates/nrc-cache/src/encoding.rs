@@ -146,6 +146,25 @@ impl HashGrid {
         out
     }
 
+    /// Every point's corners as rows of the whole table: `(entry, weight)` pairs, point-major,
+    /// then level, then corner, with entries counted across levels (`level * table_size +
+    /// entry`). What a tensor library needs to do the gather itself (the benchmark that
+    /// compares it with [`HashGrid::encode`] uses it).
+    pub fn corner_rows(&self, points: &[Vec3]) -> (Vec<i64>, Vec<f32>) {
+        let n = points.len() * self.levels * 8;
+        let (mut rows, mut weights) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for &p in points {
+            for level in 0..self.levels {
+                let c = self.corners(level, p);
+                for k in 0..8 {
+                    rows.push((level * self.table_size + c.entries[k] as usize) as i64);
+                    weights.push(c.weights[k]);
+                }
+            }
+        }
+        (rows, weights)
+    }
+
     /// Writes the encoding of `p` (a point of the unit cube) into `out` (`output_width` values).
     pub fn encode(&self, p: Vec3, out: &mut [f32]) {
         if self.features == 2 {

@@ -5,9 +5,16 @@
 //! so the read is deferred, as in Müller et al. (2021): a path that stops into the cache files
 //! its vertex and throughput, the frame's stops are evaluated in one batch after every path is
 //! traced, and each `W * N(x)` is added to its pixel's sum (the sample was counted when its
-//! path ended). Training paths (a fixed fraction of pixels each frame, chosen by a hash of the
-//! pixel and the frame) never stop: they are traced to their end, their pixels get plain
-//! unbiased samples, and each vertex they pass gives a training record.
+//! path ended).
+//!
+//! Training paths (a fixed fraction of pixels each frame, chosen by a hash of the pixel and the
+//! frame) are the NRC paper's short rendering path plus a training suffix. They make the same
+//! stop decision as any path, with a stateless hash of the vertex for its random number (the
+//! path's own stream must not see it, or the suffix would differ from a plain path's), but do
+//! not stop: the image takes what they gathered before that vertex plus the cache's value there
+//! ([`PathHooks::image_radiance`]), exactly as a path that stopped, while the whole path, traced
+//! to its end by plain NEE, gives a training record at every vertex it passes. Self-training is
+//! off, so every target is an unbiased sample.
 
 use gs_cache::TerminationConfig;
 use gs_cache::termination::continue_probability;
@@ -66,6 +73,16 @@ impl NrcFrame {
         mix64(self.frame_hash ^ pixel) < self.training_threshold
     }
 
+    /// A uniform number in [0, 1) from the pixel, the frame and a vertex's position: the stop
+    /// decision of a training path, which must not draw from the path's own stream.
+    fn unit_hash(&self, pixel: u64, position: Vec3) -> f32 {
+        let bits = (position.x.to_bits() as u64)
+            ^ ((position.y.to_bits() as u64) << 21)
+            ^ ((position.z.to_bits() as u64) << 42);
+        let h = mix64(self.frame_hash ^ mix64(pixel ^ mix64(bits)));
+        (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+    }
+
     fn query(&self, v: &Vertex) -> Query {
         Query {
             position: (v.position - self.origin) * self.inv_extent,
@@ -113,6 +130,7 @@ impl TrainingSuffix {
 #[derive(Debug, Clone)]
 pub struct NrcPath<'a> {
     frame: &'a NrcFrame,
+    pixel: u64,
     /// The renderer's throughput, kept from the changes it reports.
     throughput: Vec3,
     albedo_product: Vec3,
@@ -123,6 +141,9 @@ pub struct NrcPath<'a> {
     stop: Option<(Query, Vec3)>,
     /// Training paths only (the others never fill, so never initialise, the arrays).
     training: Option<TrainingSuffix>,
+    /// A training path: the radiance gathered before the vertex where it would have stopped,
+    /// which is what enters the image if it would have.
+    prefix: Vec3,
 }
 
 impl PathHooks for NrcPath<'_> {
@@ -131,6 +152,13 @@ impl PathHooks for NrcPath<'_> {
         self.albedo_product *= v.albedo;
         self.length += 1;
         self.current = self.frame.query(v);
+        if self.training.is_some() && self.stop.is_none() && self.frame.ready {
+            // The stop a rendering path would make here, decided by a hash of the vertex.
+            let q = continue_probability(&self.frame.termination, self.albedo_product);
+            if q < 1.0 && self.frame.unit_hash(self.pixel, v.position) >= q {
+                self.stop = Some((self.current, self.throughput));
+            }
+        }
         if let Some(t) = &mut self.training {
             for m in 0..t.len {
                 t.relative[m] *= v.albedo;
@@ -153,6 +181,9 @@ impl PathHooks for NrcPath<'_> {
         }
     }
     fn radiance(&mut self, x: Vec3) {
+        if self.stop.is_none() {
+            self.prefix += self.throughput * x;
+        }
         if let Some(t) = &mut self.training {
             for m in 0..t.len {
                 t.sums[m] += t.relative[m] * x;
@@ -169,6 +200,16 @@ impl PathHooks for NrcPath<'_> {
         // The value is added after the frame's batch of queries (the read is deferred).
         self.stop = Some((self.current, self.throughput));
         Vec3::ZERO
+    }
+    fn image_radiance(&self, path_radiance: Vec3) -> Vec3 {
+        // A training path that would have stopped: what it gathered before that vertex (the
+        // cache's value there is composed later). Any other path: all it gathered, as the
+        // renderer summed it.
+        if self.training.is_some() && self.stop.is_some() {
+            self.prefix
+        } else {
+            path_radiance
+        }
     }
 }
 
@@ -194,6 +235,8 @@ impl FrameCache for NrcFrame {
     fn path(&self, pixel: TilePixel) -> NrcPath<'_> {
         NrcPath {
             frame: self,
+            pixel: pixel.pixel,
+            prefix: Vec3::ZERO,
             throughput: Vec3::ONE,
             albedo_product: Vec3::ONE,
             current: Query::default(),

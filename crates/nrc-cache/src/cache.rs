@@ -97,6 +97,24 @@ impl NeuralCache {
         &self.config
     }
 
+    /// Changes how many paths train the cache and how many steps it takes per frame (0 steps
+    /// freezes it: it is read, never changed). The other settings fix the cache's shape and
+    /// stay as built.
+    pub fn set_training(
+        &mut self,
+        training_fraction: f32,
+        steps_per_frame: u32,
+    ) -> Result<(), ConfigError> {
+        let config = NrcConfig {
+            training_fraction,
+            steps_per_frame,
+            ..self.config.clone()
+        };
+        config.validate()?;
+        self.config = config;
+        Ok(())
+    }
+
     pub fn grid(&self) -> &HashGrid {
         &self.grid
     }

@@ -54,6 +54,13 @@ pub trait PathHooks {
     fn escaped(&mut self, _path_radiance: Vec3) -> Vec3 {
         Vec3::ZERO
     }
+    /// The radiance the path puts in the image, given what it gathered, `path_radiance`. The
+    /// path itself by default; a cache whose training paths go on past the vertex where they
+    /// would have stopped (a neural cache's training suffix) returns what they gathered before
+    /// it, and adds its own value there later.
+    fn image_radiance(&self, path_radiance: Vec3) -> Vec3 {
+        path_radiance
+    }
 }
 
 /// The hooks of a path with no cache.

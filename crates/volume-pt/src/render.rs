@@ -2,7 +2,7 @@
 //! counter-based streams. Pixel `(x, y)` with sample index `s` always draws the same numbers,
 //! so the image is bit-identical for a seed whatever the thread count or pass split.
 
-use crate::cache::{FrameCache, NoCache, TilePixel, TileRect};
+use crate::cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect};
 use crate::film::{ExactRgb, Film, Tile};
 use crate::integrator::{PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
@@ -82,6 +82,7 @@ fn render_tile<C: FrameCache>(
                     &mut rng,
                     &mut path,
                 );
+                let l = path.image_radiance(l);
                 cache.path_ended(path, pixel, record);
                 // A bad sample (NaN, negative, infinite, absurdly bright) counts as black and
                 // never reaches the film.

@@ -12,6 +12,7 @@ use cached_pt::render_cached_frame;
 use glam::Vec3;
 use gs_cache::{CacheConfig, GsCache};
 use nrc_cache::{NeuralCache, NrcConfig};
+use splat_raster::Camera;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use volume_pt::{Film, Scene, render, sample_cache_points};
@@ -156,38 +157,27 @@ pub fn run_method(
         parameter_bytes: cache.parameter_bytes(),
         ..Default::default()
     };
-    let start = Instant::now();
-    for f in 0..desc.warmup {
-        let view = orbit(&cam, centre, desc.warmup_orbit_degrees, f, desc.warmup + 1);
-        let s = render_cached_frame(&scene.media, &view, &settings, f, None, &mut cache, &cancel)?;
-        record.nonfinite_samples += s.nonfinite_samples;
-        record.level_mse.push(cache.report().mse.clone());
-    }
-    record.warmup_seconds = start.elapsed().as_secs_f64();
-    cache.start_image();
-    let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
-        let start = Instant::now();
-        let s = render_cached_frame(
-            &scene.media,
-            &cam,
-            &settings,
-            desc.warmup + k,
-            Some(film),
-            &mut cache,
-            &cancel,
-        )?;
-        let secs = start.elapsed().as_secs_f64();
-        record.nonfinite_samples += s.nonfinite_samples;
-        record.level_mse.push(cache.report().mse.clone());
-        if cache.report().handed_off {
-            record.handed_off += 1;
-        } else {
-            record
-                .frame_seconds
-                .push([s.trace_seconds, s.lookup_seconds, s.train_seconds]);
-        }
-        Ok(secs)
-    })?;
+    let warmup = desc.warmup;
+    let snaps = cached_run(
+        scene,
+        (warmup, desc.warmup_orbit_degrees),
+        budgets,
+        centre,
+        &mut record,
+        |view, f, film| {
+            if f == warmup {
+                cache.start_image();
+            }
+            let s =
+                render_cached_frame(&scene.media, view, &settings, f, film, &mut cache, &cancel)?;
+            Ok(FrameReport {
+                costs: [s.trace_seconds, s.lookup_seconds, s.train_seconds],
+                loss: cache.report().mse.clone(),
+                handed_off: cache.report().handed_off,
+                nonfinite_samples: s.nonfinite_samples,
+            })
+        },
+    )?;
     if let Some(frame) = cache.frame() {
         record.level_images = (0..frame.levels())
             .map(|l| {
@@ -200,6 +190,54 @@ pub fn run_method(
             .collect();
     }
     Ok((snaps, Some(record)))
+}
+
+/// What one frame of a cached run files in its [`CacheRecord`].
+struct FrameReport {
+    /// Seconds of path tracing, reading the cache, and training.
+    costs: [f64; 3],
+    /// Per level, the loss before the step (the neural cache: one entry).
+    loss: Vec<Option<f64>>,
+    /// The frame was plain path tracing after the cache's handoff.
+    handed_off: bool,
+    nonfinite_samples: u64,
+}
+
+/// A cached run, for either cache: `warmup.0` frames along an orbit of `warmup.1` degrees
+/// ending at the scene camera (no film; their time is the record's warm-up), then measured
+/// frames at the camera, accumulated progressively until every budget is reached.
+/// `frame(camera, index, film)` renders and trains one frame.
+fn cached_run(
+    scene: &Scene,
+    warmup: (u32, f32),
+    budgets: &[Budget],
+    centre: Vec3,
+    record: &mut CacheRecord,
+    mut frame: impl FnMut(&Camera, u32, Option<&mut Film>) -> Result<FrameReport>,
+) -> Result<Vec<Snapshot>> {
+    let cam = scene.camera;
+    let (frames, degrees) = warmup;
+    let start = Instant::now();
+    for f in 0..frames {
+        let view = orbit(&cam, centre, degrees, f, frames + 1);
+        let r = frame(&view, f, None)?;
+        record.nonfinite_samples += r.nonfinite_samples;
+        record.level_mse.push(r.loss);
+    }
+    record.warmup_seconds = start.elapsed().as_secs_f64();
+    progressive(budgets, cam.width, cam.height, |k, film| {
+        let start = Instant::now();
+        let r = frame(&cam, frames + k, Some(film))?;
+        let secs = start.elapsed().as_secs_f64();
+        record.nonfinite_samples += r.nonfinite_samples;
+        record.level_mse.push(r.loss);
+        if r.handed_off {
+            record.handed_off += 1;
+        } else {
+            record.frame_seconds.push(r.costs);
+        }
+        Ok(secs)
+    })
 }
 
 /// A new neural cache for `scene` with `seed` (its weights' seed mixed with the run's), and
@@ -220,8 +258,8 @@ pub fn nrc_loss(s: &cached_pt::nrc::NrcFrameStats) -> Option<f64> {
     (s.train.steps > 0).then_some(s.train.mean_loss)
 }
 
-/// The neural cache's run: warm-up frames along the orbit, then measured frames, as for the
-/// Gaussian cache. Its per-frame costs are (trace, inference and composition, training).
+/// The neural cache's run, as the Gaussian cache's: its per-frame costs are (trace, inference
+/// and composition, training), its loss the training steps' relative L2.
 fn run_nrc(
     scene: &Scene,
     desc: &NrcDesc,
@@ -229,7 +267,6 @@ fn run_nrc(
     budgets: &[Budget],
     centre: Vec3,
 ) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
-    let cam = scene.camera;
     let cancel = AtomicBool::new(false);
     let (mut cache, init_seconds) = new_nrc(desc.config()?, settings.seed)?;
     let mut record = CacheRecord {
@@ -237,33 +274,22 @@ fn run_nrc(
         parameter_bytes: cache.parameter_bytes(),
         ..Default::default()
     };
-    let start = Instant::now();
-    for f in 0..desc.warmup {
-        let view = orbit(&cam, centre, desc.warmup_orbit_degrees, f, desc.warmup + 1);
-        let s = render_nrc_frame(&scene.media, &view, settings, f, None, &mut cache, &cancel);
-        record.nonfinite_samples += s.nonfinite_samples;
-        record.level_mse.push(vec![nrc_loss(&s)]);
-    }
-    record.warmup_seconds = start.elapsed().as_secs_f64();
-    let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
-        let start = Instant::now();
-        let s = render_nrc_frame(
-            &scene.media,
-            &cam,
-            settings,
-            desc.warmup + k,
-            Some(film),
-            &mut cache,
-            &cancel,
-        );
-        let secs = start.elapsed().as_secs_f64();
-        record.nonfinite_samples += s.nonfinite_samples;
-        record.level_mse.push(vec![nrc_loss(&s)]);
-        record
-            .frame_seconds
-            .push([s.trace_seconds, s.inference_seconds, s.train_seconds]);
-        Ok(secs)
-    })?;
+    let snaps = cached_run(
+        scene,
+        (desc.warmup, desc.warmup_orbit_degrees),
+        budgets,
+        centre,
+        &mut record,
+        |view, f, film| {
+            let s = render_nrc_frame(&scene.media, view, settings, f, film, &mut cache, &cancel);
+            Ok(FrameReport {
+                costs: [s.trace_seconds, s.inference_seconds, s.train_seconds],
+                loss: vec![nrc_loss(&s)],
+                handed_off: false,
+                nonfinite_samples: s.nonfinite_samples,
+            })
+        },
+    )?;
     Ok((snaps, Some(record)))
 }
 

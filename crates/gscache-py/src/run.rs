@@ -75,12 +75,17 @@ pub(crate) fn run_polled<T: Send>(
                 }
                 cancel.store(true, Ordering::SeqCst);
             }
-            if let Some(cb) = progress.filter(|_| failure.is_none()) {
+            if let Some(cb) = progress.filter(|_| failure.is_none() && !interrupted) {
                 let n = done.load(Ordering::Relaxed);
                 if n != reported {
                     reported = n;
                     if let Err(e) = cb.call1((n,)) {
-                        failure = Some(e);
+                        // Ctrl-C that Python raised inside the callback is still Ctrl-C.
+                        if e.is_instance_of::<PyKeyboardInterrupt>(py) {
+                            interrupted = true;
+                        } else {
+                            failure = Some(e);
+                        }
                         cancel.store(true, Ordering::SeqCst);
                     }
                 }

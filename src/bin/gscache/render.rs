@@ -403,8 +403,55 @@ fn render_with_nrc(
         cache.config().hidden_width,
         cache.parameter_bytes() as f64 / 1e6
     );
+    cached_frames(
+        scene,
+        a,
+        film,
+        cancel,
+        bar,
+        "inference and composition",
+        |camera, f, film| {
+            let s = render_nrc_frame(
+                &scene.media,
+                camera,
+                &scene.settings,
+                f,
+                film,
+                &mut cache,
+                cancel,
+            );
+            Ok(FrameCosts {
+                samples: s.samples,
+                seconds: [s.trace_seconds, s.inference_seconds, s.train_seconds],
+                nonfinite_samples: s.nonfinite_samples,
+            })
+        },
+    )
+}
+
+/// One cached frame's figures, for [`cached_frames`].
+struct FrameCosts {
+    samples: u64,
+    /// Path tracing, reading the cache, training.
+    seconds: [f64; 3],
+    nonfinite_samples: u64,
+}
+
+/// The frames of a cached render, for either cache: `--warmup` frames along the warm-up orbit
+/// (none in the image), then `--frames` frames at the scene camera accumulated into `film`;
+/// prints the mean per-frame costs, `read` naming the cache's read. `frame(camera, index,
+/// film)` renders and trains one frame.
+fn cached_frames(
+    scene: &Scene,
+    a: &CacheRun,
+    film: &mut Film,
+    cancel: &AtomicBool,
+    bar: &ProgressBar,
+    read: &str,
+    mut frame: impl FnMut(&splat_raster::Camera, u32, Option<&mut Film>) -> Result<FrameCosts>,
+) -> Result<RenderStats> {
     let start = std::time::Instant::now();
-    let (mut pt, mut it, mut ot, mut samples, mut nonfinite) = (0.0, 0.0, 0.0, 0u64, 0u64);
+    let (mut sums, mut samples, mut nonfinite) = ([0.0f64; 3], 0u64, 0u64);
     let mut counted = 0u32;
     let (lo, hi) = scene.media.medium.bounds();
     let centre = 0.5 * (lo + hi);
@@ -418,32 +465,24 @@ fn render_with_nrc(
         } else {
             orbit(&scene.camera, centre, a.warmup_orbit, f, a.warmup + 1)
         };
-        let s = render_nrc_frame(
-            &scene.media,
-            &camera,
-            &scene.settings,
-            f,
-            accumulate.then_some(&mut *film),
-            &mut cache,
-            cancel,
-        );
+        let s = frame(&camera, f, accumulate.then_some(&mut *film))?;
         nonfinite += s.nonfinite_samples;
         if accumulate {
             bar.inc(s.samples);
             samples += s.samples;
-            pt += s.trace_seconds;
-            it += s.inference_seconds;
-            ot += s.train_seconds;
+            for (sum, x) in sums.iter_mut().zip(s.seconds) {
+                *sum += x;
+            }
             counted += 1;
         }
     }
     if counted > 0 {
         let n = counted as f64 * 1e-3;
         eprintln!(
-            "per frame: path tracing {:.1} ms, inference and composition {:.1} ms, training {:.1} ms",
-            pt / n,
-            it / n,
-            ot / n
+            "per frame: path tracing {:.1} ms, {read} {:.1} ms, training {:.1} ms",
+            sums[0] / n,
+            sums[1] / n,
+            sums[2] / n
         );
     }
     Ok(RenderStats {
@@ -494,54 +533,35 @@ fn render_with_cache(
         },
         t0.elapsed().as_secs_f64() * 1e3
     );
-    let start = std::time::Instant::now();
-    let (mut pt, mut st, mut ot, mut samples, mut nonfinite) = (0.0, 0.0, 0.0, 0u64, 0u64);
     let mut dropped = 0u64;
-    let mut counted = 0u32;
-    let (lo, hi) = scene.media.medium.bounds();
-    let centre = 0.5 * (lo + hi);
-    for f in 0..a.warmup + a.frames {
-        if cancel.load(Ordering::Relaxed) {
-            break;
-        }
-        let accumulate = f >= a.warmup;
-        if f == a.warmup {
-            cache.start_image();
-        }
-        let camera = if accumulate || a.warmup_orbit == 0.0 {
-            scene.camera
-        } else {
-            orbit(&scene.camera, centre, a.warmup_orbit, f, a.warmup + 1)
-        };
-        let s = render_cached_frame(
-            &scene.media,
-            &camera,
-            &scene.settings,
-            f,
-            accumulate.then_some(&mut *film),
-            &mut cache,
-            cancel,
-        )?;
-        nonfinite += s.nonfinite_samples;
-        dropped += s.dropped_training_samples;
-        if accumulate {
-            bar.inc(s.samples);
-            samples += s.samples;
-            pt += s.trace_seconds;
-            st += s.lookup_seconds;
-            ot += s.train_seconds;
-            counted += 1;
-        }
-    }
-    if counted > 0 {
-        let n = counted as f64 * 1e-3;
-        eprintln!(
-            "per frame: path tracing {:.1} ms, cache lookup {:.1} ms, training {:.1} ms",
-            pt / n,
-            st / n,
-            ot / n
-        );
-    }
+    let stats = cached_frames(
+        scene,
+        a,
+        film,
+        cancel,
+        bar,
+        "cache lookup",
+        |camera, f, film| {
+            if f == a.warmup {
+                cache.start_image();
+            }
+            let s = render_cached_frame(
+                &scene.media,
+                camera,
+                &scene.settings,
+                f,
+                film,
+                &mut cache,
+                cancel,
+            )?;
+            dropped += s.dropped_training_samples;
+            Ok(FrameCosts {
+                samples: s.samples,
+                seconds: [s.trace_seconds, s.lookup_seconds, s.train_seconds],
+                nonfinite_samples: s.nonfinite_samples,
+            })
+        },
+    )?;
     if dropped > 0 {
         eprintln!(
             "warning: the cache refused {dropped} training samples that were negative or not finite"
@@ -568,10 +588,5 @@ fn render_with_cache(
             dir.display()
         );
     }
-    Ok(RenderStats {
-        samples,
-        seconds: start.elapsed().as_secs_f64(),
-        cancelled: cancel.load(Ordering::Relaxed),
-        nonfinite_samples: nonfinite,
-    })
+    Ok(stats)
 }

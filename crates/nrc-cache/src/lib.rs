@@ -20,8 +20,10 @@
 //! length. A path stops at vertex `n` with the GSCache paper's Algorithm 1 probability
 //! `1 - q_n` (the same rule, so the two caches are compared at equal termination, as the
 //! GSCache paper does) and adds `W_n N(x_n)`; survivors are not re-weighted. A fraction of each
-//! frame's paths never stop into the cache: they are traced to their end, and every vertex they
-//! pass yields a record `(x_n, R_n)`. Their pixels are plain unbiased path-tracing samples.
+//! frame's paths are training paths (the NRC paper's rendering path plus a training suffix): the
+//! image takes from them what a path that stopped would give, while they are traced on to
+//! their end and every vertex they pass yields a record `(x_n, R_n)` (the renderer's side is in
+//! cached-pt's `nrc` module).
 //! Self-training (feeding the cache's own prediction back into the targets) is off, as in the
 //! GSCache paper's comparison, so every target is an unbiased sample.
 

@@ -128,11 +128,14 @@ def test_progress_counts_every_sample_and_its_exception_stops_the_render(repo):
 
 def test_ctrl_c_raises_interrupted_with_the_partial_image(repo):
     # SIGINT is sent from the progress callback once samples exist, so it always lands inside
-    # the render whatever the machine's load; faulthandler dumps every thread's stack if the
-    # child hangs, so a failure says where.
+    # the render whatever the machine's load. The child installs Python's Ctrl-C handler itself:
+    # a process started in the background by a non-interactive shell inherits SIGINT ignored,
+    # and Python then installs none (the test hung that way when the suite ran under `cmd &`).
+    # faulthandler dumps every thread's stack if the child hangs, so a failure says where.
     script = textwrap.dedent(
         f"""
         import faulthandler, os, signal, numpy as np, gscache
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         faulthandler.dump_traceback_later(60, exit=True)
         scene = gscache.Scene.load({str(repo / "data/scenes/default.toml")!r})
         sent = []

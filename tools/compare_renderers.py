@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""Renders a scene with Mitsuba 3's `volpath` and with our `render`, and compares them per pixel.
+"""Renders a scene with another renderer's volume path tracer and with our `render`, and compares
+them: Mitsuba 3's `volpath` (`--renderer mitsuba`, from PyPI) or pbrt-v4's (`--renderer pbrt
+--pbrt PATH`, built from its source; its `rgbgrid` medium, see `pbrt_medium`).
 
 An independent check of the path tracer: Mitsuba gets the volume classified here, in numpy, from
 the scene's transfer function (extinction = density_scale * opacity, albedo = colour), with
@@ -7,10 +9,11 @@ the scene's transfer function (extinction = density_scale * opacity, albedo = co
 interpolating, so only nearest filtering is the same medium). Both run with unlimited path
 length, so no depth convention is involved.
 
-    pip install mitsuba numpy
+    pip install numpy OpenEXR mitsuba
     cargo build --release
-    python3 tools/mitsuba_compare.py agree data/scenes/default.toml --spp 1024 --size 128
-    python3 tools/mitsuba_compare.py variance data/scenes/one_light.toml --spp 256 --seeds 4
+    python3 tools/compare_renderers.py agree data/scenes/default.toml --spp 1024 --size 128
+    python3 tools/compare_renderers.py variance data/scenes/one_light.toml --spp 256 --seeds 4
+    python3 tools/compare_renderers.py variance data/scenes/one_light.toml --renderer pbrt --pbrt ~/pbrt-v4/build/pbrt
 
 `agree` reports each renderer's time, the mean ratio, and the relative MSE between the two images next to
 the relative MSE between two of our own renders with different seeds (the noise floor): agreement
@@ -104,6 +107,131 @@ def mitsuba_render(scene_path, desc, spp, size, seed, variant):
     return img[..., :3].astype(np.float64), time.time() - t0
 
 
+def pbrt_medium(scene_path, desc, tmp):
+    """Writes the classified volume as a pbrt-v4 `rgbgrid` medium inside a box; returns the file.
+
+    `rgbgrid` is pbrt-v4's one grid medium whose albedo varies per voxel (the `uniformgrid`
+    medium scales one sigma_a and sigma_s by a density). It interpolates the classified grids
+    trilinearly, so it is not quite our `nearest` medium: compare per-sample variance by the seed
+    spread, which needs no common expectation, and the means only as a check of the set-up.
+    """
+    vol = desc["volume"]
+    _, dims, values = load_raw(scene_path, vol)
+    sigma, albedo = classify(values, desc["transfer"])
+    spacing = np.array(vol.get("spacing", [1, 1, 1]), dtype=float)
+    size_w = np.array(dims, dtype=float) * spacing
+    lo = np.array(vol["origin"]) if "origin" in vol else -0.5 * size_w
+    hi = lo + size_w
+    s = sigma[..., None].astype(np.float64)
+    sigma_s = (s * albedo).reshape(-1, 3)
+    sigma_a = (s * (1.0 - albedo)).reshape(-1, 3)
+    phase = desc.get("phase", {"kind": "isotropic"})
+    g = phase["g"] if phase["kind"] in ("hg", "henyeygreenstein") else 0.0
+    fmt = lambda a: " ".join(f"{x:.7g}" for x in a.ravel())
+    corners = [[(lo, hi)[(i >> k) & 1][k] for k in range(3)] for i in range(8)]
+    # Twelve triangles of the box, wound outwards (pbrt's "interface" material ignores winding).
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    tris = [i for a, b, c, d in quads for i in (a, b, c, a, c, d)]
+    path = tmp / "medium.pbrt"
+    path.write_text(
+        f'MakeNamedMedium "volume" "string type" "rgbgrid" "float g" {g}\n'
+        f'  "integer nx" {dims[0]} "integer ny" {dims[1]} "integer nz" {dims[2]}\n'
+        f'  "point3 p0" [{fmt(lo)}] "point3 p1" [{fmt(hi)}]\n'
+        f'  "rgb sigma_a" [{fmt(sigma_a)}]\n  "rgb sigma_s" [{fmt(sigma_s)}]\n'
+        "AttributeBegin\n  MediumInterface \"volume\" \"\"\n  Material \"interface\"\n"
+        f'  Shape "trianglemesh" "point3 P" [{fmt(np.array(corners))}] "integer indices" [{" ".join(map(str, tris))}]\n'
+        "AttributeEnd\n")
+    return path
+
+
+def read_exr(path):
+    import OpenEXR  # pip install OpenEXR
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        return np.stack([ch[c].pixels for c in "RGB"], axis=-1).astype(np.float64)
+
+
+def read_pfm(path):
+    with open(path, "rb") as f:
+        kind = f.readline().strip()
+        w, h = map(int, f.readline().split())
+        scale = float(f.readline())
+        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
+    channels = 3 if kind == b"PF" else 1
+    return data.reshape(h, w, channels)[::-1].astype(np.float64)  # PFM rows run bottom to top
+
+
+def pbrt_render(binary, desc, medium, spp, size, seed, tmp, threads):
+    """pbrt-v4's `volpath` with the independent sampler and a box pixel filter; returns the image
+    and the wall time of the whole process (`pbrt_setup_time` measures what to subtract)."""
+    cam = desc["camera"]
+    up = cam.get("up", [0, 1, 0])
+    out = tmp / f"pbrt_{spp}_{seed}.pfm"
+    lines = [
+        # pbrt's camera space is left-handed: mirror x so the image is not flipped against ours.
+        "Scale -1 1 1",
+        f"LookAt {' '.join(map(str, cam['eye']))}  {' '.join(map(str, cam['target']))}  {' '.join(map(str, up))}",
+        f'Camera "perspective" "float fov" {cam["fov_y"]}',
+        f'Sampler "independent" "integer pixelsamples" {spp} "integer seed" {seed}',
+        'Integrator "volpath" "integer maxdepth" 100000',
+        'PixelFilter "box" "float xradius" 0.5 "float yradius" 0.5',
+        f'Film "rgb" "integer xresolution" {size} "integer yresolution" {size} "string filename" "{out}"',
+        "WorldBegin",
+    ]
+    env = desc.get("environment", {}).get("radiance", [0, 0, 0])
+    if max(env) > 0:
+        lines.append(f'LightSource "infinite" "rgb L" [{" ".join(map(str, env))}]')
+    for light in desc.get("light", []):
+        lines += ["AttributeBegin", f"  Translate {' '.join(map(str, light['center']))}",
+                  f'  AreaLightSource "diffuse" "rgb L" [{" ".join(map(str, light["radiance"]))}]',
+                  f'  Shape "sphere" "float radius" {light["radius"]}', "AttributeEnd"]
+    lines.append(f'Include "{medium}"')
+    scene = tmp / f"pbrt_{spp}_{seed}.pbrt"
+    scene.write_text("\n".join(lines) + "\n")
+    t0 = time.time()
+    r = subprocess.run([binary, "--quiet", "--nthreads", str(threads), str(scene)], capture_output=True, text=True)
+    elapsed = time.time() - t0
+    if r.returncode != 0:
+        sys.exit(f"pbrt failed on {scene}:\n{r.stderr}{r.stdout}")
+    return read_pfm(out), elapsed
+
+
+def other_renderer(args, scene_path, desc, tmp):
+    """The renderer we compare with, as (label, render(spp, seed) -> (image, seconds)).
+
+    Mitsuba's seconds exclude scene loading and a first, kernel-compiling render. pbrt's exclude
+    parsing and building the scene: the median of three 1-spp runs of the whole process is
+    subtracted from each run (which leaves pbrt one sample per pixel of render time in hand).
+    """
+    if args.renderer == "mitsuba":
+        mitsuba_render(scene_path, desc, 1, args.size, 0, args.variant)
+        return (f"mitsuba {args.variant}",
+                lambda spp, seed: mitsuba_render(scene_path, desc, spp, args.size, seed, args.variant))
+    medium = pbrt_medium(scene_path, desc, tmp)
+    setup = float(np.median([pbrt_render(args.pbrt, desc, medium, 1, args.size, 7 + i, tmp, args.threads)[1]
+                             for i in range(3)]))
+    print(f"pbrt: scene parsing and set-up {setup:.2f} s (median of three 1-spp runs), subtracted")
+
+    def render(spp, seed):
+        img, t = pbrt_render(args.pbrt, desc, medium, spp, args.size, seed, tmp, args.threads)
+        return img, t - setup
+    return "pbrt-v4 volpath", render
+
+
+def gray_scene(desc):
+    """The scene with every colour replaced by its luminance: a diagnostic that takes away the
+    colour noise of a spectral renderer (pbrt-v4 traces four wavelengths per sample, and a medium
+    whose albedo varies by channel spreads them)."""
+    lum = lambda c: [float(np.dot([0.2126, 0.7152, 0.0722], c))] * 3
+    d = {k: (dict(v) if isinstance(v, dict) else v) for k, v in desc.items()}
+    d["transfer"]["points"] = [dict(p, color=lum(p["color"])) for p in desc["transfer"]["points"]]
+    if "light" in desc:
+        d["light"] = [dict(l, radiance=lum(l["radiance"])) for l in desc["light"]]
+    if "environment" in desc:
+        d["environment"]["radiance"] = lum(desc["environment"]["radiance"])
+    return d
+
+
 def our_render(binary, scene_path, desc, spp, size, seed, tmp):
     d = dict(desc)
     vol = dict(desc["volume"])
@@ -119,8 +247,7 @@ def our_render(binary, scene_path, desc, spp, size, seed, tmp):
                        capture_output=True, text=True)
     if r.returncode != 0:
         sys.exit(r.stderr)
-    import mitsuba as mi  # only for its EXR reader
-    img = np.array(mi.Bitmap(str(out)))[..., :3].astype(np.float64)
+    img = read_exr(out)
     return img, time.time() - t0, r.stdout.strip()
 
 
@@ -155,13 +282,12 @@ def agree(args):
     """Pixel-by-pixel agreement: two of our renders and one of Mitsuba's at the same spp."""
     scene_path = pathlib.Path(args.scene).resolve()
     desc = tomllib.loads(scene_path.read_text())
-    import mitsuba as mi
-    mi.set_variant(args.variant)
     with tempfile.TemporaryDirectory() as t:
         tmp = pathlib.Path(t)
         ours_a, t_a, line = our_render(args.binary, scene_path, desc, args.spp, args.size, 1, tmp)
         ours_b, t_b, _ = our_render(args.binary, scene_path, desc, args.spp, args.size, 2, tmp)
-    mits, t_m = mitsuba_render(scene_path, desc, args.spp, args.size, 3, args.variant)
+        label, render = other_renderer(args, scene_path, desc, tmp)
+        mits, t_m = render(args.spp, 3)
     flipped = mits[:, ::-1]
     ours = 0.5 * (ours_a + ours_b)
     # Noise floor: two of our renders with different seeds, each at spp.
@@ -170,11 +296,11 @@ def agree(args):
     lum = np.array([0.2126, 0.7152, 0.0722])
     print(f"scene {scene_path.name}, {args.size}x{args.size}, {args.spp} spp, unlimited path length, nearest filter")
     print(f"ours:    {t_a:.2f} s ({line})")
-    print(f"mitsuba: {t_m:.2f} s (volpath, {args.variant})")
-    print(f"time ratio mitsuba/ours: {t_m / t_a:.2f}")
-    print(f"relMSE(ours seed 1, mitsuba) = {r_direct:.3e}  (mirrored: {r_flip:.3e})")
+    print(f"{label}: {t_m:.2f} s")
+    print(f"time ratio theirs/ours: {t_m / t_a:.2f}")
+    print(f"relMSE(ours seed 1, theirs) = {r_direct:.3e}  (mirrored: {r_flip:.3e})")
     print(f"relMSE(ours seed 1, ours seed 2) = {floor:.3e}  (noise floor)")
-    print(f"mean luminance: ours {np.mean(ours @ lum):.5f}, mitsuba {np.mean(mits @ lum):.5f}, "
+    print(f"mean luminance: ours {np.mean(ours @ lum):.5f}, theirs {np.mean(mits @ lum):.5f}, "
           f"ratio {np.mean(ours @ lum) / np.mean(mits @ lum):.5f}")
     # Block z-test on 8x8-pixel means of luminance. The variance of one of our pixels is
     # estimated from the seed pair, (a - b)^2 / 2, averaged over the block's 64 pixels; Mitsuba's
@@ -205,11 +331,11 @@ def variance(args):
     """
     scene_path = pathlib.Path(args.scene).resolve()
     desc = tomllib.loads(scene_path.read_text())
-    import mitsuba as mi
-    mi.set_variant(args.variant)
+    if args.gray:
+        desc = gray_scene(desc)
     cache = pathlib.Path(args.reference_dir)
     cache.mkdir(parents=True, exist_ok=True)
-    ref_path = cache / f"{scene_path.stem}_{args.size}_{args.reference_spp}.npy"
+    ref_path = cache / f"{scene_path.stem}{'_gray' if args.gray else ''}_{args.size}_{args.reference_spp}.npy"
     with tempfile.TemporaryDirectory() as t:
         tmp = pathlib.Path(t)
         if ref_path.exists():
@@ -220,16 +346,14 @@ def variance(args):
             print(f"reference: {args.reference_spp} spp in {t_ref:.1f} s -> {ref_path}")
         ours = [our_render(args.binary, scene_path, desc, args.spp, args.size, 1 + s, tmp)[:2]
                 for s in range(args.seeds)]
-    # A first render compiles Mitsuba's kernels (llvm) and warms its caches: not timed.
-    mitsuba_render(scene_path, desc, 1, args.size, 0, args.variant)
-    mits = [mitsuba_render(scene_path, desc, args.spp, args.size, 101 + s, args.variant)
-            for s in range(args.seeds)]
+        label, render = other_renderer(args, scene_path, desc, tmp)
+        theirs = [render(args.spp, 101 + s) for s in range(args.seeds)]
     eps = 0.01
     print(f"scene {scene_path.name}, {args.size}x{args.size}, {args.spp} spp x {args.seeds} seeds, "
           f"reference {args.reference_spp} spp (ours), unlimited path length, nearest filter, "
-          f"mitsuba {args.variant}")
+          f"against {label}")
     rows = {}
-    for name, runs in (("ours", ours), ("mitsuba", mits)):
+    for name, runs in (("ours", ours), ("theirs", theirs)):
         imgs = np.stack([r[0] for r in runs])
         times = np.array([r[1] for r in runs])
         per_seed = np.array([relmse(im, ref, eps) for im in imgs]) * args.spp
@@ -244,9 +368,9 @@ def variance(args):
         print(f"{name:8s} relMSE x spp {mean:.4f} +- {half:.4f} (95%, seeds {', '.join(f'{x:.4f}' for x in per_seed)}; "
               f"reference share {ref_share:.1e} removed), seed spread {spread_spp:.4f}, "
               f"median time {t_med:.2f} s, efficiency {1 / (mean / args.spp * t_med):.1f}")
-    (eo, so, to), (em, sm, tm) = rows["ours"], rows["mitsuba"]
-    print(f"ours / mitsuba: relMSE x spp {eo / em:.3f} (seed spread {so / sm:.3f}), time {to / tm:.3f}, "
-          f"efficiency ratio {(em * tm) / (eo * to):.2f}x")
+    (eo, so, to), (em, sm, tm) = rows["ours"], rows["theirs"]
+    print(f"ours / theirs: relMSE x spp {eo / em:.3f} (seed spread {so / sm:.3f}), time {to / tm:.3f}, "
+          f"efficiency ratio {(em * tm) / (eo * to):.2f}x (by seed spread {(sm * tm) / (so * to):.2f}x)")
 
 
 def main():
@@ -258,11 +382,15 @@ def main():
         p.add_argument("--spp", type=int, default=spp)
         p.add_argument("--size", type=int, default=128)
         p.add_argument("--binary", default="target/release/gscache")
+        p.add_argument("--renderer", choices=("mitsuba", "pbrt"), default="mitsuba")
         p.add_argument("--variant", default="scalar_rgb",
                        help="Mitsuba variant: scalar_rgb, or llvm_ad_rgb (vectorised JIT; needs libLLVM)")
+        p.add_argument("--pbrt", default="pbrt", help="pbrt-v4's executable, built from source")
+        p.add_argument("--threads", type=int, default=2, help="pbrt's --nthreads")
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--reference-spp", type=int, default=16384)
-    p.add_argument("--reference-dir", default="out/mitsuba_compare")
+    p.add_argument("--reference-dir", default="out/compare_renderers")
+    p.add_argument("--gray", action="store_true", help="every colour replaced by its luminance (see gray_scene)")
     args = ap.parse_args()
     (agree if args.mode == "agree" else variance)(args)
 

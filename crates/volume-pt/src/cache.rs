@@ -141,8 +141,9 @@ pub fn sample_cache_points(medium: &Medium, n: usize, seed: u64) -> (Vec<Vec3>, 
                     continue;
                 };
                 let ray = medium.to_index_ray(o, d);
-                if let Some(t) = free_flight(medium, &ray, 0.0, f32::INFINITY, &mut rng) {
-                    out.push((o + d * t, medium.albedo(ray.at(t))));
+                if let Some(hit) = free_flight(medium, &ray, 0.0, f32::INFINITY, &mut rng) {
+                    let albedo = medium.transfer_function().albedo(hit.value);
+                    out.push((o + d * hit.t, albedo));
                 }
             }
             out

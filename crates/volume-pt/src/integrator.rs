@@ -15,7 +15,7 @@ use crate::lights::Lights;
 use crate::medium::Medium;
 use crate::phase::Phase;
 use crate::sampling::{SampleStream, power_heuristic};
-use crate::tracking::{free_flight, transmittance};
+use crate::tracking::{Collision, free_flight, transmittance};
 use glam::Vec3;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
@@ -106,7 +106,7 @@ pub fn radiance_with<H: PathHooks>(
         let hit = lights.nearest_sphere(o, d, 0.0);
         let t_end = hit.map_or(f32::INFINITY, |h| h.1);
         let ray = medium.to_index_ray(o, d);
-        let Some(t) = free_flight(medium, &ray, 0.0, t_end, rng) else {
+        let Some(Collision { t, value }) = free_flight(medium, &ray, 0.0, t_end, rng) else {
             // The ray reached a light sphere or the environment.
             let em = lights.emission(o, hit.map(|h| h.0));
             let w = if depth == 0 || !nee {
@@ -127,7 +127,6 @@ pub fn radiance_with<H: PathHooks>(
             break;
         }
         let x = o + d * t;
-        let value = medium.value(ray.at(t));
         let tf = medium.transfer_function();
         let albedo = tf.albedo(value);
         beta *= albedo;

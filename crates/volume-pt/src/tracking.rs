@@ -31,7 +31,15 @@ fn exp_step(rng: &mut SampleStream, majorant: f32) -> f32 {
     -(1.0 - rng.next_f32()).ln() / majorant
 }
 
-/// Distance to the first real collision in `[t0, t1]`, or None if the ray passes through.
+/// A real collision: where it is along the ray, and the data value there, which the caller needs
+/// for the albedo (returned so that the voxels are not fetched twice at the same point).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Collision {
+    pub t: f32,
+    pub value: f32,
+}
+
+/// The first real collision in `[t0, t1]`, or None if the ray passes through.
 #[inline]
 pub fn free_flight(
     medium: &Medium,
@@ -39,7 +47,8 @@ pub fn free_flight(
     t0: f32,
     t1: f32,
     rng: &mut SampleStream,
-) -> Option<f32> {
+) -> Option<Collision> {
+    let tf = medium.transfer_function();
     let (t0, t1) = medium.clip(ray, t0, t1)?;
     for seg in medium.segments(ray, t0, t1) {
         // Written so that NaN majorants are skipped like empty cells.
@@ -52,9 +61,9 @@ pub fn free_flight(
             if !(t < seg.t1) {
                 break;
             }
-            let sigma = medium.extinction(ray.at(t));
-            if rng.next_f32() * seg.majorant < sigma {
-                return Some(t);
+            let value = medium.value(ray.at(t));
+            if rng.next_f32() * seg.majorant < tf.extinction(value) {
+                return Some(Collision { t, value });
             }
         }
     }

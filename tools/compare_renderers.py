@@ -57,17 +57,24 @@ def classify(values, tf):
     return sigma.astype(np.float32), albedo.astype(np.float32)
 
 
-def mitsuba_render(scene_path, desc, spp, size, seed, variant):
-    import mitsuba as mi
-    mi.set_variant(variant)
-    from mitsuba import ScalarTransform4f as T
-
+def classified_box(scene_path, desc):
+    """The scene's volume classified here (extinction and albedo grids, z slowest) and its
+    world-space box: (dims, sigma, albedo, lowest corner, size)."""
     vol = desc["volume"]
     _, dims, values = load_raw(scene_path, vol)
     sigma, albedo = classify(values, desc["transfer"])
     spacing = np.array(vol.get("spacing", [1, 1, 1]), dtype=float)
     size_w = np.array(dims, dtype=float) * spacing
     origin = np.array(vol["origin"]) if "origin" in vol else -0.5 * size_w
+    return dims, sigma, albedo, origin, size_w
+
+
+def mitsuba_render(scene_path, desc, spp, size, seed, variant):
+    import mitsuba as mi
+    mi.set_variant(variant)
+    from mitsuba import ScalarTransform4f as T
+
+    _, sigma, albedo, origin, size_w = classified_box(scene_path, desc)
     # gridvolume maps [0,1]^3 to the box; cube shape spans [-1,1]^3.
     grid_to_world = T().translate(origin.tolist()).scale(size_w.tolist())
     cube_to_world = T().translate((origin + 0.5 * size_w).tolist()).scale((0.5 * size_w).tolist())
@@ -115,12 +122,7 @@ def pbrt_medium(scene_path, desc, tmp):
     trilinearly, so it is not quite our `nearest` medium: compare per-sample variance by the seed
     spread, which needs no common expectation, and the means only as a check of the set-up.
     """
-    vol = desc["volume"]
-    _, dims, values = load_raw(scene_path, vol)
-    sigma, albedo = classify(values, desc["transfer"])
-    spacing = np.array(vol.get("spacing", [1, 1, 1]), dtype=float)
-    size_w = np.array(dims, dtype=float) * spacing
-    lo = np.array(vol["origin"]) if "origin" in vol else -0.5 * size_w
+    dims, sigma, albedo, lo, size_w = classified_box(scene_path, desc)
     hi = lo + size_w
     s = sigma[..., None].astype(np.float64)
     sigma_s = (s * albedo).reshape(-1, 3)

@@ -25,6 +25,7 @@ and the efficiency ratio 1 / (relMSE x time).
 import argparse
 import pathlib
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -147,7 +148,10 @@ def pbrt_medium(scene_path, desc, tmp):
 
 
 def read_exr(path):
-    import OpenEXR  # pip install OpenEXR
+    try:
+        import OpenEXR
+    except ImportError:
+        sys.exit("reading our EXR output needs the OpenEXR package: pip install OpenEXR")
     with OpenEXR.File(str(path), separate_channels=True) as f:
         ch = f.channels()
         return np.stack([ch[c].pixels for c in "RGB"], axis=-1).astype(np.float64)
@@ -394,6 +398,9 @@ def main():
     p.add_argument("--reference-dir", default="out/compare_renderers")
     p.add_argument("--gray", action="store_true", help="every colour replaced by its luminance (see gray_scene)")
     args = ap.parse_args()
+    if args.renderer == "pbrt" and shutil.which(args.pbrt) is None:
+        sys.exit(f"pbrt executable {args.pbrt!r} not found: build pbrt-v4 from source and pass its path "
+                 "with --pbrt")
     (agree if args.mode == "agree" else variance)(args)
 
 if __name__ == "__main__":

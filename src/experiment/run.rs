@@ -224,7 +224,7 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
     let mut first_snapshots = Vec::new();
     for (si, &seed) in cx.seeds.iter().enumerate() {
         let UnitResult::Method {
-            snapshots: snaps,
+            snapshots: mut snaps,
             record,
         } = cx.next()?
         else {
@@ -237,7 +237,6 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
         // Snapshots arrive in the order their budgets were reached, which depends on the
         // machine's speed (8 spp may come before or after 0.02 s): rows follow the experiment's
         // budget order instead, so that every run, shard and merge lists them alike.
-        let mut snaps = snaps;
         snaps.sort_by_key(|s| budgets.iter().position(|b| *b == s.budget));
         let warmup_seconds = record.as_ref().map_or(0.0, |r| r.warmup_seconds);
         let nonfinite = record.as_ref().map_or(0, |r| r.nonfinite_samples);

@@ -11,3 +11,12 @@ pub mod camera_path;
 pub mod experiment;
 pub mod metrics;
 pub mod plot;
+
+/// Writes a text file for the user atomically ([`render_base::write_atomically`]): reports,
+/// tables, charts and shard files alike.
+pub fn write_text(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
+    render_base::write_atomically(path, |file| {
+        std::io::Write::write_all(file, text.as_bytes()).map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}

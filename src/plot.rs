@@ -3,7 +3,7 @@
 //! bitmap backend and encoded by `image`; text uses a bundled font through the pure-Rust
 //! ab_glyph, so no system font or C library is needed.
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Result, anyhow};
 use glam::Vec3;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -55,12 +55,14 @@ pub fn write_chart(stem: &Path, chart: &Chart) -> Result<(PathBuf, PathBuf)> {
     register_font();
     let svg = stem.with_extension("svg");
     let png = stem.with_extension("png");
+    let mut svg_text = String::new();
     {
-        let root = SVGBackend::new(&svg, CHART_SIZE).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg_text, CHART_SIZE).into_drawing_area();
         draw_chart(&root, chart)?;
         root.present()
             .map_err(|e| anyhow!("{}: {e}", svg.display()))?;
     }
+    crate::write_text(&svg, &svg_text)?;
     let (w, h) = CHART_SIZE;
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
@@ -74,8 +76,18 @@ pub fn write_chart(stem: &Path, chart: &Chart) -> Result<(PathBuf, PathBuf)> {
 }
 
 fn save_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    image::save_buffer(path, rgb, w, h, image::ExtendedColorType::Rgb8)
-        .with_context(|| format!("{}: cannot write the PNG", path.display()))
+    render_base::write_atomically(path, |file| {
+        image::write_buffer_with_format(
+            file,
+            rgb,
+            w,
+            h,
+            image::ExtendedColorType::Rgb8,
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| e.to_string())
+    })?;
+    Ok(())
 }
 
 /// An axis value as drawn: log10 on a log axis; `None` when it cannot be drawn.

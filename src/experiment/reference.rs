@@ -112,11 +112,10 @@ pub fn reference(
         "integrator": "nee",
         "seconds": seconds,
     });
-    std::fs::write(
-        file.with_extension("json"),
-        serde_json::to_string_pretty(&about)?,
-    )
-    .with_context(|| format!("{}: cannot write", file.display()))?;
+    crate::write_text(
+        &file.with_extension("json"),
+        &serde_json::to_string_pretty(&about)?,
+    )?;
     Ok(Reference {
         image,
         file,

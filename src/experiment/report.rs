@@ -5,13 +5,11 @@
 use super::figures::Figure;
 use super::measure::Budget;
 use super::run::{Results, SummaryRow, budget_fields, csv_text};
-use anyhow::{Context, Result};
+use anyhow::Result;
 use std::fmt::Write as _;
 use std::path::Path;
 
-fn write(path: &Path, text: &str) -> Result<()> {
-    std::fs::write(path, text).with_context(|| format!("{}: cannot write", path.display()))
-}
+use crate::write_text as write;
 
 const SUMMARY_HEADER: &str = "method,budget_kind,budget,seeds,spp,seconds,rel_mse,rel_mse_sd,psnr_hdr,psnr_tonemapped,smape,flip,efficiency,efficiency_vs_baseline,gain_vs_baseline,rel_bias_sq,brightness_bias,brightness_bias_se";
 

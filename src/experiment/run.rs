@@ -14,7 +14,6 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use hdr_image::tone_map;
 use serde::Serialize;
-use std::io::Write;
 use std::path::PathBuf;
 use volume_pt::Scene;
 
@@ -193,13 +192,42 @@ fn budgets_of(b: &Budgets) -> Vec<Budget> {
 /// from shard files (a merge).
 pub type UnitSource<'a> = dyn FnMut(usize) -> Result<UnitResult> + 'a;
 
+/// The rows of `runs.csv`, written out after each.
+struct RunsCsv {
+    path: std::path::PathBuf,
+    text: String,
+}
+
+impl RunsCsv {
+    fn create(path: std::path::PathBuf) -> Result<Self> {
+        let csv = Self {
+            path,
+            text: format!("{}\n", RunRow::CSV_HEADER),
+        };
+        csv.save()?;
+        Ok(csv)
+    }
+
+    fn push(&mut self, row: &str) -> Result<()> {
+        self.text.push_str(row);
+        self.text.push('\n');
+        self.save()
+    }
+
+    fn save(&self) -> Result<()> {
+        crate::write_text(&self.path, &self.text)
+    }
+}
+
 struct Setup<'a, 's> {
     scene: &'a Scene,
     reference: &'a [Vec3],
     reference_ldr: Vec<u8>,
     peak: f64,
     seeds: &'a [u64],
-    csv: std::fs::File,
+    /// `runs.csv` so far: rewritten whole (atomically) after each run, so a stopped experiment
+    /// keeps the rows it has and the file is never written through a planted link.
+    csv: RunsCsv,
     source: &'a mut UnitSource<'s>,
     /// The next unit the assembly reads (the order of `shard::units`).
     next_unit: usize,
@@ -259,7 +287,7 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
                 efficiency: efficiency(e, snap.seconds),
                 nonfinite_samples: nonfinite,
             };
-            writeln!(cx.csv, "{}", row.csv()).context("runs.csv")?;
+            cx.csv.push(&row.csv())?;
             let i = budgets.iter().position(|b| *b == snap.budget).unwrap_or(0);
             spreads[i].add(img);
             runs.push(row);
@@ -283,7 +311,6 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
             first_snapshots = snaps;
         }
     }
-    cx.csv.flush().ok();
     let summary = budgets
         .iter()
         .zip(&spreads)
@@ -416,9 +443,7 @@ fn assemble(
     });
     let peak = hdr_peak(&r.image);
     let csv_path = exp.output.join("runs.csv");
-    let mut csv = std::fs::File::create(&csv_path)
-        .with_context(|| format!("{}: cannot write", csv_path.display()))?;
-    writeln!(csv, "{}", RunRow::CSV_HEADER)?;
+    let csv = RunsCsv::create(csv_path)?;
     let mut cx = Setup {
         scene,
         reference: &r.image,

@@ -172,10 +172,7 @@ impl ShardFile {
     /// Writes the file atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string(self)?;
-        hdr_image::write_atomically(path, |tmp| {
-            std::fs::write(tmp, text.as_bytes()).map_err(|e| e.to_string())
-        })?;
-        Ok(())
+        crate::write_text(path, &text)
     }
 
     pub fn read(path: &Path) -> Result<Self> {

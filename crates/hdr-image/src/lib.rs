@@ -6,10 +6,12 @@
 //!   written in increasing order, so a file is a pure function of its pixels (a seed gives the
 //!   same bytes, not only the same pixels).
 //! - PNG ([`RgbImage::write_png`]): exposure, a [`ToneMap`], sRGB encoding, 8 bits.
-//! - Every write goes to a temporary file beside the target and is renamed over it when
-//!   complete, so an interrupted write never leaves a truncated image where a good one was.
+//! - Every write goes through [`render_base::write_atomically`]: an interrupted write never
+//!   leaves a truncated image where a good one was, and nothing planted in a shared output
+//!   folder can redirect it.
 
 use glam::Vec3;
+use render_base::write_atomically;
 use std::path::{Path, PathBuf};
 
 /// What went wrong with which file.
@@ -104,12 +106,13 @@ impl RgbImage {
         // Increasing line order makes the writer emit blocks in order even when it compresses
         // them in parallel: the same pixels give the same bytes.
         layer.encoding.line_order = LineOrder::Increasing;
-        write_atomically(path, |tmp| {
+        write_atomically(path, |file| {
             Image::from_layer(layer)
                 .write()
-                .to_file(tmp)
+                .to_buffered(file)
                 .map_err(|e| e.to_string())
         })
+        .map_err(ImageError::from)
     }
 
     /// Reads the first RGB(A) layer of an EXR as linear RGB (alpha is dropped).
@@ -157,9 +160,9 @@ impl RgbImage {
     /// Writes a tone-mapped 8-bit sRGB PNG (atomically: see the crate docs).
     pub fn write_png(&self, path: &Path, exposure: f32, tone: ToneMap) -> Result<()> {
         let bytes = tone_map(&self.pixels, exposure, tone);
-        write_atomically(path, |tmp| {
-            image::save_buffer_with_format(
-                tmp,
+        write_atomically(path, |file| {
+            image::write_buffer_with_format(
+                file,
                 &bytes,
                 self.width,
                 self.height,
@@ -168,36 +171,17 @@ impl RgbImage {
             )
             .map_err(|e| e.to_string())
         })
+        .map_err(ImageError::from)
     }
 }
 
-/// Writes through `write` into a temporary file beside `path`, then renames it over `path`.
-/// On failure the temporary file is removed and `path` is untouched. Every file the project
-/// writes for a user (images, partial renders) goes through here.
-pub fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&Path) -> std::result::Result<(), String>,
-) -> Result<()> {
-    let name = path.file_name().ok_or_else(|| ImageError::Write {
-        path: path.into(),
-        message: "the path names no file".into(),
-    })?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".{}.partial", std::process::id()));
-    let tmp = path.with_file_name(tmp_name);
-    let fail = |message: String| ImageError::Write {
-        path: path.into(),
-        message,
-    };
-    if let Err(message) = write(&tmp) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(fail(message));
+impl From<render_base::WriteError> for ImageError {
+    fn from(e: render_base::WriteError) -> Self {
+        ImageError::Write {
+            path: e.path,
+            message: e.message,
+        }
     }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        fail(e.to_string())
-    })
 }
 
 /// How HDR radiance is mapped to [0, 1] for an 8-bit image.

@@ -325,14 +325,14 @@ pub fn write_ply(path: &Path, cloud: &GaussianCloud<f32>) -> Result<(), IoError>
             put(cloud.rotations[4 * g + i]);
         }
     }
-    let mut f = std::fs::File::create(path).map_err(|e| IoError::Io {
-        path: path.into(),
-        source: e,
-    })?;
-    f.write_all(&out).map_err(|e| IoError::Io {
-        path: path.into(),
-        source: e,
-    })
+    // Atomically, like every file written for a user: a cache saved over an old one is whole
+    // or not written, and a link planted in a shared folder is replaced, not written through.
+    render_base::write_atomically(path, |f| f.write_all(&out).map_err(|e| e.to_string())).map_err(
+        |e| IoError::Io {
+            path: path.into(),
+            source: std::io::Error::other(e.message),
+        },
+    )
 }
 
 /// Reads an antimatter15 `.splat` file: 32-byte records of position (3 f32), linear scale

@@ -328,11 +328,11 @@ impl PartialRender {
         })
     }
 
-    /// Writes the file atomically (a temporary beside it, renamed when complete).
+    /// Writes the file atomically ([`render_base::write_atomically`]).
     pub fn write(&self, path: &Path) -> Result<()> {
         let bytes = self.to_bytes();
-        hdr_image::write_atomically(path, |tmp| {
-            std::fs::write(tmp, &bytes).map_err(|e| e.to_string())
+        render_base::write_atomically(path, |file| {
+            std::io::Write::write_all(file, &bytes).map_err(|e| e.to_string())
         })
         .map_err(|e| Error::Invalid(e.to_string()))
     }

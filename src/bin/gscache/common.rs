@@ -83,11 +83,10 @@ pub fn prepare_output(path: &Path) -> Result<()> {
     if path.is_dir() {
         bail!("{}: is a folder: expected a file name", path.display());
     }
-    let probe = dir.join(format!(".gscache-write-test-{}", std::process::id()));
-    std::fs::write(&probe, b"")
-        .with_context(|| format!("{}: cannot write into {}", path.display(), dir.display()))?;
-    let _ = std::fs::remove_file(&probe);
-    Ok(())
+    // A fixed probe name opened by name would truncate whatever a planted link points to: the
+    // probe is the atomic writer's own temporary file, which is then discarded.
+    render_base::check_writable(dir)
+        .with_context(|| format!("{}: cannot write into {}", path.display(), dir.display()))
 }
 
 /// Makes sure folder `dir` exists and can be written, before any work starts.

@@ -11,7 +11,7 @@
 //! memory (the kernel's `VmHWM`), bytes per voxel as kept, and samples per second.
 
 use anyhow::{Context, Result, bail};
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -38,33 +38,23 @@ const TILE: &str = "data/volumes/neghip_64x64x64_uint8.raw";
 const TILE_SIDE: u32 = 64;
 
 /// Writes `voxels^3` uint8 voxels tiled from `tile` (side `TILE_SIDE`), one z-slice at a time,
-/// to a temporary name first so an interrupted write never leaves a short file under the
-/// final name.
+/// atomically, so an interrupted write never leaves a short file under the final name.
 fn write_tiled(tile: &[u8], voxels: u32, path: &Path) -> Result<()> {
     let n = voxels as usize;
     let s = TILE_SIDE as usize;
-    let partial = path.with_extension("raw.partial");
-    let mut out = BufWriter::new(
-        std::fs::File::create(&partial)
-            .with_context(|| format!("creating {}", partial.display()))?,
-    );
     let mut slice = vec![0u8; n * n];
-    for z in 0..n {
-        for y in 0..n {
-            let src = &tile[s * ((y % s) + s * (z % s))..][..s];
-            for (x, v) in slice[y * n..(y + 1) * n].iter_mut().enumerate() {
-                *v = src[x % s];
+    render_base::write_atomically(path, |out| {
+        for z in 0..n {
+            for y in 0..n {
+                let src = &tile[s * ((y % s) + s * (z % s))..][..s];
+                for (x, v) in slice[y * n..(y + 1) * n].iter_mut().enumerate() {
+                    *v = src[x % s];
+                }
             }
+            out.write_all(&slice).map_err(|e| e.to_string())?;
         }
-        out.write_all(&slice)
-            .with_context(|| format!("writing {}", partial.display()))?;
-    }
-    out.into_inner()
-        .map_err(|e| e.into_error())
-        .and_then(|f| f.sync_all())
-        .with_context(|| format!("writing {}", partial.display()))?;
-    std::fs::rename(&partial, path)
-        .with_context(|| format!("renaming {} to {}", partial.display(), path.display()))?;
+        Ok(())
+    })?;
     Ok(())
 }
 
@@ -168,8 +158,7 @@ pub fn run(args: &LargeArgs) -> Result<()> {
         );
     }
     let scene_path = args.dir.join(format!("large_{v}.toml"));
-    std::fs::write(&scene_path, scene_text(&raw, v, args.size, args.spp))
-        .with_context(|| format!("writing {}", scene_path.display()))?;
+    gscache_cli::write_text(&scene_path, &scene_text(&raw, v, args.size, args.spp))?;
 
     let before = peak_resident_bytes();
     let t = Instant::now();

@@ -1,0 +1,8 @@
+//! render-base: what every crate of the renderer shares.
+//!
+//! - [`atomic_file`]: the one way the project writes a file for a user. The file appears whole
+//!   or not at all, and no one who can write to the output folder can redirect the write.
+
+pub mod atomic_file;
+
+pub use atomic_file::{AtomicWriter, WriteError, check_writable, write_atomically};

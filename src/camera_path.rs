@@ -1,26 +1,11 @@
 //! Camera paths shared by the benchmarks and the experiment runner: an orbit about the volume,
 //! or a key-framed path through chosen views.
 
-use glam::{Quat, Vec3};
+use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use splat_raster::Camera;
 
-/// Frame `f` of `total` on an orbit of `degrees` about the camera's up axis through `centre`,
-/// ending (f = total - 1) at `camera` itself.
-pub fn orbit(camera: &Camera, centre: Vec3, degrees: f32, f: u32, total: u32) -> Camera {
-    let t = if total > 1 {
-        1.0 - f as f32 / (total - 1) as f32
-    } else {
-        0.0
-    };
-    let up = image_up(camera);
-    let q = Quat::from_axis_angle(up, (degrees * t).to_radians());
-    Camera {
-        position: centre + q * (camera.position - centre),
-        rotation: (q * camera.rotation).normalize(),
-        ..*camera
-    }
-}
+pub use render_session::orbit::{image_up, orbit};
 
 /// A view the path passes through at a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
@@ -97,11 +82,6 @@ pub fn keyframed(camera: &Camera, keys: &[Keyframe], f: u32) -> Result<Camera, P
         camera.height,
     )
     .map_err(|_| PathError::Degenerate { frame: f })
-}
-
-/// The camera's upward image direction in world space (its +Y axis points down the image).
-fn image_up(camera: &Camera) -> Vec3 {
-    -(camera.rotation * Vec3::Y).normalize()
 }
 
 /// Cubic Hermite interpolation of `value` over the keys at time `t`, with Catmull-Rom tangents

@@ -7,7 +7,7 @@ use gs_cache::{CacheConfig, GsCache, Lookup};
 use gscache_cli::metrics::rel_mse;
 use splat_raster::Camera;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use volume_pt::Control;
 use volume_pt::{Film, Scene, load_scene, render, sample_cache_points};
 
 const SIZE: u32 = 64;
@@ -30,8 +30,7 @@ fn plain(scene: &Scene, spp: u32, seed: u64) -> Vec<Vec3> {
         &scene.camera,
         &settings,
         &mut film,
-        &AtomicBool::new(false),
-        &|_| {},
+        &Control::none(),
     );
     film.mean()
 }
@@ -56,7 +55,7 @@ fn cached(scene: &Scene, cache: &mut GsCache, frames: u32, keep: u32, seed: u64)
             f,
             (f + keep >= frames).then_some(&mut film),
             cache,
-            &AtomicBool::new(false),
+            &Control::none(),
         )
         .unwrap();
     }
@@ -77,7 +76,7 @@ fn one_frame(s: &Scene, camera: &Camera, seed: u64, f: u32, cache: &mut GsCache)
         f,
         Some(&mut film),
         cache,
-        &AtomicBool::new(false),
+        &Control::none(),
     )
     .unwrap();
     film.mean()
@@ -144,7 +143,7 @@ fn natural_termination_bias_is_the_documented_one() {
             0,
             Some(&mut film),
             &mut cache,
-            &AtomicBool::new(false),
+            &Control::none(),
         )
         .unwrap();
         film.mean()
@@ -220,7 +219,7 @@ fn masks_keep_the_cache_bright_and_training_lowers_the_loss() {
             0,
             None,
             &mut copy,
-            &AtomicBool::new(false),
+            &Control::none(),
         )
         .unwrap();
         copy.report().mse.iter().map(|m| m.unwrap()).collect()
@@ -334,7 +333,7 @@ fn train_every_steps_on_one_frame_in_k() {
             f,
             None,
             &mut cache,
-            &AtomicBool::new(false),
+            &Control::none(),
         )
         .unwrap();
         let stepped = f % 3 == 0;

@@ -625,7 +625,7 @@ fn sharded_render_merges_to_the_same_bytes() {
 }
 
 /// `render --nrc` renders with the neural cache, prints its per-frame costs and writes the
-/// image; a bad `--nrc-set` names the key, the value and what was expected, before any work.
+/// image; a bad `--nrc-KEY` names the key, the value and what was expected, before any work.
 #[test]
 fn the_neural_cache_renders_and_its_bad_settings_are_named() {
     let d = scratch("nrc");
@@ -646,10 +646,10 @@ fn the_neural_cache_renders_and_its_bad_settings_are_named() {
     assert!(image.pixels().iter().all(|p| p.is_finite()));
     assert!(image.pixels().iter().any(|p| p.max_element() > 0.0));
     let cases: [(&[&str], &str); 5] = [
-        (&["--nrc-set", "hidden_layers=0"], "hidden_layers"),
-        (&["--nrc-set", "learning_rate=nan"], "learning_rate"),
-        (&["--nrc-set", "no_such_key=1"], "no_such_key"),
-        (&["--nrc-set", "hidden_layers"], "KEY=VALUE"),
+        (&["--nrc-hidden-layers", "0"], "hidden_layers"),
+        (&["--nrc-learning-rate", "nan"], "learning_rate"),
+        (&["--nrc-no-such-key", "1"], "--nrc-no-such-key"),
+        (&["--nrc-hidden-layers", "many"], "--nrc-hidden-layers"),
         (&["--cache"], "cannot be used with"),
     ];
     for (args, expected) in cases {

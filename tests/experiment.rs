@@ -211,11 +211,12 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// The report gives, per method, a `gscache render` line that renders one frame of it: that
-/// line must give the runner's own first 1-spp image, bit for bit (for a cache: after the same
-/// warm-up along the same orbit).
+/// The report gives, per method, a `gscache render` line that renders its image at any spp:
+/// that line must give the runner's own image at every budget, bit for bit, a time budget
+/// included (for a cache: after the same warm-up along the same orbit). This is the one
+/// sampling rule at work: frame `k` of `s` spp takes sample indices `k*s .. (k+1)*s`.
 #[test]
-fn the_reports_command_line_renders_the_runners_image() {
+fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
     use gscache_cli::experiment::command::render_args;
     use gscache_cli::experiment::measure::{Budget, run_method};
     let dir = scratch("command");
@@ -225,37 +226,44 @@ fn the_reports_command_line_renders_the_runners_image() {
     let (w, h) = exp.size.unwrap();
     scene.camera.width = w;
     scene.camera.height = h;
-    let (lo, hi) = scene.media.medium.bounds();
     let seed = exp.seeds[1];
     assert!(exp.methods.iter().any(|m| m.cache.is_some()));
+    assert!(exp.methods.iter().any(|m| !m.has_cache()));
+    let budgets = [Budget::Spp(1), Budget::Spp(3), Budget::Seconds(0.005)];
     for method in &exp.methods {
-        let (snaps, _) =
-            run_method(&scene, method, seed, &[Budget::Spp(1)], 0.5 * (lo + hi)).unwrap();
-        let exr = dir.join(format!("{}.exr", method.name.replace(' ', "_")));
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
-            .args(render_args(&exp.scene, w, h, method, seed))
-            .args(["-q", "-o"])
-            .arg(&exr)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let got = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
-        let want = &snaps[0].image;
-        assert_eq!(got.len(), want.len());
-        let differing = got
-            .iter()
-            .zip(want)
-            .filter(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits))
-            .count();
-        assert_eq!(
-            differing, 0,
-            "method `{}`: {differing} pixels differ",
-            method.name
-        );
+        let (snaps, _) = run_method(&scene, method, seed, &budgets).unwrap();
+        assert_eq!(snaps.len(), budgets.len());
+        for snap in &snaps {
+            let exr = dir.join(format!(
+                "{}-{}.exr",
+                method.name.replace(' ', "_"),
+                snap.spp
+            ));
+            let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+                .args(render_args(&exp.scene, w, h, method, seed, snap.spp))
+                .args(["-q", "-o"])
+                .arg(&exr)
+                .output()
+                .unwrap();
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let got = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
+            let want = &snap.image;
+            assert_eq!(got.len(), want.len());
+            let differing = got
+                .iter()
+                .zip(want)
+                .filter(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits))
+                .count();
+            assert_eq!(
+                differing, 0,
+                "method `{}` at {} ({} spp): {differing} pixels differ",
+                method.name, snap.budget, snap.spp
+            );
+        }
     }
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -8,7 +8,7 @@ use glam::Vec3;
 use gscache_cli::metrics::rel_mse;
 use nrc_cache::{NeuralCache, NrcConfig};
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use volume_pt::Control;
 use volume_pt::{Film, NoCache, Scene, load_scene, render, render_frame_with};
 
 const SIZE: u32 = 64;
@@ -45,7 +45,7 @@ fn nrc_frame(s: &Scene, cache: &mut NeuralCache, seed: u64, f: u32) -> Vec<Vec3>
         f,
         Some(&mut film),
         cache,
-        &AtomicBool::new(false),
+        &Control::none(),
     );
     assert_eq!(stats.nonfinite_samples, 0);
     film.mean()
@@ -63,7 +63,7 @@ fn plain_frame(s: &Scene, seed: u64, f: u32) -> Vec<Vec3> {
         f,
         &mut film,
         &NoCache,
-        &AtomicBool::new(false),
+        &Control::none(),
     );
     film.mean()
 }
@@ -146,14 +146,7 @@ fn warm_nrc_beats_nee_at_one_spp() {
     settings.spp = 256;
     settings.seed = 1000;
     let mut film = Film::new(SIZE, SIZE);
-    render(
-        &s.media,
-        &s.camera,
-        &settings,
-        &mut film,
-        &AtomicBool::new(false),
-        &|_| {},
-    );
+    render(&s.media, &s.camera, &settings, &mut film, &Control::none());
     let reference = film.mean();
     let mut cache = NeuralCache::new(NrcConfig {
         training_fraction: 0.1,

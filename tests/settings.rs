@@ -1,10 +1,12 @@
-//! One settings type for the cache: the experiment file's `cache` keys, `gscache render`'s
+//! One settings type for each cache: the experiment file's `cache` keys, `gscache render`'s
 //! `--cache-KEY` flags and the C ABI's `GsCacheConfig` fields are the same list, and a setting
-//! written as flags reads back as the same value.
+//! written as flags reads back as the same value; the neural cache's `nrc` keys and `--nrc-KEY`
+//! flags likewise.
 
 use clap::{Args, FromArgMatches};
 use gs_cache::{CacheConfig, Lookup, Optimizer};
-use gscache_cli::experiment::command::cache_args;
+use gscache_cli::experiment::command::{cache_args, nrc_args};
+use nrc_cache::NrcConfig;
 
 fn serde_keys() -> Vec<String> {
     toml::Table::try_from(CacheConfig::default())
@@ -126,4 +128,64 @@ fn settings_written_as_flags_read_back_the_same() {
     assert_eq!(CacheConfig::from_arg_matches(&m).unwrap(), changed);
     // The defaults need no flags at all.
     assert!(cache_args(&CacheConfig::default()).is_empty());
+}
+
+fn nrc_command() -> clap::Command {
+    NrcConfig::augment_args(clap::Command::new("t").no_binary_name(true))
+}
+
+#[test]
+fn every_neural_cache_key_is_a_flag_and_every_flag_a_key() {
+    let mut flags: Vec<String> = nrc_command()
+        .get_arguments()
+        .filter_map(|a| a.get_long().map(str::to_string))
+        .collect();
+    let mut keys: Vec<String> = toml::Table::try_from(NrcConfig::default())
+        .unwrap()
+        .keys()
+        .map(|k| format!("nrc-{}", k.replace('_', "-")))
+        .collect();
+    flags.sort();
+    keys.sort();
+    assert_eq!(flags, keys);
+    let m = nrc_command()
+        .try_get_matches_from(Vec::<String>::new())
+        .unwrap();
+    assert_eq!(
+        NrcConfig::from_arg_matches(&m).unwrap(),
+        NrcConfig::default()
+    );
+}
+
+#[test]
+fn neural_cache_settings_written_as_flags_read_back_the_same() {
+    let changed = NrcConfig {
+        grid_levels: 4,
+        grid_features: 4,
+        grid_log2_table: 12,
+        grid_base_resolution: 8,
+        grid_finest_resolution: 32,
+        hidden_width: 32,
+        hidden_layers: 3,
+        input_albedo: true,
+        input_value: true,
+        input_direction: true,
+        learning_rate: 3e-3,
+        beta1: 0.8,
+        beta2: 0.95,
+        epsilon: 1e-10,
+        loss_epsilon: 0.02,
+        batch_size: 1024,
+        steps_per_frame: 2,
+        training_fraction: 0.1,
+        c: 0.25,
+        threshold: 0.75,
+        seed: 7,
+    };
+    let args = nrc_args(&changed);
+    let keys = toml::Table::try_from(NrcConfig::default()).unwrap().len();
+    assert_eq!(args.len(), 2 * keys, "{args:?}");
+    let m = nrc_command().try_get_matches_from(&args).unwrap();
+    assert_eq!(NrcConfig::from_arg_matches(&m).unwrap(), changed);
+    assert!(nrc_args(&NrcConfig::default()).is_empty());
 }

@@ -1,9 +1,10 @@
-//! The `gscache render` command line that renders one frame of a method exactly as the
-//! experiment runner does (the same image, bit for bit): what a report prints so a reader can
-//! reproduce any row, and what a test holds to that promise.
+//! The `gscache render` command line that renders a method's image exactly as the experiment
+//! runner does (the same image, bit for bit): what a report prints so a reader can reproduce any
+//! row, and what a test holds to that promise. Both render through a render session, whose one
+//! sampling rule (frame `k` of `s` spp takes sample indices `k*s .. (k+1)*s`) makes a run's
+//! image at `n` spp the same as one render of `n` spp, or of `n` frames of 1 spp.
 
 use super::config::Method;
-use super::measure::pass_seed;
 use gs_cache::CacheConfig;
 use nrc_cache::NrcConfig;
 use std::path::Path;
@@ -11,15 +12,24 @@ use std::path::Path;
 /// `--cache-KEY VALUE` for every cache setting that differs from the default: the experiment
 /// file's `cache` keys, spelt as the command line's flags (`lr_color` is `--cache-lr-color`).
 pub fn cache_args(config: &CacheConfig) -> Vec<String> {
-    let table = toml::Table::try_from(config).expect("cache settings are plain TOML values");
-    let defaults = toml::Table::try_from(CacheConfig::default())
-        .expect("cache settings are plain TOML values");
+    flag_args("cache", config, &CacheConfig::default())
+}
+
+/// `--nrc-KEY VALUE` for every neural cache setting that differs from its default.
+pub fn nrc_args(config: &NrcConfig) -> Vec<String> {
+    flag_args("nrc", config, &NrcConfig::default())
+}
+
+/// `--PREFIX-KEY VALUE` for each of `config`'s keys whose value differs from `defaults`'.
+fn flag_args<T: serde::Serialize>(prefix: &str, config: &T, defaults: &T) -> Vec<String> {
+    let table = toml::Table::try_from(config).expect("settings are plain TOML values");
+    let defaults = toml::Table::try_from(defaults).expect("settings are plain TOML values");
     let mut args = Vec::new();
     for (key, value) in &table {
         if defaults.get(key) == Some(value) {
             continue;
         }
-        args.push(format!("--cache-{}", key.replace('_', "-")));
+        args.push(format!("--{prefix}-{}", key.replace('_', "-")));
         args.push(match value {
             toml::Value::String(s) => s.clone(),
             other => other.to_string(),
@@ -28,31 +38,18 @@ pub fn cache_args(config: &CacheConfig) -> Vec<String> {
     args
 }
 
-/// `--nrc-set KEY=VALUE` for each neural cache setting that differs from its default.
-pub fn nrc_args(config: &NrcConfig) -> Vec<String> {
-    let table = toml::Table::try_from(config).expect("nrc settings are plain TOML values");
-    let defaults =
-        toml::Table::try_from(NrcConfig::default()).expect("nrc settings are plain TOML values");
-    let mut args = Vec::new();
-    for (key, value) in &table {
-        if defaults.get(key) == Some(value) {
-            continue;
-        }
-        args.push("--nrc-set".into());
-        args.push(format!("{key}={value}"));
-    }
-    args
-}
-
-/// The arguments of `gscache render` that render the first 1-spp image of `method` with `seed`
-/// at `width` x `height`: for a cache, after its warm-up along the same orbit.
+/// The arguments of `gscache render` that render `method`'s image of `spp` samples per pixel
+/// (the `spp` of a run's row, whatever its budget) with `seed` at `width` x `height`: for a
+/// cache, `spp` frames of 1 spp after its warm-up along the same orbit.
 pub fn render_args(
     scene: &Path,
     width: u32,
     height: u32,
     method: &Method,
     seed: u64,
+    spp: u32,
 ) -> Vec<String> {
+    let per_frame = if method.has_cache() { 1 } else { spp };
     let mut args = vec![
         "render".to_string(),
         scene.display().to_string(),
@@ -61,15 +58,16 @@ pub fn render_args(
         "--height".into(),
         height.to_string(),
         "--spp".into(),
-        "1".into(),
+        per_frame.to_string(),
         "--integrator".into(),
         method.integrator.to_string(),
+        "--seed".into(),
+        seed.to_string(),
     ];
     match (&method.cache, &method.nrc) {
-        // Plain methods render pass k with seed pass_seed(seed, k); the first image is pass 0.
-        (None, None) => args.extend(["--seed".into(), pass_seed(seed, 0).to_string()]),
+        (None, None) => {}
         (None, Some(n)) => {
-            args.extend(["--seed".into(), seed.to_string(), "--nrc".into()]);
+            args.extend(["--nrc".into(), "--frames".into(), spp.to_string()]);
             args.extend(nrc_args(&n.settings));
             args.extend([
                 "--warmup".into(),
@@ -79,7 +77,7 @@ pub fn render_args(
             ]);
         }
         (Some(c), _) => {
-            args.extend(["--seed".into(), seed.to_string(), "--cache".into()]);
+            args.extend(["--cache".into(), "--frames".into(), spp.to_string()]);
             args.extend(cache_args(&c.settings));
             args.extend([
                 "--warmup".into(),
@@ -93,7 +91,14 @@ pub fn render_args(
 }
 
 /// [`render_args`] as one line a shell takes.
-pub fn render_command(scene: &Path, width: u32, height: u32, method: &Method, seed: u64) -> String {
+pub fn render_command(
+    scene: &Path,
+    width: u32,
+    height: u32,
+    method: &Method,
+    seed: u64,
+    spp: u32,
+) -> String {
     let quote = |a: &str| {
         if a.chars()
             .all(|c| c.is_ascii_alphanumeric() || "-_./=,".contains(c))
@@ -103,7 +108,7 @@ pub fn render_command(scene: &Path, width: u32, height: u32, method: &Method, se
             format!("'{}'", a.replace('\'', r"'\''"))
         }
     };
-    let args: Vec<String> = render_args(scene, width, height, method, seed)
+    let args: Vec<String> = render_args(scene, width, height, method, seed, spp)
         .iter()
         .map(|a| quote(a))
         .collect();

@@ -223,7 +223,7 @@ impl NrcDesc {
     /// The library configuration, checked.
     pub fn config(&self) -> Result<NrcConfig> {
         self.settings.validate()?;
-        Ok(self.settings.clone())
+        Ok(self.settings)
     }
 }
 
@@ -322,9 +322,28 @@ impl Method {
         }
     }
 
+    /// Degrees of orbit over the warm-up (0 without a cache).
+    pub fn warmup_orbit_degrees(&self) -> f32 {
+        match (&self.cache, &self.nrc) {
+            (Some(c), _) => c.warmup_orbit_degrees,
+            (_, Some(n)) => n.warmup_orbit_degrees,
+            _ => 0.0,
+        }
+    }
+
     /// Whether the method reads a cache of either kind.
     pub fn has_cache(&self) -> bool {
         self.cache.is_some() || self.nrc.is_some()
+    }
+
+    /// The cache a render session builds for this method, its settings checked.
+    pub fn cache_choice(&self) -> Result<render_session::CacheChoice> {
+        use render_session::CacheChoice;
+        Ok(match (&self.cache, &self.nrc) {
+            (Some(c), _) => CacheChoice::gaussian(c.config()?),
+            (_, Some(n)) => CacheChoice::Neural(n.config()?),
+            _ => CacheChoice::None,
+        })
     }
 }
 

@@ -5,18 +5,15 @@
 //! edit this is the adaptation curve: how many frames the cache takes to learn the new scene.
 
 use super::config::{EventDesc, FlythroughDesc, Method};
-use super::measure::{new_cache, new_nrc, nrc_loss, pass_seed};
+use super::measure::method_session;
 use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
 use crate::metrics::rel_mse;
 use anyhow::{Context, Result};
-use cached_pt::nrc::render_nrc_frame;
-use cached_pt::render_cached_frame;
 use glam::Vec3;
+use render_session::{Accumulation, Control, Edit};
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
-use std::time::Instant;
-use volume_pt::{Film, Scene, load_scene, render};
+use volume_pt::{Scene, load_scene};
 
 /// One frame of one method.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -36,30 +33,34 @@ pub struct FrameRecord {
     pub level_mse: Vec<Option<f64>>,
 }
 
-/// Applies `event` to `scene`; returns a description for the reference key and the report.
-pub fn apply_event(scene: &mut Scene, event: &EventDesc) -> Result<String> {
-    let lights = &mut scene.media.lights;
+/// The session edit `event` makes to `scene`, and a description of it for the reference key
+/// and the report.
+pub fn event_edit(scene: &Scene, event: &EventDesc) -> Result<(Edit, String)> {
+    let lights = &scene.media.lights;
     if let Some(o) = event.light_offset {
         let o = Vec3::from_array(o);
-        lights.spheres.iter_mut().for_each(|l| l.center += o);
-        return Ok(format!("lights moved by {o}"));
+        let mut moved = lights.clone();
+        moved.spheres.iter_mut().for_each(|l| l.center += o);
+        return Ok((Edit::Lights(moved), format!("lights moved by {o}")));
     }
     if let Some(s) = event.light_scale {
-        lights.spheres.iter_mut().for_each(|l| l.radiance *= s);
-        lights.environment *= s;
-        return Ok(format!("lights x{s}"));
+        let mut scaled = lights.clone();
+        scaled.spheres.iter_mut().for_each(|l| l.radiance *= s);
+        scaled.environment *= s;
+        return Ok((Edit::Lights(scaled), format!("lights x{s}")));
     }
     if let Some(s) = event.density_scale {
         let tf = scene.media.medium.transfer_function();
         let edited = tf.with_density_scale(tf.density_scale() * s)?;
-        scene.media.medium.set_transfer_function(edited);
-        return Ok(format!("density x{s}"));
+        return Ok((Edit::TransferFunction(edited), format!("density x{s}")));
     }
     if let Some(path) = &event.scene {
         let other = load_scene(path)?;
-        scene.media = other.media;
-        scene.volume_path = other.volume_path;
-        return Ok(format!("scene {}", path.display()));
+        let edit = Edit::Volume {
+            media: Box::new(other.media),
+            path: other.volume_path,
+        };
+        return Ok((edit, format!("scene {}", path.display())));
     }
     anyhow::bail!("event at frame {} changes nothing", event.frame)
 }
@@ -78,31 +79,18 @@ pub fn fly(
     let centre = 0.5 * (lo + hi);
     let total = fly.warmup + fly.frames;
     let mut out = Vec::new();
-    let cancel = AtomicBool::new(false);
     for method in methods {
-        let mut scene = scene.clone();
+        // Each frame is an image of its own: an interactive view in motion.
+        let mut session =
+            method_session(scene, method, seed)?.with_accumulation(Accumulation::PerFrame);
         let mut state = String::new();
-        let mut settings = scene.settings;
-        settings.spp = 1;
-        settings.seed = seed;
-        settings.path.integrator = method.integrator;
-        let mut cache = match &method.cache {
-            Some(desc) => Some(new_cache(&scene, desc.config()?, seed)?.0),
-            None => None,
-        };
-        let mut nrc = match &method.nrc {
-            Some(desc) => Some(new_nrc(desc.config()?, seed)?.0),
-            None => None,
-        };
         let edit_frames: Vec<u32> = fly.events.iter().map(|e| e.frame).collect();
         for f in 0..total {
             for e in fly.events.iter().filter(|e| e.frame == f) {
-                let what = apply_event(&mut scene, e)
+                let (edit, what) = event_edit(session.scene(), e)
                     .with_context(|| format!("flythrough `{}`", fly.name))?;
+                session.edit(edit)?;
                 state.push_str(&format!("{f}:{what};"));
-                if let Some(c) = &mut cache {
-                    c.reset_schedule();
-                }
             }
             let cam = if fly.keys.is_empty() {
                 orbit(&scene.camera, centre, fly.orbit_degrees, f, total)
@@ -110,58 +98,28 @@ pub fn fly(
                 keyframed(&scene.camera, &fly.keys, f)
                     .with_context(|| format!("flythrough `{}`", fly.name))?
             };
-            let mut film = Film::new(cam.width, cam.height);
-            let start = Instant::now();
-            let (mut trace, mut splat, mut train, mut level_mse) = (0.0, 0.0, 0.0, Vec::new());
-            match (&mut cache, &mut nrc) {
-                (None, Some(n)) => {
-                    let s = render_nrc_frame(
-                        &scene.media,
-                        &cam,
-                        &settings,
-                        f,
-                        Some(&mut film),
-                        n,
-                        &cancel,
-                    );
-                    (trace, splat, train) = (s.trace_seconds, s.inference_seconds, s.train_seconds);
-                    level_mse = vec![nrc_loss(&s)];
-                }
-                (None, None) => {
-                    let s = volume_pt::RenderSettings {
-                        seed: pass_seed(seed, f as u64),
-                        ..settings
-                    };
-                    render(&scene.media, &cam, &s, &mut film, &cancel, &|_| {});
-                }
-                (Some(c), _) => {
-                    let s = render_cached_frame(
-                        &scene.media,
-                        &cam,
-                        &settings,
-                        f,
-                        Some(&mut film),
-                        c,
-                        &cancel,
-                    )?;
-                    (trace, splat, train) = (s.trace_seconds, s.lookup_seconds, s.train_seconds);
-                    level_mse = c.report().mse.clone();
-                }
-            }
-            let total_s = start.elapsed().as_secs_f64();
+            session.edit(Edit::Camera(cam))?;
+            let r = session.next_frame(&Control::none())?;
+            let (mut trace, splat, train) = (r.trace_seconds, r.lookup_seconds, r.train_seconds);
+            let total_s = r.seconds;
             if !method.has_cache() {
                 trace = total_s;
             }
+            let level_mse = r.loss;
             // Evaluated: every `error_every` frames, the last, and the few frames right after
             // an edit (where the curve moves fastest).
             let near_edit = edit_frames.iter().any(|&e| f >= e && f < e + 4);
             let evaluate = f % fly.error_every == 0 || f + 1 == total || near_edit;
             let rel = if evaluate {
+                // The reference is the scene as edited, rendered with the scene file's own
+                // settings (not the method's), so every method shares it.
+                let mut edited = session.scene().clone();
+                edited.settings = scene.settings;
                 let r = reference(
                     reference_dir,
                     scene_file,
                     &state,
-                    &scene,
+                    &edited,
                     &cam,
                     fly.reference_spp,
                 )?;
@@ -171,7 +129,7 @@ pub fn fly(
                         fly.name, r.spp, r.seconds
                     ));
                 }
-                Some(rel_mse(&film.mean(), &r.image))
+                Some(rel_mse(&session.mean(), &r.image))
             } else {
                 None
             };

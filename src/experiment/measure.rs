@@ -4,18 +4,11 @@
 //! user watching it would see them. Times are wall-clock around each pass.
 
 use super::config::Method;
-use super::config::NrcDesc;
-use crate::camera_path::orbit;
 use anyhow::Result;
-use cached_pt::nrc::render_nrc_frame;
-use cached_pt::render_cached_frame;
 use glam::Vec3;
-use gs_cache::{CacheConfig, GsCache};
-use nrc_cache::{NeuralCache, NrcConfig};
-use splat_raster::Camera;
-use std::sync::atomic::AtomicBool;
+use render_session::{Control, FrameReport, Session};
 use std::time::Instant;
-use volume_pt::{Film, Scene, render, sample_cache_points};
+use volume_pt::Scene;
 
 /// A budget: samples per pixel, or wall-clock seconds per image.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -67,118 +60,115 @@ pub struct CacheRecord {
     pub nonfinite_samples: u64,
 }
 
-/// A distinct stream of random numbers for pass `pass` of seed `seed` (splitmix64 finaliser).
-pub fn pass_seed(seed: u64, pass: u64) -> u64 {
-    let mut z = seed
-        .wrapping_mul(0x9e37_79b9_7f4a_7c15)
-        .wrapping_add(pass.wrapping_add(1).wrapping_mul(0xbf58_476d_1ce4_e5b9));
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// Calls `pass(k, film)` for k = 0, 1, ... (each adds 1 spp to the film and returns its
-/// seconds) until every budget is reached, snapshotting the film at each. A time budget is
-/// reached by the first pass that ends at or past it (its image includes that pass).
+/// Renders frames of `session` (1 spp each, by the sampling rule) until every budget is
+/// reached, snapshotting its image at each; `on_frame` sees every frame's report. A time budget
+/// is reached by the first frame that ends at or past it (its image includes that frame).
 pub fn progressive(
     budgets: &[Budget],
-    width: u32,
-    height: u32,
-    mut pass: impl FnMut(u32, &mut Film) -> Result<f64>,
+    session: &mut Session,
+    mut on_frame: impl FnMut(&FrameReport),
 ) -> Result<Vec<Snapshot>> {
-    let mut film = Film::new(width, height);
+    progressive_with(
+        budgets,
+        session,
+        |s| {
+            let r = s.next_frame(&Control::none())?;
+            on_frame(&r);
+            Ok(r.seconds)
+        },
+        |s| s.mean(),
+    )
+}
+
+/// [`progressive`] over any state: `frame(state)` adds one frame (1 spp) to the image and
+/// returns its seconds, `image(state)` is the image so far.
+fn progressive_with<S>(
+    budgets: &[Budget],
+    state: &mut S,
+    mut frame: impl FnMut(&mut S) -> Result<f64>,
+    image: impl Fn(&S) -> Vec<Vec3>,
+) -> Result<Vec<Snapshot>> {
     let mut pending: Vec<Budget> = budgets.to_vec();
     let mut out = Vec::new();
     let (mut k, mut seconds) = (0u32, 0.0);
     while !pending.is_empty() {
-        seconds += pass(k, &mut film)?;
+        seconds += frame(state)?;
         k += 1;
+        let mut reached_now = Vec::new();
         pending.retain(|b| {
             let reached = match *b {
                 Budget::Spp(s) => k >= s,
                 Budget::Seconds(t) => seconds >= t,
             };
             if reached {
-                out.push(Snapshot {
-                    budget: *b,
-                    spp: k,
-                    seconds,
-                    image: film.mean(),
-                });
+                reached_now.push(*b);
             }
             !reached
         });
+        if !reached_now.is_empty() {
+            let pixels = image(state);
+            for budget in reached_now {
+                out.push(Snapshot {
+                    budget,
+                    spp: k,
+                    seconds,
+                    image: pixels.clone(),
+                });
+            }
+        }
     }
     Ok(out)
 }
 
-/// A new cache for `scene`, its points found with `seed`, and the seconds it took.
-pub fn new_cache(scene: &Scene, config: CacheConfig, seed: u64) -> Result<(GsCache, f64)> {
-    let start = Instant::now();
-    let config = config.for_image(scene.camera.width, scene.camera.height);
-    let (points, albedo) = sample_cache_points(&scene.media.medium, config.points, seed);
-    let cache = GsCache::new(&points, &albedo, config)?;
-    Ok((cache, start.elapsed().as_secs_f64()))
+/// The render session of `method` on `scene` with `seed`: one sample per pixel a frame.
+pub fn method_session(scene: &Scene, method: &Method, seed: u64) -> Result<Session> {
+    let mut scene = scene.clone();
+    scene.settings.spp = 1;
+    scene.settings.path.integrator = method.integrator;
+    scene.settings.seed = seed;
+    Ok(Session::new(scene, method.cache_choice()?)?)
 }
 
-/// `method` at the scene camera with `seed`, snapshotted at every budget.
+/// `method` at the scene camera with `seed`: its warm-up (a cache's), then frames of 1 spp
+/// snapshotted at every budget.
 pub fn run_method(
     scene: &Scene,
     method: &Method,
     seed: u64,
     budgets: &[Budget],
-    centre: Vec3,
 ) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
-    let cam = scene.camera;
-    let mut settings = scene.settings;
-    settings.spp = 1;
-    settings.path.integrator = method.integrator;
-    let cancel = AtomicBool::new(false);
-    if let Some(desc) = &method.nrc {
-        settings.seed = seed;
-        return run_nrc(scene, desc, &settings, budgets, centre);
+    let mut session = method_session(scene, method, seed)?;
+    if !method.has_cache() {
+        return Ok((progressive(budgets, &mut session, |_| {})?, None));
     }
-    let Some(desc) = &method.cache else {
-        let snaps = progressive(budgets, cam.width, cam.height, |k, film| {
-            let s = volume_pt::RenderSettings {
-                seed: pass_seed(seed, k as u64),
-                ..settings
-            };
-            let start = Instant::now();
-            render(&scene.media, &cam, &s, film, &cancel, &|_| {});
-            Ok(start.elapsed().as_secs_f64())
-        })?;
-        return Ok((snaps, None));
-    };
-    settings.seed = seed;
-    let (mut cache, init_seconds) = new_cache(scene, desc.config()?, seed)?;
     let mut record = CacheRecord {
-        init_seconds,
-        parameter_bytes: cache.parameter_bytes(),
+        init_seconds: session.cache_seconds(),
+        parameter_bytes: session.cache().parameter_bytes(),
         ..Default::default()
     };
-    let warmup = desc.warmup;
-    let snaps = cached_run(
-        scene,
-        (warmup, desc.warmup_orbit_degrees),
-        budgets,
-        centre,
-        &mut record,
-        |view, f, film| {
-            if f == warmup {
-                cache.start_image();
-            }
-            let s =
-                render_cached_frame(&scene.media, view, &settings, f, film, &mut cache, &cancel)?;
-            Ok(FrameReport {
-                costs: [s.trace_seconds, s.lookup_seconds, s.train_seconds],
-                loss: cache.report().mse.clone(),
-                handed_off: cache.report().handed_off,
-                nonfinite_samples: s.nonfinite_samples,
-            })
-        },
+    let start = Instant::now();
+    let warm = session.warm_up(
+        method.warmup(),
+        method.warmup_orbit_degrees(),
+        &Control::none(),
     )?;
-    if let Some(frame) = cache.frame() {
+    record.warmup_seconds = start.elapsed().as_secs_f64();
+    for r in warm {
+        record.nonfinite_samples += r.nonfinite_samples;
+        record.level_mse.push(r.loss);
+    }
+    let snaps = progressive(budgets, &mut session, |r| {
+        record.nonfinite_samples += r.nonfinite_samples;
+        record.level_mse.push(r.loss.clone());
+        if r.handed_off {
+            record.handed_off += 1;
+        } else {
+            record
+                .frame_seconds
+                .push([r.trace_seconds, r.lookup_seconds, r.train_seconds]);
+        }
+    })?;
+    if let Some(frame) = session.cache().gaussian().and_then(|c| c.frame()) {
         record.level_images = (0..frame.levels())
             .map(|l| {
                 frame
@@ -192,107 +182,6 @@ pub fn run_method(
     Ok((snaps, Some(record)))
 }
 
-/// What one frame of a cached run files in its [`CacheRecord`].
-struct FrameReport {
-    /// Seconds of path tracing, reading the cache, and training.
-    costs: [f64; 3],
-    /// Per level, the loss before the step (the neural cache: one entry).
-    loss: Vec<Option<f64>>,
-    /// The frame was plain path tracing after the cache's handoff.
-    handed_off: bool,
-    nonfinite_samples: u64,
-}
-
-/// A cached run, for either cache: `warmup.0` frames along an orbit of `warmup.1` degrees
-/// ending at the scene camera (no film; their time is the record's warm-up), then measured
-/// frames at the camera, accumulated progressively until every budget is reached.
-/// `frame(camera, index, film)` renders and trains one frame.
-fn cached_run(
-    scene: &Scene,
-    warmup: (u32, f32),
-    budgets: &[Budget],
-    centre: Vec3,
-    record: &mut CacheRecord,
-    mut frame: impl FnMut(&Camera, u32, Option<&mut Film>) -> Result<FrameReport>,
-) -> Result<Vec<Snapshot>> {
-    let cam = scene.camera;
-    let (frames, degrees) = warmup;
-    let start = Instant::now();
-    for f in 0..frames {
-        let view = orbit(&cam, centre, degrees, f, frames + 1);
-        let r = frame(&view, f, None)?;
-        record.nonfinite_samples += r.nonfinite_samples;
-        record.level_mse.push(r.loss);
-    }
-    record.warmup_seconds = start.elapsed().as_secs_f64();
-    progressive(budgets, cam.width, cam.height, |k, film| {
-        let start = Instant::now();
-        let r = frame(&cam, frames + k, Some(film))?;
-        let secs = start.elapsed().as_secs_f64();
-        record.nonfinite_samples += r.nonfinite_samples;
-        record.level_mse.push(r.loss);
-        if r.handed_off {
-            record.handed_off += 1;
-        } else {
-            record.frame_seconds.push(r.costs);
-        }
-        Ok(secs)
-    })
-}
-
-/// A new neural cache for `scene` with `seed` (its weights' seed mixed with the run's), and
-/// the seconds it took.
-pub fn new_nrc(config: NrcConfig, seed: u64) -> Result<(NeuralCache, f64)> {
-    let start = Instant::now();
-    let config = NrcConfig {
-        seed: config.seed ^ pass_seed(seed, u64::MAX),
-        ..config
-    };
-    let cache = NeuralCache::new(config)?;
-    Ok((cache, start.elapsed().as_secs_f64()))
-}
-
-/// A neural cache frame's training loss, where the record keeps a level's MSE (none when the
-/// frame took no step).
-pub fn nrc_loss(s: &cached_pt::nrc::NrcFrameStats) -> Option<f64> {
-    (s.train.steps > 0).then_some(s.train.mean_loss)
-}
-
-/// The neural cache's run, as the Gaussian cache's: its per-frame costs are (trace, inference
-/// and composition, training), its loss the training steps' relative L2.
-fn run_nrc(
-    scene: &Scene,
-    desc: &NrcDesc,
-    settings: &volume_pt::RenderSettings,
-    budgets: &[Budget],
-    centre: Vec3,
-) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
-    let cancel = AtomicBool::new(false);
-    let (mut cache, init_seconds) = new_nrc(desc.config()?, settings.seed)?;
-    let mut record = CacheRecord {
-        init_seconds,
-        parameter_bytes: cache.parameter_bytes(),
-        ..Default::default()
-    };
-    let snaps = cached_run(
-        scene,
-        (desc.warmup, desc.warmup_orbit_degrees),
-        budgets,
-        centre,
-        &mut record,
-        |view, f, film| {
-            let s = render_nrc_frame(&scene.media, view, settings, f, film, &mut cache, &cancel);
-            Ok(FrameReport {
-                costs: [s.trace_seconds, s.inference_seconds, s.train_seconds],
-                loss: vec![nrc_loss(&s)],
-                handed_off: false,
-                nonfinite_samples: s.nonfinite_samples,
-            })
-        },
-    )?;
-    Ok((snaps, Some(record)))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -300,7 +189,7 @@ mod tests {
     #[test]
     fn progressive_snapshots_every_budget_once_in_order_reached() {
         let budgets = [Budget::Spp(3), Budget::Seconds(0.25), Budget::Spp(1)];
-        let snaps = progressive(&budgets, 1, 1, |_, _| Ok(0.1)).unwrap();
+        let snaps = progressive_with(&budgets, &mut (), |_| Ok(0.1), |_| vec![]).unwrap();
         let got: Vec<(Budget, u32)> = snaps.iter().map(|s| (s.budget, s.spp)).collect();
         // 0.25 s is first reached by the third pass (0.3 s).
         assert_eq!(
@@ -312,13 +201,5 @@ mod tests {
             ]
         );
         assert!((snaps[2].seconds - 0.3).abs() < 1e-12);
-    }
-
-    #[test]
-    fn pass_seeds_differ() {
-        let a: std::collections::HashSet<u64> = (0..1000)
-            .flat_map(|p| [pass_seed(1, p), pass_seed(2, p)])
-            .collect();
-        assert_eq!(a.len(), 2000);
     }
 }

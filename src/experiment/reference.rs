@@ -9,9 +9,8 @@ use glam::Vec3;
 use hdr_image::RgbImage;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 use std::time::Instant;
-use volume_pt::{Film, IntegratorKind, Scene, render};
+use volume_pt::{Control, Film, IntegratorKind, Scene, render};
 
 /// FNV-1a, 64 bits.
 pub fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
@@ -87,14 +86,7 @@ pub fn reference(
     settings.path.integrator = IntegratorKind::Nee;
     let mut film = Film::new(camera.width, camera.height);
     let start = Instant::now();
-    render(
-        &scene.media,
-        camera,
-        &settings,
-        &mut film,
-        &AtomicBool::new(false),
-        &|_| {},
-    );
+    render(&scene.media, camera, &settings, &mut film, &Control::none());
     let seconds = start.elapsed().as_secs_f64();
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     // Written atomically, so an interrupted run leaves no half file that a later run would take

@@ -506,8 +506,7 @@ fn assemble(
     compare_with(&mut results.summary, &base_rows);
     for fl in &exp.flythroughs {
         for e in &fl.events {
-            let mut probe = scene.clone();
-            let what = super::flythrough::apply_event(&mut probe, e)?;
+            let (_, what) = super::flythrough::event_edit(scene, e)?;
             results
                 .flythrough_events
                 .push((fl.name.clone(), e.frame, what));

@@ -85,15 +85,13 @@ pub fn measure_unit(
     spec: UnitSpec<'_>,
     progress: &dyn Fn(&str),
 ) -> Result<UnitResult> {
-    let (lo, hi) = scene.media.medium.bounds();
-    let centre = 0.5 * (lo + hi);
     Ok(match spec {
         UnitSpec::Method {
             method,
             seed,
             budgets,
         } => {
-            let (snapshots, record) = run_method(scene, method, seed, budgets, centre)?;
+            let (snapshots, record) = run_method(scene, method, seed, budgets)?;
             UnitResult::Method { snapshots, record }
         }
         UnitSpec::Fly { index } => {

@@ -15,9 +15,9 @@
 
 use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets, TrainingTargets};
 use splat_raster::Camera;
-use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::{
-    FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect, render_frame_with,
+    Control, FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect,
+    render_frame_with,
 };
 
 pub use volume_pt::sample_cache_points;
@@ -107,7 +107,7 @@ pub fn render_cached_frame(
     frame_index: u32,
     film: Option<&mut volume_pt::Film>,
     cache: &mut GsCache,
-    cancel: &AtomicBool,
+    control: &Control,
 ) -> Result<CachedFrameStats, gs_cache::CacheError> {
     let termination = cache.config().termination();
     let levels = cache.levels().len();
@@ -130,13 +130,13 @@ pub fn render_cached_frame(
         frame_index,
         film,
         &gs_frame,
-        cancel,
+        control,
     );
     let mut targets = TrainingTargets::new(levels, camera.width, camera.height);
     for (_, tile) in &traced.records {
         targets.add_tile(tile);
     }
-    let cancelled = traced.cancelled || cancel.load(Ordering::Relaxed);
+    let cancelled = traced.cancelled || control.cancelled();
     let train_seconds = if cancelled {
         0.0
     } else {

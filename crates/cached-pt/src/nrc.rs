@@ -21,9 +21,8 @@ use gs_cache::termination::continue_probability;
 use nrc_cache::random::mix64;
 use nrc_cache::{NeuralCache, NrcConfig, Query, TrainReport, TrainingRecord};
 use splat_raster::Camera;
-use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::{
-    FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect, Vertex,
+    Control, FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect, Vertex,
     render_frame_with,
 };
 
@@ -288,7 +287,7 @@ pub fn render_nrc_frame(
     frame_index: u32,
     film: Option<&mut volume_pt::Film>,
     cache: &mut NeuralCache,
-    cancel: &AtomicBool,
+    control: &Control,
 ) -> NrcFrameStats {
     let frame = NrcFrame::new(
         cache.config(),
@@ -307,7 +306,7 @@ pub fn render_nrc_frame(
         }
     };
     let nonfinite_before = film.nonfinite_samples;
-    let traced = render_frame_with(scene, camera, settings, frame_index, film, &frame, cancel);
+    let traced = render_frame_with(scene, camera, settings, frame_index, film, &frame, control);
     let mut stats = NrcFrameStats {
         trace_seconds: traced.trace_seconds,
         samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
@@ -340,7 +339,7 @@ pub fn render_nrc_frame(
     // The traced samples and the composed values that were refused.
     stats.nonfinite_samples = film.nonfinite_samples - nonfinite_before;
 
-    stats.cancelled = traced.cancelled || cancel.load(Ordering::Relaxed);
+    stats.cancelled = traced.cancelled || control.cancelled();
     if !stats.cancelled {
         let start = std::time::Instant::now();
         let records: Vec<TrainingRecord> = traced

@@ -215,7 +215,8 @@ impl GsCache {
     }
 
     /// A cache from existing level clouds (loaded from disk, or made elsewhere). The clouds must
-    /// have SH degree 0 colour; `config.levels` is set to their number.
+    /// have SH degree 0 colour; `config.levels` is set to their number, and the settings are
+    /// validated as [`GsCache::new`]'s are.
     pub fn from_levels(clouds: Vec<GaussianCloud<f32>>, mut config: CacheConfig) -> Result<Self> {
         config.levels = clouds.len();
         if clouds.is_empty() || clouds.len() > crate::config::MAX_LEVELS {
@@ -225,6 +226,9 @@ impl GsCache {
                 crate::config::MAX_LEVELS
             )));
         }
+        // A loaded cache (from files, or from C through `gs_cache_load`) is held to the same
+        // settings checks as a new one.
+        config.validate()?;
         let opt = adamw_config(&config);
         let levels = clouds
             .into_iter()

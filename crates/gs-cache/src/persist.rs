@@ -105,4 +105,41 @@ mod tests {
             "{e}"
         );
     }
+
+    /// A loaded cache is held to the settings checks a new one gets (it once skipped them: a
+    /// NaN learning rate, or a last level of fewer than 4 Gaussians, was accepted from a file or
+    /// through the C ABI's `gs_cache_load`).
+    #[test]
+    fn a_loaded_cache_is_validated_like_a_new_one() {
+        let dir = std::env::temp_dir().join(format!("gs-cache-validated-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut cloud = GaussianCloud::<f32>::new(ColorModel::Sh(0));
+        for i in 0..8 {
+            cloud.push(
+                [i as f32, 0.0, 0.0],
+                [-2.0; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                &[0.1; 3],
+                0.0,
+            );
+        }
+        write_ply(&level_path(&dir, 1), &cloud).unwrap();
+        assert!(GsCache::load(&dir, CacheConfig::default()).is_ok());
+        let bad = CacheConfig {
+            lr_color: f32::NAN,
+            ..Default::default()
+        };
+        let Err(e) = GsCache::load(&dir, bad) else {
+            panic!("a NaN rate was accepted");
+        };
+        assert!(e.to_string().contains("lr_color"), "{e}");
+        // Three levels of 8, 8 and 8 Gaussians would need at least 16 in the first.
+        for l in 2..=3 {
+            write_ply(&level_path(&dir, l), &cloud).unwrap();
+        }
+        let e = GsCache::load(&dir, CacheConfig::default())
+            .err()
+            .map(|e| e.to_string());
+        assert!(e.is_some_and(|e| e.contains("too few")));
+    }
 }

@@ -3,38 +3,55 @@
 
 use crate::render::image_array;
 use crate::run::run_polled;
-use crate::volume::{Scene, settings_with};
-use gs_cache::{CacheConfig, GsCache};
+use crate::volume::Scene;
+use gs_cache::CacheConfig;
 use numpy::PyArray3;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use render_session::{CacheChoice, Edit, Session};
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
-use volume_pt::{Film, sample_cache_points};
 
-/// A radiance cache for one scene. Frames keep counting across calls, so no two frames draw
-/// the same random paths.
+/// A radiance cache for one scene: a render session (render-session) holding the scene and the
+/// cache. Frames keep counting across calls (the sampling rule's frame index), so no two frames
+/// draw the same random paths.
 #[pyclass(module = "gscache._gscache")]
 pub struct Cache {
-    cache: GsCache,
-    scene: Py<Scene>,
-    /// The next frame's index.
-    frame: u32,
+    session: Session,
     /// Summed per accumulated frame: path tracing, lookup (splatting), training, in seconds.
     costs: [f64; 3],
     counted: u32,
 }
 
-fn config_from(scene: &Scene, config_json: Option<&str>) -> PyResult<CacheConfig> {
+fn config_from(config_json: Option<&str>) -> PyResult<CacheConfig> {
     let c: CacheConfig = match config_json {
         Some(j) => {
             serde_json::from_str(j).map_err(|e| crate::error(format!("cache config: {e}")))?
         }
         None => CacheConfig::default(),
     };
-    let c = c.for_image(scene.scene.camera.width, scene.scene.camera.height);
     c.validate().map_err(crate::error)?;
     Ok(c)
+}
+
+impl Cache {
+    fn with_choice(py: Python<'_>, scene: &Scene, choice: CacheChoice) -> PyResult<Self> {
+        let scene = scene.scene.clone();
+        let session = py
+            .detach(|| Session::new(scene, choice))
+            .map_err(crate::error)?;
+        Ok(Self {
+            session,
+            costs: [0.0; 3],
+            counted: 0,
+        })
+    }
+
+    fn gaussian(&self) -> &gs_cache::GsCache {
+        self.session
+            .cache()
+            .gaussian()
+            .expect("a Python Cache holds the Gaussian cache")
+    }
 }
 
 #[pymethods]
@@ -44,46 +61,25 @@ impl Cache {
     #[new]
     #[pyo3(signature = (scene, config_json=None))]
     fn new(py: Python<'_>, scene: Py<Scene>, config_json: Option<&str>) -> PyResult<Self> {
-        let s = scene.get();
-        let config = config_from(s, config_json)?;
-        let media = &s.scene.media;
-        let seed = s.scene.settings.seed;
-        let cache = py
-            .detach(|| {
-                let (points, albedo) = sample_cache_points(&media.medium, config.points, seed);
-                if points.len() < config.points {
-                    return Err(format!(
-                        "{}: only {} of {} cache points found: the transfer function leaves the volume almost empty",
-                        s.scene.volume_path.display(),
-                        points.len(),
-                        config.points
-                    ));
-                }
-                GsCache::new(&points, &albedo, config).map_err(|e| e.to_string())
-            })
-            .map_err(crate::error)?;
-        Ok(Self {
-            cache,
-            scene,
-            frame: 0,
-            costs: [0.0; 3],
-            counted: 0,
-        })
+        let config = config_from(config_json)?;
+        Self::with_choice(py, scene.get(), CacheChoice::gaussian(config))
     }
 
     /// A cache saved by `save` (or `gscache render --save-cache`).
     #[staticmethod]
     #[pyo3(signature = (scene, folder, config_json=None))]
-    fn load(scene: Py<Scene>, folder: PathBuf, config_json: Option<&str>) -> PyResult<Self> {
-        let config = config_from(scene.get(), config_json)?;
-        let cache = GsCache::load(&folder, config).map_err(crate::error)?;
-        Ok(Self {
-            cache,
-            scene,
-            frame: 0,
-            costs: [0.0; 3],
-            counted: 0,
-        })
+    fn load(
+        py: Python<'_>,
+        scene: Py<Scene>,
+        folder: PathBuf,
+        config_json: Option<&str>,
+    ) -> PyResult<Self> {
+        let config = config_from(config_json)?;
+        let choice = CacheChoice::Gaussian {
+            config,
+            load: Some(folder),
+        };
+        Self::with_choice(py, scene.get(), choice)
     }
 
     /// Renders `warmup` frames (trained on, not kept), then `frames` frames of `spp` samples
@@ -101,50 +97,42 @@ impl Cache {
         if frames == 0 {
             return Err(crate::error("frames = 0: expected at least 1 frame"));
         }
-        let scene = self.scene.get();
-        let settings = settings_with(scene, Some(spp), None, None, None)?;
-        let s = &scene.scene;
-        let mut film = Film::new(s.camera.width, s.camera.height);
-        let (cache, first) = (&mut self.cache, self.frame);
-        let outcome = run_polled(py, threads, progress.as_ref(), |cancel, done| {
+        let session = &mut self.session;
+        session.edit(Edit::Spp(spp)).map_err(crate::error)?;
+        // Counts from Python are checked before any work: they cannot wrap.
+        session
+            .check_frames(warmup.checked_add(frames).ok_or_else(|| {
+                crate::error(format!(
+                    "warmup = {warmup} and frames = {frames}: together more than 2^32 frames"
+                ))
+            })?)
+            .map_err(crate::error)?;
+        let outcome = run_polled(py, threads, progress.as_ref(), |control| {
             let mut costs = [0.0f64; 3];
             let mut counted = 0;
-            for f in 0..warmup + frames {
-                if cancel.load(Ordering::Relaxed) {
+            session.warm_up(warmup, 0.0, control)?;
+            for _ in 0..frames {
+                if control.cancelled() {
                     break;
                 }
-                let accumulate = f >= warmup;
-                if f == warmup {
-                    cache.start_image();
-                }
-                let r = cached_pt::render_cached_frame(
-                    &s.media,
-                    &s.camera,
-                    &settings,
-                    first + f,
-                    accumulate.then_some(&mut film),
-                    cache,
-                    cancel,
-                )
-                .map_err(|e| e.to_string())?;
-                done.fetch_add(r.samples, Ordering::Relaxed);
-                if accumulate && !r.cancelled {
+                let r = session.next_frame(control)?;
+                if !r.cancelled {
                     costs[0] += r.trace_seconds;
                     costs[1] += r.lookup_seconds;
                     costs[2] += r.train_seconds;
                     counted += 1;
                 }
             }
-            Ok::<_, String>((costs, counted))
+            Ok::<_, render_session::SessionError>((costs, counted))
         })?;
-        self.frame = first + warmup + frames;
         let (costs, counted) = outcome.value.map_err(crate::error)?;
         for (a, b) in self.costs.iter_mut().zip(costs) {
             *a += b;
         }
         self.counted += counted;
+        let cam = *self.session.camera();
         Ok((
-            image_array(py, s.camera.width, s.camera.height, &film.mean())?,
+            image_array(py, cam.width, cam.height, &self.session.mean())?,
             outcome.interrupted,
         ))
     }
@@ -152,28 +140,21 @@ impl Cache {
     /// Each level drawn from the scene's camera: a list of float32 (height, width, 3) arrays,
     /// level 0 first (paths of length 1).
     fn level_images<'py>(&mut self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyArray3<f32>>>> {
-        let cam = self.scene.get().scene.camera;
-        let frame = self.cache.begin_frame(&cam);
-        (0..frame.levels())
-            .map(|l| {
-                let px: Vec<glam::Vec3> = frame
-                    .image(l)
-                    .iter()
-                    .map(|c| glam::Vec3::from_array(*c))
-                    .collect();
-                if px.len() != (cam.width * cam.height) as usize {
-                    return Err(crate::error(
-                        "a level image does not match the camera's size",
-                    ));
-                }
-                image_array(py, cam.width, cam.height, &px)
-            })
+        let cam = *self.session.camera();
+        let levels = self
+            .session
+            .level_images()
+            .expect("a Python Cache holds the Gaussian cache")
+            .map_err(crate::error)?;
+        levels
+            .iter()
+            .map(|img| image_array(py, cam.width, cam.height, img.pixels()))
             .collect()
     }
 
     /// Writes the levels as 3DGS PLY files `length_N.ply` into `folder`.
     fn save(&self, folder: PathBuf) -> PyResult<()> {
-        self.cache.save(&folder).map_err(crate::error)
+        self.session.save_cache(&folder).map_err(crate::error)
     }
 
     /// Mean per accumulated frame so far, in milliseconds: `trace` (path tracing), `lookup`
@@ -190,24 +171,24 @@ impl Cache {
 
     #[getter]
     fn gaussian_count(&self) -> usize {
-        self.cache.gaussian_count()
+        self.gaussian().gaussian_count()
     }
     #[getter]
     fn levels(&self) -> usize {
-        self.cache.levels().len()
+        self.gaussian().levels().len()
     }
     /// Frames rendered so far (warm-up included).
     #[getter]
     fn frames(&self) -> u32 {
-        self.frame
+        self.session.frames_rendered()
     }
 
     fn __repr__(&self) -> String {
         format!(
             "Cache({} Gaussians in {} levels, {} frames)",
-            self.cache.gaussian_count(),
-            self.cache.levels().len(),
-            self.frame
+            self.gaussian().gaussian_count(),
+            self.gaussian().levels().len(),
+            self.session.frames_rendered()
         )
     }
 }

@@ -31,18 +31,8 @@ fn render_range(
 ) -> PyResult<(Film, bool)> {
     let s = &scene.scene;
     let mut film = Film::new(s.camera.width, s.camera.height);
-    let outcome = run_polled(py, threads, progress, |cancel, done| {
-        render_samples(
-            &s.media,
-            &s.camera,
-            settings,
-            samples,
-            &mut film,
-            cancel,
-            &|n| {
-                done.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
-            },
-        )
+    let outcome = run_polled(py, threads, progress, |control| {
+        render_samples(&s.media, &s.camera, settings, samples, &mut film, control)
     })?;
     Ok((film, outcome.interrupted))
 }

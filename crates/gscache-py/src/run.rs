@@ -5,6 +5,7 @@
 
 use pyo3::exceptions::PyKeyboardInterrupt;
 use pyo3::prelude::*;
+use render_session::Control;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;
@@ -30,14 +31,14 @@ pub(crate) fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
     b.build().map_err(crate::error)
 }
 
-/// Runs `work(cancel, done)` on `threads` threads with the GIL released; `work` adds the units
-/// it finishes to `done`, which `progress(done)` receives from the calling thread. An
+/// Runs `work(control)` on `threads` threads with the GIL released; the units `work` reports to
+/// its control reach `progress(done)` on the calling thread, and Ctrl-C cancels it. An
 /// exception from the callback cancels the work and is returned once it has stopped.
 pub(crate) fn run_polled<T: Send>(
     py: Python<'_>,
     threads: Option<usize>,
     progress: Option<&Bound<'_, PyAny>>,
-    work: impl FnOnce(&AtomicBool, &AtomicU64) -> T + Send,
+    work: impl FnOnce(&Control) -> T + Send,
 ) -> PyResult<Outcome<T>> {
     let pool = pool(threads)?;
     let cancel = AtomicBool::new(false);
@@ -49,7 +50,11 @@ pub(crate) fn run_polled<T: Send>(
     let joined = std::thread::scope(|s| {
         let (cancel, done, pool, signal) = (&cancel, &done, &pool, &finished);
         let handle = s.spawn(move || {
-            let v = pool.install(|| work(cancel, done));
+            let report = |n| {
+                done.fetch_add(n, Ordering::Relaxed);
+            };
+            let control = Control::new(cancel, &report);
+            let v = pool.install(|| work(&control));
             *signal.0.lock().unwrap_or_else(|p| p.into_inner()) = true;
             signal.1.notify_all();
             v

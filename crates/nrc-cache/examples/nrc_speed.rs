@@ -38,7 +38,7 @@ fn main() {
         ..Default::default()
     };
     let queries_n = arg("--queries", 57_600);
-    let mut cache = NeuralCache::new(config.clone()).expect("valid config");
+    let mut cache = NeuralCache::new(config).expect("valid config");
     let mut rng = nrc_cache::random::SplitMix::new(3);
     let mut point = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
     let queries: Vec<Query> = (0..queries_n)

@@ -108,7 +108,7 @@ impl NeuralCache {
         let config = NrcConfig {
             training_fraction,
             steps_per_frame,
-            ..self.config.clone()
+            ..self.config
         };
         config.validate()?;
         self.config = config;

@@ -5,97 +5,124 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Everything that defines a neural radiance cache.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// Everything that defines a neural radiance cache: the experiment file's `nrc` keys (serde)
+/// and, with the `clap` feature, `gscache render`'s `--nrc-KEY VALUE` flags, as the Gaussian
+/// cache's `CacheConfig` has `--cache-KEY` (a test holds the lists equal).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 #[serde(deny_unknown_fields, default)]
 pub struct NrcConfig {
     /// Levels of the multiresolution hash grid (Müller et al., 2022: 16; 8 here: as good on
     /// the bundled volumes, whose radiance is smooth, and half the gathers).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-grid-levels", long = "nrc-grid-levels", default_value_t = DEFAULT.grid_levels))]
     pub grid_levels: u32,
     /// Features per level (2, as in the hash-grid paper).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-grid-features", long = "nrc-grid-features", default_value_t = DEFAULT.grid_features))]
     pub grid_features: u32,
     /// log2 of the entries per level's table. 2^14 (not the GPU's 2^19): on a CPU the lookup's
     /// cache misses grow with the table (a 2^16 table made the encoding 3x slower), and a
     /// volume's scattered radiance has far less detail than a scene's appearance.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-grid-log2-table", long = "nrc-grid-log2-table", default_value_t = DEFAULT.grid_log2_table))]
     pub grid_log2_table: u32,
     /// Cells along each axis of the coarsest level.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-grid-base-resolution", long = "nrc-grid-base-resolution", default_value_t = DEFAULT.grid_base_resolution))]
     pub grid_base_resolution: u32,
     /// Cells along each axis of the finest level; the levels are spaced geometrically between.
     /// 64: finer grids (256, 512) measured no better and trained slower on the bundled
     /// volumes, whose multiply-scattered radiance varies over several voxels.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-grid-finest-resolution", long = "nrc-grid-finest-resolution", default_value_t = DEFAULT.grid_finest_resolution))]
     pub grid_finest_resolution: u32,
     /// Neurons per hidden layer (64, as in the NRC paper).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-hidden-width", long = "nrc-hidden-width", default_value_t = DEFAULT.hidden_width))]
     pub hidden_width: u32,
     /// Hidden layers. The NRC paper uses 5; 2 here: 5 measured no lower error on the bundled
     /// volumes at 320x180 and cost 1.5-2x the inference and training time.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-hidden-layers", long = "nrc-hidden-layers", default_value_t = DEFAULT.hidden_layers))]
     pub hidden_layers: u32,
     /// The albedo at the vertex as an input (the NRC paper feeds the material's albedo). Off by
     /// default: the cached quantity is per unit of throughput, the albedo already divided out,
     /// and with it as an input the error at equal time was 1.3x higher on neghip (the GSCache
     /// paper also found positions alone best).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-input-albedo", long = "nrc-input-albedo", action = clap::ArgAction::Set, default_value_t = DEFAULT.input_albedo))]
     pub input_albedo: bool,
     /// The data value at the vertex (the transfer function's argument) as an input (off by
     /// default, as the albedo).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-input-value", long = "nrc-input-value", action = clap::ArgAction::Set, default_value_t = DEFAULT.input_value))]
     pub input_value: bool,
     /// The direction the path arrived from as an input (second-order spherical harmonics).
     /// Off by default: the GSCache paper found positions alone better for volumes, whose
     /// radiance past the first bounce is nearly isotropic (exact for an isotropic phase).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-input-direction", long = "nrc-input-direction", action = clap::ArgAction::Set, default_value_t = DEFAULT.input_direction))]
     pub input_direction: bool,
     /// Adam's learning rate (the NRC paper: 1e-2 for the grid and the network alike).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-learning-rate", long = "nrc-learning-rate", default_value_t = DEFAULT.learning_rate))]
     pub learning_rate: f64,
     /// Adam's first-moment decay.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-beta1", long = "nrc-beta1", default_value_t = DEFAULT.beta1))]
     pub beta1: f64,
     /// Adam's second-moment decay (0.99, the hash-grid paper's choice for sparse updates).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-beta2", long = "nrc-beta2", default_value_t = DEFAULT.beta2))]
     pub beta2: f64,
     /// Adam's epsilon.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-epsilon", long = "nrc-epsilon", default_value_t = DEFAULT.epsilon))]
     pub epsilon: f64,
     /// The relative L2 loss's `eps` in `(prediction - target)^2 / (prediction^2 + eps)`
     /// (prediction held constant in the denominator).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-loss-epsilon", long = "nrc-loss-epsilon", default_value_t = DEFAULT.loss_epsilon))]
     pub loss_epsilon: f32,
     /// Training records per optimiser step.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-batch-size", long = "nrc-batch-size", default_value_t = DEFAULT.batch_size))]
     pub batch_size: u32,
     /// Largest number of optimiser steps per frame (the NRC paper: 4); fewer when the frame
     /// produced fewer than `steps_per_frame * batch_size` records.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-steps-per-frame", long = "nrc-steps-per-frame", default_value_t = DEFAULT.steps_per_frame))]
     pub steps_per_frame: u32,
     /// Fraction of each frame's paths traced to their end as training paths (the NRC paper:
     /// about 3% of 1920x1080; more here because CPU frames are small).
+    #[cfg_attr(feature = "clap", arg(id = "nrc-training-fraction", long = "nrc-training-fraction", default_value_t = DEFAULT.training_fraction))]
     pub training_fraction: f32,
     /// The GSCache paper's Algorithm 1 coefficient C, shared with the Gaussian cache: the
     /// GSCache paper compares NRC with the same termination heuristic.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-c", long = "nrc-c", default_value_t = DEFAULT.c))]
     pub c: f32,
     /// Algorithm 1's threshold.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-threshold", long = "nrc-threshold", default_value_t = DEFAULT.threshold))]
     pub threshold: f32,
     /// Seed of the weights' initialisation.
+    #[cfg_attr(feature = "clap", arg(id = "nrc-seed", long = "nrc-seed", default_value_t = DEFAULT.seed))]
     pub seed: u64,
 }
 
 impl Default for NrcConfig {
     fn default() -> Self {
-        Self {
-            grid_levels: 8,
-            grid_features: 2,
-            grid_log2_table: 14,
-            grid_base_resolution: 16,
-            grid_finest_resolution: 64,
-            hidden_width: 64,
-            hidden_layers: 2,
-            input_albedo: false,
-            input_value: false,
-            input_direction: false,
-            learning_rate: 1e-2,
-            beta1: 0.9,
-            beta2: 0.99,
-            epsilon: 1e-15,
-            loss_epsilon: 1e-2,
-            batch_size: 4096,
-            steps_per_frame: 4,
-            training_fraction: 0.06,
-            c: 0.5,
-            threshold: 0.9,
-            seed: 0,
-        }
+        DEFAULT
     }
 }
+
+/// The defaults, as a constant: the command line's flags show them.
+pub const DEFAULT: NrcConfig = NrcConfig {
+    grid_levels: 8,
+    grid_features: 2,
+    grid_log2_table: 14,
+    grid_base_resolution: 16,
+    grid_finest_resolution: 64,
+    hidden_width: 64,
+    hidden_layers: 2,
+    input_albedo: false,
+    input_value: false,
+    input_direction: false,
+    learning_rate: 1e-2,
+    beta1: 0.9,
+    beta2: 0.99,
+    epsilon: 1e-15,
+    loss_epsilon: 1e-2,
+    batch_size: 4096,
+    steps_per_frame: 4,
+    training_fraction: 0.06,
+    c: 0.5,
+    threshold: 0.9,
+    seed: 0,
+};
 
 /// A setting outside what the cache can work with.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -97,10 +97,13 @@ impl Voxels {
 }
 
 /// A dense scalar grid, x fastest: voxel `(x, y, z)` is element `x + X * (y + Y * z)`.
+///
+/// Cloning shares the voxels (they are never changed after construction): a render session, a
+/// Python scene and an experiment's per-method copies of a gigavoxel volume hold one copy.
 #[derive(Debug, Clone)]
 pub struct ScalarGrid {
     dims: UVec3,
-    voxels: Voxels,
+    voxels: std::sync::Arc<Voxels>,
     /// value = scale * stored + offset.
     scale: f32,
     offset: f32,
@@ -152,7 +155,7 @@ impl ScalarGrid {
         }
         Ok(Self {
             dims,
-            voxels,
+            voxels: std::sync::Arc::new(voxels),
             scale,
             offset,
             range: (a.min(b), a.max(b)),
@@ -202,7 +205,7 @@ impl ScalarGrid {
             for y in lo.y..=hi.y {
                 let start = lo.x as usize + sy * y as usize + sz * z as usize;
                 let rows = start..start + (hi.x - lo.x) as usize + 1;
-                r = match &self.voxels {
+                r = match &*self.voxels {
                     Voxels::U8(v) => fold(&v[rows], r),
                     Voxels::I8(v) => fold(&v[rows], r),
                     Voxels::U16(v) => fold(&v[rows], r),
@@ -264,7 +267,7 @@ impl ScalarGrid {
             dz: (i1.z - i0.z) as usize * sz,
         };
         // One branch on the stored type per lookup; the eight loads are monomorphic.
-        let stored = match &self.voxels {
+        let stored = match &*self.voxels {
             Voxels::U8(v) => trilinear(v, corner, f),
             Voxels::I8(v) => trilinear(v, corner, f),
             Voxels::U16(v) => trilinear(v, corner, f),

@@ -42,6 +42,8 @@ pub use phase::Phase;
 pub use render::{
     CachedFrame, RenderSettings, RenderStats, render, render_frame_with, render_samples,
 };
+/// Cancellation and progress of long work (from render-base, re-exported for callers).
+pub use render_base::Control;
 pub use scene::{Scene, load_scene};
 pub use shard::{PartialRender, RenderKey, Shard};
 pub use transfer::TransferFunction;

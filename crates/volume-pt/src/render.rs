@@ -7,8 +7,9 @@ use crate::film::{ExactRgb, Film, Tile};
 use crate::integrator::{PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
 use rayon::prelude::*;
+use render_base::Control;
 use splat_raster::Camera;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Everything a render needs besides the scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,8 +43,8 @@ fn pass_size(spp: u32, pixels: u64) -> u32 {
 
 /// Renders samples `samples` of every pixel of `tile` into it, reading `cache` and filing each
 /// path's record in `record`. Returns the number of samples that came out NaN or infinite.
-/// `cancel` is read before every sample, so a tile of very long paths (a dense medium, a huge
-/// image) still stops promptly; each pixel keeps the samples it finished.
+/// Cancellation is read before every sample, so a tile of very long paths (a dense medium, a
+/// huge image) still stops promptly; each pixel keeps the samples it finished.
 #[allow(clippy::too_many_arguments)] // one tile's job: plain references, no per-call struct
 fn render_tile<C: FrameCache>(
     tile: &mut Tile,
@@ -53,7 +54,7 @@ fn render_tile<C: FrameCache>(
     samples: std::ops::Range<u32>,
     cache: &C,
     record: &mut C::TileRecord,
-    cancel: &AtomicBool,
+    control: &Control,
 ) -> u64 {
     let mut nonfinite = 0;
     for j in 0..tile.height {
@@ -66,7 +67,7 @@ fn render_tile<C: FrameCache>(
             let mut sum = ExactRgb::ZERO;
             let mut taken = 0u32;
             for s in samples.clone() {
-                if cancel.load(Ordering::Relaxed) {
+                if control.cancelled() {
                     break;
                 }
                 taken += 1;
@@ -111,8 +112,8 @@ pub struct CachedFrame<R> {
 /// Frame `frame_index` of a sequence read through `cache`: `settings.spp` paths per pixel,
 /// accumulated into `film`. Frame `f` draws sample indices `f * spp .. (f + 1) * spp`, so
 /// successive frames have independent noise (a cache must never be trained twice on the same
-/// random paths) and a film accumulated over frames is a progressive render. Setting `cancel`
-/// stops it before the next sample.
+/// random paths) and a film accumulated over frames is a progressive render. Cancelling
+/// `control` stops it before the next sample; each tile reports its samples to it.
 pub fn render_frame_with<C: FrameCache>(
     scene: &SceneMedia,
     camera: &Camera,
@@ -120,7 +121,7 @@ pub fn render_frame_with<C: FrameCache>(
     frame_index: u32,
     film: &mut Film,
     cache: &C,
-    cancel: &AtomicBool,
+    control: &Control,
 ) -> CachedFrame<C::TileRecord> {
     let first_sample = frame_index.saturating_mul(settings.spp);
     let start = std::time::Instant::now();
@@ -129,7 +130,7 @@ pub fn render_frame_with<C: FrameCache>(
         .tiles
         .par_iter_mut()
         .filter_map(|tile| {
-            if cancel.load(Ordering::Relaxed) {
+            if control.cancelled() {
                 return None;
             }
             let mut record = cache.tile_record(tile.rect());
@@ -141,9 +142,10 @@ pub fn render_frame_with<C: FrameCache>(
                 first_sample..first_sample + settings.spp,
                 cache,
                 &mut record,
-                cancel,
+                control,
             );
             nonfinite.fetch_add(bad, Ordering::Relaxed);
+            control.progress((tile.width * tile.height * settings.spp) as u64);
             Some((tile.rect(), record))
         })
         .collect();
@@ -153,29 +155,20 @@ pub fn render_frame_with<C: FrameCache>(
         records,
         trace_seconds: start.elapsed().as_secs_f64(),
         nonfinite_samples: nonfinite,
-        cancelled: cancel.load(Ordering::Relaxed),
+        cancelled: control.cancelled(),
     }
 }
 
-/// Renders `settings.spp` samples per pixel into `film`, calling `progress(samples_done)` after
-/// each tile. Setting `cancel` stops the render before the next sample; the film keeps what it has.
+/// Renders `settings.spp` samples per pixel into `film`, reporting each tile's samples to
+/// `control`. Cancelling it stops the render before the next sample; the film keeps what it has.
 pub fn render(
     scene: &SceneMedia,
     camera: &Camera,
     settings: &RenderSettings,
     film: &mut Film,
-    cancel: &AtomicBool,
-    progress: &(dyn Fn(u64) + Sync),
+    control: &Control,
 ) -> RenderStats {
-    render_samples(
-        scene,
-        camera,
-        settings,
-        0..settings.spp,
-        film,
-        cancel,
-        progress,
-    )
+    render_samples(scene, camera, settings, 0..settings.spp, film, control)
 }
 
 /// Renders sample indices `samples` of every pixel into `film` (a shard of a render: see
@@ -187,8 +180,7 @@ pub fn render_samples(
     settings: &RenderSettings,
     samples: std::ops::Range<u32>,
     film: &mut Film,
-    cancel: &AtomicBool,
-    progress: &(dyn Fn(u64) + Sync),
+    control: &Control,
 ) -> RenderStats {
     let start = std::time::Instant::now();
     let before = film.total_samples();
@@ -196,10 +188,10 @@ pub fn render_samples(
     let step = pass_size(samples.len() as u32, pixels);
     let nonfinite = AtomicU64::new(0);
     let mut s0 = samples.start;
-    while s0 < samples.end && !cancel.load(Ordering::Relaxed) {
+    while s0 < samples.end && !control.cancelled() {
         let s1 = s0.saturating_add(step).min(samples.end);
         film.tiles.par_iter_mut().for_each(|tile| {
-            if cancel.load(Ordering::Relaxed) {
+            if control.cancelled() {
                 return;
             }
             let bad = render_tile(
@@ -210,10 +202,10 @@ pub fn render_samples(
                 s0..s1,
                 &NoCache,
                 &mut (),
-                cancel,
+                control,
             );
             nonfinite.fetch_add(bad, Ordering::Relaxed);
-            progress((tile.width * tile.height * (s1 - s0)) as u64);
+            control.progress((tile.width * tile.height * (s1 - s0)) as u64);
         });
         s0 = s1;
     }
@@ -222,7 +214,7 @@ pub fn render_samples(
     RenderStats {
         samples: film.total_samples() - before,
         seconds: start.elapsed().as_secs_f64(),
-        cancelled: cancel.load(Ordering::Relaxed),
+        cancelled: control.cancelled(),
         nonfinite_samples: nonfinite,
     }
 }

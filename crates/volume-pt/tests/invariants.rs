@@ -6,6 +6,7 @@ mod common;
 use common::*;
 use glam::{UVec3, Vec3};
 use std::sync::atomic::AtomicBool;
+use volume_pt::Control;
 use volume_pt::integrator::IntegratorKind;
 use volume_pt::{Film, Filter, Medium, ScalarGrid, TransferFunction, load_scene, render};
 
@@ -21,8 +22,7 @@ fn render_with_threads(scene: &volume_pt::Scene, threads: usize) -> Vec<Vec3> {
             &scene.camera,
             &scene.settings,
             &mut film,
-            &AtomicBool::new(false),
-            &|_| {},
+            &Control::none(),
         );
         film.mean()
     })
@@ -111,12 +111,11 @@ fn a_cancelled_render_keeps_the_mean_of_what_it_took() {
         &scene.camera,
         &scene.settings,
         &mut film,
-        &cancel,
-        &|_| {
+        &Control::new(&cancel, &|_| {
             if calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst) == 2 {
                 cancel.store(true, std::sync::atomic::Ordering::SeqCst);
             }
-        },
+        }),
     );
     assert!(stats.cancelled);
     let counts = film.counts();

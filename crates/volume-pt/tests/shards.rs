@@ -5,7 +5,7 @@ mod common;
 
 use common::data_dir;
 use glam::Vec3;
-use std::sync::atomic::AtomicBool;
+use volume_pt::Control;
 use volume_pt::{ExactRgb, Film, PartialRender, Scene, Shard, load_scene, render_samples};
 
 fn small_scene() -> Scene {
@@ -28,8 +28,7 @@ fn film_of(scene: &Scene, samples: std::ops::Range<u32>, threads: usize) -> Film
             &scene.settings,
             samples,
             &mut film,
-            &AtomicBool::new(false),
-            &|_| {},
+            &Control::none(),
         )
     });
     film

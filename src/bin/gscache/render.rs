@@ -5,22 +5,15 @@ use crate::common::{
     Global, INTERRUPTED, cancellation, finite_f32, prepare_folder, prepare_output,
 };
 use anyhow::{Context, Result, bail};
-use cached_pt::nrc::render_nrc_frame;
-use cached_pt::render_cached_frame;
-use gs_cache::{CacheConfig, GsCache};
-use gscache_cli::camera_path::orbit;
-use gscache_cli::experiment::measure::new_nrc;
-use hdr_image::{RgbImage, ToneMap};
-use indicatif::ProgressBar;
+use gs_cache::CacheConfig;
+use hdr_image::ToneMap;
 use nrc_cache::NrcConfig;
-use serde::Deserialize;
+use render_session::{Cache, CacheChoice, Control, FrameReport, Session};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use volume_pt::scene::max_depth_from;
 use volume_pt::scene::scene_render_key;
 use volume_pt::{
-    Film, IntegratorKind, PartialRender, RenderStats, Scene, Shard, load_scene, render,
-    render_samples, sample_cache_points,
+    Film, IntegratorKind, PartialRender, RenderStats, Scene, Shard, load_scene, render_samples,
 };
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
@@ -89,12 +82,14 @@ pub struct CacheRun {
     /// on burn) instead: the baseline the GSCache paper compares with.
     #[arg(long)]
     nrc: bool,
-    /// A neural cache setting, `KEY=VALUE` with the keys of an experiment file's `nrc` table
-    /// (for example `hidden_layers=5`); repeat for several.
-    #[arg(long = "nrc-set", value_name = "KEY=VALUE", requires = "nrc")]
-    nrc_set: Vec<String>,
+    /// The Gaussian cache's settings: `--cache-KEY VALUE`, the keys of an experiment file's
+    /// `cache` table.
     #[command(flatten)]
     settings: CacheConfig,
+    /// The neural cache's settings: `--nrc-KEY VALUE`, the keys of an experiment file's `nrc`
+    /// table.
+    #[command(flatten)]
+    nrc_settings: NrcConfig,
     /// Frames of `--spp` samples each, trained between them; the image is their mean.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     frames: u32,
@@ -224,31 +219,100 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         load_start.elapsed().as_secs_f64()
     );
 
-    let cancel = cancellation()?;
-    let total = scene.settings.spp as u64 * cam.width as u64 * cam.height as u64;
-    let bar = global.progress(total, "samples");
-    let mut film = Film::new(cam.width, cam.height);
-    let stats = if args.cache.nrc {
-        bar.set_length(total * args.cache.frames as u64);
-        render_with_nrc(&scene, &args.cache, &mut film, &cancel, &bar)?
-    } else if !args.cache.cache {
-        render(
-            &scene.media,
-            &cam,
-            &scene.settings,
-            &mut film,
-            &cancel,
-            &|n| bar.inc(n),
-        )
+    let frames = if args.cache.cache || args.cache.nrc {
+        args.cache.frames
     } else {
-        bar.set_length(total * args.cache.frames as u64);
-        render_with_cache(&scene, &args.cache, &mut film, &cancel, &bar)?
+        1
     };
-    bar.finish_and_clear();
+    let choice = args.cache.choice(&scene)?;
+    let spp = scene.settings.spp;
+    let mut session = Session::new(scene, choice)?;
+    describe_cache(&session, args.cache.load_cache.is_some());
+    // Frame counts from the user are checked before any work: they cannot wrap.
+    let all_frames = args.cache.warmup.checked_add(frames).with_context(|| {
+        format!(
+            "--warmup {} and --frames {frames}: more than 2^32 frames in all",
+            args.cache.warmup
+        )
+    })?;
+    session.check_frames(all_frames)?;
 
-    let image = film.image();
+    let cancel = cancellation()?;
+    let total = spp as u64 * cam.width as u64 * cam.height as u64 * frames as u64;
+    let bar = global.progress(total, "samples");
+    let report_progress = |n| bar.inc(n);
+    let control = Control::new(&cancel, &report_progress);
+    let start = std::time::Instant::now();
+    let warm = session.warm_up(
+        args.cache.warmup,
+        args.cache.warmup_orbit,
+        &control.silent(),
+    )?;
+    let mut accumulated = Vec::with_capacity(frames as usize);
+    for _ in 0..frames {
+        if control.cancelled() {
+            break;
+        }
+        accumulated.push(session.next_frame(&control)?);
+    }
+    bar.finish_and_clear();
+    let stats = RenderStats {
+        samples: session.film().total_samples(),
+        seconds: start.elapsed().as_secs_f64(),
+        cancelled: control.cancelled(),
+        nonfinite_samples: warm
+            .iter()
+            .chain(&accumulated)
+            .map(|r| r.nonfinite_samples)
+            .sum(),
+    };
+    print_frame_costs(&session, &accumulated);
+    let dropped: u64 = warm
+        .iter()
+        .chain(&accumulated)
+        .map(|r| r.dropped_training_samples)
+        .sum();
+    if dropped > 0 {
+        eprintln!(
+            "warning: the cache refused {dropped} training samples that were negative or not finite"
+        );
+    }
+    if session.film().total_samples() == 0 {
+        // Interrupted before the first frame reached the image (during the warm-up, say): an
+        // empty film would be a black image written over whatever the output held.
+        eprintln!(
+            "interrupted before any frame reached the image: nothing written ({} left as it was)",
+            exr_path.display()
+        );
+        return Ok(INTERRUPTED);
+    }
+    // The image first: it is what the user waited for, and a cache that cannot be saved (a
+    // full disk) must not cost it.
+    let image = session.image();
     image.write_exr(&exr_path)?;
     image.write_png(&png_path, exposure, tonemap)?;
+    if let Some(dir) = &args.cache.cache_images
+        && let Some(levels) = session.level_images()
+    {
+        for (level, img) in levels?.iter().enumerate() {
+            let stem = dir.join(format!("length_{}", level + 1));
+            img.write_exr(&stem.with_extension("exr"))?;
+            img.write_png(&stem.with_extension("png"), 0.0, ToneMap::Aces)?;
+        }
+        eprintln!("cache: wrote the level images to {}", dir.display());
+    }
+    if let Some(dir) = &args.cache.save_cache {
+        session.save_cache(dir)?;
+        if let Some(c) = session.cache().gaussian() {
+            eprintln!(
+                "cache: wrote {} levels to {}",
+                c.levels().len(),
+                dir.display()
+            );
+        }
+    }
+    let scene = session.scene();
+    let film = session.film();
     let depth = match scene.settings.path.max_depth {
         Some(d) => format!("max path length {d} scattering vertices"),
         None => "unlimited path length".into(),
@@ -318,8 +382,7 @@ fn render_shard(
         &scene.settings,
         samples.clone(),
         &mut film,
-        &cancel,
-        &|n| bar.inc(n),
+        &Control::new(&cancel, &|n| bar.inc(n)),
     );
     bar.finish_and_clear();
     if stats.cancelled {
@@ -361,232 +424,63 @@ fn check_image_memory(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
-/// Initialises (or loads) the cache, renders the warm-up and the accumulated frames, prints
-/// the per-frame costs, and saves the cache when asked.
-/// The neural cache's settings from `--nrc-set KEY=VALUE` arguments, read as the keys of an
-/// experiment file's `nrc` table (so unknown keys and bad values get the same messages).
-fn nrc_config(sets: &[String]) -> Result<NrcConfig> {
-    let mut table = toml::Table::new();
-    for s in sets {
-        let Some((key, value)) = s.split_once('=') else {
-            bail!("--nrc-set {s}: expected KEY=VALUE (for example hidden_layers=5)");
-        };
-        let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
-            .ok()
-            .and_then(|mut t| t.remove("v"))
-            .with_context(|| {
-                format!("--nrc-set {s}: `{value}` is not a number, true/false or a quoted string")
-            })?;
-        table.insert(key.trim().to_string(), value);
-    }
-    let config = NrcConfig::deserialize(toml::Value::Table(table))
-        .map_err(|e| anyhow::anyhow!("--nrc-set: {e}"))?;
-    config.validate()?;
-    Ok(config)
-}
-
-/// `--nrc`: warm-up frames (along the orbit) and then `--frames` frames with the neural cache.
-fn render_with_nrc(
-    scene: &Scene,
-    a: &CacheRun,
-    film: &mut Film,
-    cancel: &AtomicBool,
-    bar: &ProgressBar,
-) -> Result<RenderStats> {
-    // The experiment runner's construction, so its "one frame of it" commands reproduce it.
-    let (mut cache, _) = new_nrc(nrc_config(&a.nrc_set)?, scene.settings.seed)?;
-    eprintln!(
-        "neural cache: {} levels of 2^{} entries, {} hidden layers of {} ({:.1} MB of parameters and optimiser state)",
-        cache.config().grid_levels,
-        cache.config().grid_log2_table,
-        cache.config().hidden_layers,
-        cache.config().hidden_width,
-        cache.parameter_bytes() as f64 / 1e6
-    );
-    cached_frames(
-        scene,
-        a,
-        film,
-        cancel,
-        bar,
-        "inference and composition",
-        |camera, f, film| {
-            let s = render_nrc_frame(
-                &scene.media,
-                camera,
-                &scene.settings,
-                f,
-                film,
-                &mut cache,
-                cancel,
-            );
-            Ok(FrameCosts {
-                samples: s.samples,
-                seconds: [s.trace_seconds, s.inference_seconds, s.train_seconds],
-                nonfinite_samples: s.nonfinite_samples,
-            })
-        },
-    )
-}
-
-/// One cached frame's figures, for [`cached_frames`].
-struct FrameCosts {
-    samples: u64,
-    /// Path tracing, reading the cache, training.
-    seconds: [f64; 3],
-    nonfinite_samples: u64,
-}
-
-/// The frames of a cached render, for either cache: `--warmup` frames along the warm-up orbit
-/// (none in the image), then `--frames` frames at the scene camera accumulated into `film`;
-/// prints the mean per-frame costs, `read` naming the cache's read. `frame(camera, index,
-/// film)` renders and trains one frame.
-fn cached_frames(
-    scene: &Scene,
-    a: &CacheRun,
-    film: &mut Film,
-    cancel: &AtomicBool,
-    bar: &ProgressBar,
-    read: &str,
-    mut frame: impl FnMut(&splat_raster::Camera, u32, Option<&mut Film>) -> Result<FrameCosts>,
-) -> Result<RenderStats> {
-    let start = std::time::Instant::now();
-    let (mut sums, mut samples, mut nonfinite) = ([0.0f64; 3], 0u64, 0u64);
-    let mut counted = 0u32;
-    let (lo, hi) = scene.media.medium.bounds();
-    let centre = 0.5 * (lo + hi);
-    for f in 0..a.warmup + a.frames {
-        if cancel.load(Ordering::Relaxed) {
-            break;
-        }
-        let accumulate = f >= a.warmup;
-        let camera = if accumulate || a.warmup_orbit == 0.0 {
-            scene.camera
+impl CacheRun {
+    /// The cache these flags ask for.
+    fn choice(&self, scene: &Scene) -> Result<CacheChoice> {
+        let _ = scene;
+        Ok(if self.nrc {
+            self.nrc_settings.validate()?;
+            CacheChoice::Neural(self.nrc_settings)
+        } else if self.cache {
+            CacheChoice::Gaussian {
+                config: self.settings,
+                load: self.load_cache.clone(),
+            }
         } else {
-            orbit(&scene.camera, centre, a.warmup_orbit, f, a.warmup + 1)
-        };
-        let s = frame(&camera, f, accumulate.then_some(&mut *film))?;
-        nonfinite += s.nonfinite_samples;
-        if accumulate {
-            bar.inc(s.samples);
-            samples += s.samples;
-            for (sum, x) in sums.iter_mut().zip(s.seconds) {
-                *sum += x;
-            }
-            counted += 1;
-        }
+            CacheChoice::None
+        })
     }
-    if counted > 0 {
-        let n = counted as f64 * 1e-3;
-        eprintln!(
-            "per frame: path tracing {:.1} ms, {read} {:.1} ms, training {:.1} ms",
-            sums[0] / n,
-            sums[1] / n,
-            sums[2] / n
-        );
-    }
-    Ok(RenderStats {
-        samples,
-        seconds: start.elapsed().as_secs_f64(),
-        cancelled: cancel.load(Ordering::Relaxed),
-        nonfinite_samples: nonfinite,
-    })
 }
 
-fn render_with_cache(
-    scene: &Scene,
-    a: &CacheRun,
-    film: &mut Film,
-    cancel: &AtomicBool,
-    bar: &ProgressBar,
-) -> Result<RenderStats> {
-    let config = a
-        .settings
-        .for_image(scene.camera.width, scene.camera.height);
-    config.validate()?;
-    let t0 = std::time::Instant::now();
-    let mut cache = match &a.load_cache {
-        Some(dir) => GsCache::load(dir, config)?,
-        None => {
-            let (points, albedo) =
-                sample_cache_points(&scene.media.medium, config.points, scene.settings.seed);
-            if points.len() < config.points {
-                bail!(
-                    "{}: only {} of {} cache points found: the transfer function leaves the volume almost empty",
-                    scene.volume_path.display(),
-                    points.len(),
-                    config.points
-                );
-            }
-            GsCache::new(&points, &albedo, config)?
-        }
+/// Prints what the session's cache is and what it took to build.
+fn describe_cache(session: &Session, loaded: bool) {
+    let ms = session.cache_seconds() * 1e3;
+    match session.cache() {
+        Cache::None => {}
+        Cache::Gaussian(c) => eprintln!(
+            "cache: {} Gaussians in {} levels ({:.1} MB of parameters), {} in {ms:.0} ms",
+            c.gaussian_count(),
+            c.levels().len(),
+            c.parameter_bytes() as f64 / 1e6,
+            if loaded { "loaded" } else { "initialised" },
+        ),
+        Cache::Neural(c) => eprintln!(
+            "neural cache: {} levels of 2^{} entries, {} hidden layers of {} ({:.1} MB of parameters and optimiser state)",
+            c.config().grid_levels,
+            c.config().grid_log2_table,
+            c.config().hidden_layers,
+            c.config().hidden_width,
+            c.parameter_bytes() as f64 / 1e6
+        ),
+    }
+}
+
+/// Prints a cached render's mean per-frame costs over the frames in the image.
+fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
+    let read = match session.cache() {
+        Cache::None => return,
+        Cache::Gaussian(_) => "cache lookup",
+        Cache::Neural(_) => "inference and composition",
     };
+    if frames.is_empty() {
+        return;
+    }
+    let n = frames.len() as f64 * 1e-3;
+    let sum = |f: fn(&FrameReport) -> f64| frames.iter().map(f).sum::<f64>() / n;
     eprintln!(
-        "cache: {} Gaussians in {} levels ({:.1} MB of parameters), {} in {:.0} ms",
-        cache.gaussian_count(),
-        cache.levels().len(),
-        cache.parameter_bytes() as f64 / 1e6,
-        if a.load_cache.is_some() {
-            "loaded"
-        } else {
-            "initialised"
-        },
-        t0.elapsed().as_secs_f64() * 1e3
+        "per frame: path tracing {:.1} ms, {read} {:.1} ms, training {:.1} ms",
+        sum(|r| r.trace_seconds),
+        sum(|r| r.lookup_seconds),
+        sum(|r| r.train_seconds)
     );
-    let mut dropped = 0u64;
-    let stats = cached_frames(
-        scene,
-        a,
-        film,
-        cancel,
-        bar,
-        "cache lookup",
-        |camera, f, film| {
-            if f == a.warmup {
-                cache.start_image();
-            }
-            let s = render_cached_frame(
-                &scene.media,
-                camera,
-                &scene.settings,
-                f,
-                film,
-                &mut cache,
-                cancel,
-            )?;
-            dropped += s.dropped_training_samples;
-            Ok(FrameCosts {
-                samples: s.samples,
-                seconds: [s.trace_seconds, s.lookup_seconds, s.train_seconds],
-                nonfinite_samples: s.nonfinite_samples,
-            })
-        },
-    )?;
-    if dropped > 0 {
-        eprintln!(
-            "warning: the cache refused {dropped} training samples that were negative or not finite"
-        );
-    }
-    if let Some(dir) = &a.cache_images {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create folder", dir.display()))?;
-        let cam = scene.camera;
-        let frame = cache.begin_frame(&cam);
-        for level in 0..frame.levels() {
-            let img = RgbImage::from_rgb(cam.width, cam.height, frame.image(level))?;
-            let stem = dir.join(format!("length_{}", level + 1));
-            img.write_exr(&stem.with_extension("exr"))?;
-            img.write_png(&stem.with_extension("png"), 0.0, ToneMap::Aces)?;
-        }
-        eprintln!("cache: wrote the level images to {}", dir.display());
-    }
-    if let Some(dir) = &a.save_cache {
-        cache.save(dir)?;
-        eprintln!(
-            "cache: wrote {} levels to {}",
-            cache.levels().len(),
-            dir.display()
-        );
-    }
-    Ok(stats)
 }

@@ -6,15 +6,13 @@
 //! disk.
 
 use anyhow::Result;
-use cached_pt::render_cached_frame;
 use glam::Vec3;
-use gs_cache::{CacheConfig, GsCache, Lookup};
+use gs_cache::{CacheConfig, Lookup};
 pub use gscache_cli::camera_path::orbit;
 use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
-use splat_raster::Camera;
+use render_session::{Accumulation, CacheChoice, Control, Edit, Session};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
-use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
+use volume_pt::{IntegratorKind, Scene, load_scene};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct CacheBenchArgs {
@@ -78,33 +76,15 @@ pub fn load_sized(path: &Path, width: u32, height: u32) -> Result<Option<(String
     Ok(Some((name, scene)))
 }
 
-/// A cache for `scene` (points found with the scene's seed), and its initialisation seconds.
-pub fn new_cache(scene: &Scene, config: CacheConfig) -> Result<(GsCache, f64)> {
-    gscache_cli::experiment::measure::new_cache(scene, config, scene.settings.seed)
-}
-
-/// A plain render: the image and the seconds it took.
-fn plain(
-    scene: &Scene,
-    cam: &Camera,
-    kind: IntegratorKind,
-    spp: u32,
-    seed: u64,
-) -> (Vec<Vec3>, f64) {
-    let mut settings = scene.settings;
-    settings.spp = spp;
-    settings.seed = seed;
-    settings.path.integrator = kind;
-    let mut film = Film::new(cam.width, cam.height);
-    let stats = render(
-        &scene.media,
-        cam,
-        &settings,
-        &mut film,
-        &AtomicBool::new(false),
-        &|_| {},
-    );
-    (film.mean(), stats.seconds)
+/// A plain `kind` render of `spp` samples per pixel at the scene camera: the image and the
+/// seconds it took.
+fn plain(scene: &Scene, kind: IntegratorKind, spp: u32) -> Result<(Vec<Vec3>, f64)> {
+    let mut scene = scene.clone();
+    scene.settings.spp = spp;
+    scene.settings.path.integrator = kind;
+    let mut session = Session::new(scene, CacheChoice::None)?;
+    let r = session.next_frame(&Control::none())?;
+    Ok((session.mean(), r.seconds))
 }
 
 /// The high-spp `nee` reference at the scene camera: the experiment runner's, kept on disk under
@@ -148,66 +128,54 @@ impl Run {
     }
 }
 
-fn fly_plain(scene: &Scene, kind: IntegratorKind, args: &CacheBenchArgs, centre: Vec3) -> Run {
-    let total = args.warmup + args.frames;
-    let (mut pt, mut image) = (0.0, Vec::new());
-    for f in 0..total {
-        let cam = orbit(&scene.camera, centre, args.orbit_degrees, f, total);
-        let (img, secs) = plain(scene, &cam, kind, 1, scene.settings.seed + 1 + f as u64);
-        if f >= args.warmup {
-            pt += secs;
-        }
-        image = img;
-    }
-    let n = args.frames.max(1) as f64 / 1e3;
-    Run {
-        pt: pt / n,
-        st: 0.0,
-        ot: 0.0,
-        image,
-        nonfinite: 0,
-    }
-}
-
-fn fly_cached(
+/// `warmup + frames` frames of 1 spp along the orbit with `kind` and `cache`, each an image of
+/// its own; the times are means over the frames after the warm-up, the image the last frame's
+/// (at the scene camera). Returns the run and the cache's size and build time.
+fn fly(
     scene: &Scene,
-    cache: &mut GsCache,
+    kind: IntegratorKind,
+    cache: CacheChoice,
     args: &CacheBenchArgs,
-    centre: Vec3,
-) -> Result<Run> {
+) -> Result<(Run, usize, f64)> {
+    let mut scene = scene.clone();
+    scene.settings.spp = 1;
+    scene.settings.path.integrator = kind;
+    let camera = scene.camera;
+    let (lo, hi) = scene.media.medium.bounds();
+    let centre = 0.5 * (lo + hi);
+    let mut session = Session::new(scene, cache)?.with_accumulation(Accumulation::PerFrame);
     let total = args.warmup + args.frames;
+    session.check_frames(total)?;
     let (mut pt, mut st, mut ot, mut nonfinite) = (0.0, 0.0, 0.0, 0);
-    let mut settings = scene.settings;
-    settings.spp = 1;
-    settings.path.integrator = IntegratorKind::Nee;
-    let mut film = Film::new(scene.camera.width, scene.camera.height);
     for f in 0..total {
-        let cam = orbit(&scene.camera, centre, args.orbit_degrees, f, total);
-        let last = f + 1 == total;
-        let s = render_cached_frame(
-            &scene.media,
-            &cam,
-            &settings,
+        session.edit(Edit::Camera(orbit(
+            &camera,
+            centre,
+            args.orbit_degrees,
             f,
-            last.then_some(&mut film),
-            cache,
-            &AtomicBool::new(false),
-        )?;
-        nonfinite += s.nonfinite_samples;
+            total,
+        )))?;
+        let r = session.next_frame(&Control::none())?;
+        nonfinite += r.nonfinite_samples;
         if f >= args.warmup {
-            pt += s.trace_seconds;
-            st += s.lookup_seconds;
-            ot += s.train_seconds;
+            pt += r.trace_seconds;
+            st += r.lookup_seconds;
+            ot += r.train_seconds;
         }
     }
     let n = args.frames.max(1) as f64 / 1e3;
-    Ok(Run {
+    let run = Run {
         pt: pt / n,
         st: st / n,
         ot: ot / n,
-        image: film.mean(),
+        image: session.mean(),
         nonfinite,
-    })
+    };
+    Ok((
+        run,
+        session.cache().parameter_bytes(),
+        session.cache_seconds(),
+    ))
 }
 
 pub fn run(args: &CacheBenchArgs) -> Result<()> {
@@ -217,7 +185,7 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         args.scenes.clone()
     };
     println!(
-        "threads {}, {}x{}, 1 spp per frame, {} frames after {} warm-up on a {}-degree orbit ending at the scene camera; cache N = {}, C = 0.5, learning rates x {}\n",
+        "threads {}, {}x{}, 1 spp per frame, {} frames after {} warm-up on a {}-degree orbit ending at the scene camera; cache N = {}, C = {}, learning rates x {}\n",
         rayon::current_num_threads(),
         args.width,
         args.height,
@@ -225,6 +193,7 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         args.warmup,
         args.orbit_degrees,
         args.cache.points,
+        args.cache.c,
         args.cache.lr_multiplier
     );
     let mut table2 = vec![
@@ -241,30 +210,25 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
         };
         let reference = reference(path, &scene, args)?;
         let peak = hdr_peak(&reference);
-        let (lo, hi) = scene.media.medium.bounds();
-        let centre = 0.5 * (lo + hi);
-        let uniform = fly_plain(&scene, IntegratorKind::Uniform, args, centre);
-        let nee = fly_plain(&scene, IntegratorKind::Nee, args, centre);
-        let (mut cache, init) = new_cache(
-            &scene,
-            CacheConfig {
-                lookup: Lookup::Raster,
+        let (uniform, ..) = fly(&scene, IntegratorKind::Uniform, CacheChoice::None, args)?;
+        let (nee, ..) = fly(&scene, IntegratorKind::Nee, CacheChoice::None, args)?;
+        let with_lookup = |lookup| {
+            CacheChoice::gaussian(CacheConfig {
+                lookup,
                 ..args.cache
-            },
+            })
+        };
+        let (raster, bytes, init) = fly(
+            &scene,
+            IntegratorKind::Nee,
+            with_lookup(Lookup::Raster),
+            args,
         )?;
-        let mb = cache.parameter_bytes() as f64 / 1e6;
-        let raster = fly_cached(&scene, &mut cache, args, centre)?;
+        let mb = bytes as f64 / 1e6;
         let rt = if args.no_rt {
             None
         } else {
-            let (mut c, _) = new_cache(
-                &scene,
-                CacheConfig {
-                    lookup: Lookup::Rt,
-                    ..args.cache
-                },
-            )?;
-            Some(fly_cached(&scene, &mut c, args, centre)?)
+            Some(fly(&scene, IntegratorKind::Nee, with_lookup(Lookup::Rt), args)?.0)
         };
         let fmt_opt = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.1}"));
         table2.push(format!(
@@ -281,16 +245,10 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
             init * 1e3
         ));
         // Equal time: nee with as many spp as fit in a cached frame's time.
-        let nee_at_time = |time_ms: f64| -> (u32, f64, Vec<Vec3>) {
+        let nee_at_time = |time_ms: f64| -> Result<(u32, f64, Vec<Vec3>)> {
             let spp = ((time_ms / nee.pt).round() as u32).max(1);
-            let (img, secs) = plain(
-                &scene,
-                &scene.camera,
-                IntegratorKind::Nee,
-                spp,
-                scene.settings.seed + 7777,
-            );
-            (spp, secs * 1e3, img)
+            let (img, secs) = plain(&scene, IntegratorKind::Nee, spp)?;
+            Ok((spp, secs * 1e3, img))
         };
         let row = |method: &str, spp: u32, ms: f64, img: &[Vec3], nee_equal: Option<f64>| {
             let e = rel_mse(img, &reference);
@@ -307,7 +265,7 @@ pub fn run(args: &CacheBenchArgs) -> Result<()> {
             ("nee + cache (rt)", rt.as_ref()),
         ] {
             let Some(run) = run else { continue };
-            let (spp, ms, img) = nee_at_time(run.total());
+            let (spp, ms, img) = nee_at_time(run.total())?;
             let e_equal = rel_mse(&img, &reference);
             quality.push(row(label, 1, run.total(), &run.image, Some(e_equal)));
             quality.push(row(

@@ -13,7 +13,6 @@
 use anyhow::{Context, Result, bail};
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use volume_pt::{Film, load_scene, render};
 
@@ -172,8 +171,7 @@ pub fn run(args: &LargeArgs) -> Result<()> {
         &scene.camera,
         &scene.settings,
         &mut film,
-        &AtomicBool::new(false),
-        &|_| {},
+        &volume_pt::Control::none(),
     );
     let peak = peak_resident_bytes();
     let gb = |b: Option<u64>| b.map_or("n/a".to_string(), |b| format!("{:.2}", b as f64 / 1e9));

@@ -27,7 +27,6 @@ mod trace_bench;
 
 use anyhow::Result;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
 use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
 
 #[derive(clap::Args, Debug)]
@@ -87,8 +86,7 @@ fn time_render(scene: &Scene, spp: u32, size: u32) -> (f64, f64) {
         &cam,
         &settings,
         &mut film,
-        &AtomicBool::new(false),
-        &|_| {},
+        &volume_pt::Control::none(),
     );
     (stats.seconds, stats.samples_per_second())
 }

@@ -3,13 +3,12 @@
 //! cache's parameters inspected at intervals. It fails (non-zero exit) if a parameter, a cache
 //! value or a sample is ever non-finite, or a Gaussian grows or strays past the stated bounds.
 
-use crate::bench::cache_bench::{default_scenes, load_sized, new_cache, orbit};
+use crate::bench::cache_bench::{default_scenes, load_sized, orbit};
 use anyhow::{Result, bail};
-use cached_pt::render_cached_frame;
 use gs_cache::GsCache;
+use render_session::{Accumulation, CacheChoice, Control, Edit, Session};
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
-use volume_pt::{Film, IntegratorKind};
+use volume_pt::IntegratorKind;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct StabilityArgs {
@@ -108,34 +107,31 @@ pub fn run(args: &StabilityArgs) -> Result<()> {
     println!("|---|---|---|---|---|---|---|---|---|");
     let mut failures = Vec::new();
     for path in &scenes {
-        let Some((name, scene)) = load_sized(path, args.width, args.height)? else {
+        let Some((name, mut scene)) = load_sized(path, args.width, args.height)? else {
             continue;
         };
-        let config = args.cache;
-        let (mut cache, _) = new_cache(&scene, config)?;
+        scene.settings.spp = 1;
+        scene.settings.path.integrator = IntegratorKind::Nee;
+        let camera = scene.camera;
         let (lo, hi) = scene.media.medium.bounds();
         let diagonal = (hi - lo).length();
         let centre = 0.5 * (lo + hi);
-        let mut settings = scene.settings;
-        settings.spp = 1;
-        settings.path.integrator = IntegratorKind::Nee;
+        let mut session = Session::new(scene, CacheChoice::gaussian(args.cache))?
+            .with_accumulation(Accumulation::PerFrame);
+        session.check_frames(args.frames)?;
         let (mut nonfinite_samples, mut seconds, mut counted) = (0u64, 0.0, 0u32);
         for f in 0..args.frames {
-            let cam = orbit(&scene.camera, centre, 360.0, f, args.frames);
-            let s = render_cached_frame(
-                &scene.media,
-                &cam,
-                &settings,
-                f,
-                None::<&mut Film>,
-                &mut cache,
-                &AtomicBool::new(false),
-            )?;
+            session.edit(Edit::Camera(orbit(&camera, centre, 360.0, f, args.frames)))?;
+            let s = session.next_frame(&Control::none())?;
             nonfinite_samples += s.nonfinite_samples;
             seconds += s.trace_seconds + s.lookup_seconds + s.train_seconds;
             counted += 1;
             if (f + 1) % args.every == 0 || f + 1 == args.frames {
-                let i = inspect(&cache, lo, hi);
+                let cache = session
+                    .cache()
+                    .gaussian()
+                    .expect("a Gaussian cache session");
+                let i = inspect(cache, lo, hi);
                 let mse = cache.report().mse.first().copied().flatten();
                 println!(
                     "| {name} | {} | {} / {} / {nonfinite_samples} | {:.4} | {:.4} | {:.3}-{:.3} | {:.3} | {} | {:.0} |",

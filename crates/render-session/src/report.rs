@@ -1,0 +1,32 @@
+//! What one frame did.
+
+/// One frame's figures: the GSCache paper's PT, ST (or the neural cache's IT) and OT columns,
+/// and what the caller needs to account for the frame.
+#[derive(Debug, Clone, Default)]
+pub struct FrameReport {
+    /// The frame's index in the session (the sampling rule's `k`).
+    pub frame: u32,
+    /// Samples traced (pixels x spp).
+    pub samples: u64,
+    /// Path tracing (PT).
+    pub trace_seconds: f64,
+    /// Reading the cache: drawing the Gaussian levels (ST), or the neural cache's inference and
+    /// composition (IT). Zero without a cache.
+    pub lookup_seconds: f64,
+    /// Training the cache (OT). Zero without a cache.
+    pub train_seconds: f64,
+    /// Wall-clock seconds of the whole frame, accumulation included.
+    pub seconds: f64,
+    /// Samples that came out NaN or infinite and were counted as black.
+    pub nonfinite_samples: u64,
+    /// Training samples the cache refused (negative or not finite).
+    pub dropped_training_samples: u64,
+    /// Per level, the training loss before the step (the neural cache: one entry, its steps'
+    /// mean relative L2 loss; none when it took no step).
+    pub loss: Vec<Option<f64>>,
+    /// The Gaussian cache had handed the image off to plain path tracing.
+    pub handed_off: bool,
+    /// The frame went into the session's image (a warm-up frame does not).
+    pub accumulated: bool,
+    pub cancelled: bool,
+}

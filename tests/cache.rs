@@ -473,9 +473,9 @@ fn an_unreported_change_falls_back_within_frames() {
     moved
         .media
         .lights
-        .spheres
+        .lights
         .iter_mut()
-        .for_each(|l| l.center += Vec3::new(-140.0, 0.0, 0.0));
+        .for_each(|l| l.translate(Vec3::new(-140.0, 0.0, 0.0)));
     let reference = plain(&moved, 256, 1000);
     let error = |fallback| {
         let mut cache = new_cache(

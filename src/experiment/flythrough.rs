@@ -40,12 +40,12 @@ pub fn event_edit(scene: &Scene, event: &EventDesc) -> Result<(Edit, String)> {
     if let Some(o) = event.light_offset {
         let o = Vec3::from_array(o);
         let mut moved = lights.clone();
-        moved.spheres.iter_mut().for_each(|l| l.center += o);
+        moved.lights.iter_mut().for_each(|l| l.translate(o));
         return Ok((Edit::Lights(moved), format!("lights moved by {o}")));
     }
     if let Some(s) = event.light_scale {
         let mut scaled = lights.clone();
-        scaled.spheres.iter_mut().for_each(|l| l.radiance *= s);
+        scaled.lights.iter_mut().for_each(|l| l.scale(s));
         scaled.environment *= s;
         return Ok((Edit::Lights(scaled), format!("lights x{s}")));
     }

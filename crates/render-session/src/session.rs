@@ -229,7 +229,19 @@ impl Session {
                 self.scene.media.medium.set_transfer_function(tf);
                 cache = self.cache.scene_changed();
             }
-            Edit::Lights(lights) => {
+            Edit::Lights(mut lights) => {
+                // Checked as a scene file's lights are (and distant directions normalised).
+                for (i, light) in lights.lights.iter_mut().enumerate() {
+                    light
+                        .validate()
+                        .map_err(|e| SessionError::Invalid(format!("light {i}: {e}")))?;
+                }
+                if !lights.environment.is_finite() || lights.environment.min_element() < 0.0 {
+                    return Err(SessionError::Invalid(format!(
+                        "environment radiance {}: expected finite values >= 0",
+                        lights.environment
+                    )));
+                }
                 self.scene.media.lights = lights;
                 cache = self.cache.scene_changed();
             }

@@ -1,6 +1,6 @@
 //! The pinhole camera shared by the path tracer, the rasteriser and the ray tracer.
 //!
-//! Pixel convention (DESIGN.md): pixel `(x, y)` covers `[x, x+1) x [y, y+1)`, its centre is
+//! Pixel convention (docs/architecture.md, Pixels): pixel `(x, y)` covers `[x, x+1) x [y, y+1)`, its centre is
 //! `(x + 0.5, y + 0.5)`, and `y` grows downwards (row 0 is the top of the image). Camera space
 //! follows the OpenCV / 3DGS convention: +X right, +Y down, +Z forward, so that projection and
 //! ray generation are exact inverses of each other with no sign flips hidden in either.

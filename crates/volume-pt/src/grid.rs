@@ -1,6 +1,6 @@
 //! The scalar grid: voxel values in memory and their reconstruction at a point.
 //!
-//! Convention (DESIGN.md): a grid of `dims` voxels occupies the box `[0, dims)` in index space;
+//! Convention (docs/architecture.md, Space and units): a grid of `dims` voxels occupies the box `[0, dims)` in index space;
 //! voxel `(i, j, k)` is a sample at the cell centre `(i + 0.5, j + 0.5, k + 0.5)`. Between centres
 //! the scalar is interpolated trilinearly; outside the outermost centres it is clamped to the edge
 //! voxel, so the whole box is filled and density does not fade towards the faces.

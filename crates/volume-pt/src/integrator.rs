@@ -1,7 +1,7 @@
 //! The path integrators: `uniform` (phase sampling only) and `nee` (next-event estimation with
 //! multiple importance sampling against phase sampling, power heuristic).
 //!
-//! Path length is the number of real scattering vertices (DESIGN.md): a camera ray that leaves
+//! Path length is the number of real scattering vertices (docs/architecture.md, Path length): a camera ray that leaves
 //! the volume has length 0; NEE from the n-th vertex, and a phase-sampled ray from it that reaches
 //! an emitter, both make paths of length n. With `max_depth = D`, vertices 1..=D are created and
 //! may connect to emitters; a collision that would create vertex D+1 ends the path. Both
@@ -103,7 +103,7 @@ pub fn radiance_with<H: PathHooks>(
     let (mut o, mut d) = (origin, dir);
     let mut phase_pdf = 0.0f32;
     loop {
-        let hit = lights.nearest_sphere(o, d, 0.0);
+        let hit = lights.nearest(o, d, 0.0);
         let t_end = hit.map_or(f32::INFINITY, |h| h.1);
         let ray = medium.to_index_ray(o, d);
         let Some(Collision { t, value }) = free_flight(medium, &ray, 0.0, t_end, rng) else {
@@ -148,18 +148,18 @@ pub fn radiance_with<H: PathHooks>(
 
         if nee && let Some(ls) = lights.sample(x, rng.next_f32(), rng.next_2d()) {
             // The sampled emitter must be the first one along the shadow ray.
-            let blocker = lights.nearest_sphere(x, ls.direction, 0.0);
-            let visible = match (ls.sphere, blocker) {
-                (None, None) => true,
-                (Some(i), Some((j, _))) => i == j,
-                _ => false,
-            };
-            if visible && ls.pdf > 0.0 {
+            let blocker = lights.nearest(x, ls.direction, 0.0);
+            if lights.unblocked(&ls, blocker) && ls.pdf > 0.0 {
                 let f = phase.eval(d, ls.direction);
                 let shadow = medium.to_index_ray(x, ls.direction);
                 let tr = transmittance(medium, &shadow, 0.0, ls.distance, rng);
                 if tr > 0.0 {
-                    let w = power_heuristic(ls.pdf, f);
+                    // A delta light has no other strategy to share the weight with.
+                    let w = if ls.delta {
+                        1.0
+                    } else {
+                        power_heuristic(ls.pdf, f)
+                    };
                     let x = ls.radiance * (f * tr * w / ls.pdf);
                     l += beta * x;
                     hooks.radiance(x);

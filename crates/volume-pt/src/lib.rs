@@ -6,7 +6,8 @@
 //! - [`transfer`]: window, colour, opacity and density scale: scalar to medium.
 //! - [`medium`] and [`majorant`]: the placed, classified volume and its macrocell majorants.
 //! - [`tracking`]: delta tracking (free flights) and ratio tracking (transmittance).
-//! - [`phase`], [`lights`]: phase functions; sphere lights and a constant environment.
+//! - [`phase`], [`lights`]: phase functions; the emitter types (sphere, distant) and a
+//!   constant environment.
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
 //! - [`render`], [`film`]: tiles, passes, threads; exact accumulation.
 //! - [`shard`]: a render split into sample ranges whose partial films merge bit for bit.
@@ -36,7 +37,7 @@ pub use error::{Error, Result};
 pub use film::{ExactRgb, Film};
 pub use grid::{Filter, ScalarGrid};
 pub use integrator::{IntegratorKind, PathSettings, SceneMedia, radiance, radiance_with};
-pub use lights::{Lights, SphereLight};
+pub use lights::{DistantLight, Light, Lights, SphereLight};
 pub use medium::Medium;
 pub use phase::Phase;
 pub use render::{

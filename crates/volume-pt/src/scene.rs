@@ -5,7 +5,7 @@ use crate::error::{Error, Result};
 use crate::grid::Filter;
 use crate::integrator::{IntegratorKind, PathSettings, SceneMedia};
 use crate::io::{ByteOrder, DType, Format, RawLayout, ReadHints, read_volume};
-use crate::lights::{Lights, SphereLight};
+use crate::lights::{DistantLight, Light, Lights, SphereLight};
 use crate::medium::{DEFAULT_MACROCELL, Medium};
 use crate::phase::Phase;
 use crate::render::RenderSettings;
@@ -16,13 +16,103 @@ use serde::Deserialize;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 
+/// Which kind of emitter a `[[light]]` table describes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LightKind {
+    #[default]
+    Sphere,
+    Distant,
+}
+
+impl LightKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            LightKind::Sphere => "sphere",
+            LightKind::Distant => "distant",
+        }
+    }
+}
+
+/// A `[[light]]` table as written: `type` (sphere when left out) and the keys of that kind.
+/// Kept flat so that a missing or misplaced key is named with the light's kind.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightDesc {
+    #[serde(rename = "type", default)]
+    pub kind: LightKind,
+    /// Sphere: centre and radius.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f32; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f32>,
+    /// Sphere: emitted radiance.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radiance: Option<[f32; 3]>,
+    /// Distant: the direction the light travels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub direction: Option<[f32; 3]>,
+    /// Distant: irradiance on a surface facing the light.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub irradiance: Option<[f32; 3]>,
+}
+
+impl LightDesc {
+    /// The emitter this table describes (not yet validated); names a missing key, or one that
+    /// belongs to another kind of light.
+    pub fn to_light(&self) -> std::result::Result<Light, String> {
+        let need = |v: Option<[f32; 3]>, key: &str, what: &str| {
+            v.map(Vec3::from_array)
+                .ok_or_else(|| format!("missing `{key}`: expected {what}"))
+        };
+        let refuse = |present: bool, key: &str| {
+            if present {
+                Err(format!(
+                    "`{key}` is not a key of a {} light (set `type` to the kind you mean)",
+                    self.kind.name()
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        match self.kind {
+            LightKind::Sphere => {
+                refuse(self.direction.is_some(), "direction")?;
+                refuse(self.irradiance.is_some(), "irradiance")?;
+                Ok(Light::Sphere(SphereLight {
+                    center: need(self.center, "center", "[x, y, z]")?,
+                    radius: self
+                        .radius
+                        .ok_or("missing `radius`: expected a radius > 0")?,
+                    radiance: need(self.radiance, "radiance", "[r, g, b]")?,
+                }))
+            }
+            LightKind::Distant => {
+                refuse(self.center.is_some(), "center")?;
+                refuse(self.radius.is_some(), "radius")?;
+                refuse(self.radiance.is_some(), "radiance")?;
+                Ok(Light::Distant(DistantLight {
+                    direction: need(
+                        self.direction,
+                        "direction",
+                        "[x, y, z], the way the light travels",
+                    )?,
+                    irradiance: need(self.irradiance, "irradiance", "[r, g, b]")?,
+                }))
+            }
+        }
+    }
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     pub volume: VolumeDesc,
     pub transfer: TransferDesc,
+    /// `[[light]]` tables: `type = "sphere"` (the default when `type` is left out) or
+    /// `"distant"`.
     #[serde(default, rename = "light")]
-    pub lights: Vec<SphereLight>,
+    pub lights: Vec<LightDesc>,
     #[serde(default)]
     pub environment: EnvironmentDesc,
     #[serde(default)]
@@ -297,19 +387,13 @@ pub fn build_scene_with_volume(
         }
     };
     desc.phase.validate().map_err(scene_err)?;
+    let mut lights = Vec::with_capacity(desc.lights.len());
     for (i, l) in desc.lights.iter().enumerate() {
-        if !(l.radius > 0.0 && l.radius.is_finite() && l.center.is_finite()) {
-            return Err(scene_err(format!(
-                "light {i}: radius {} / center {} invalid: expected a finite radius > 0",
-                l.radius, l.center
-            )));
-        }
-        if !(l.radiance.is_finite() && l.radiance.min_element() >= 0.0) {
-            return Err(scene_err(format!(
-                "light {i}: radiance {} invalid: expected finite values >= 0",
-                l.radiance
-            )));
-        }
+        let light = l
+            .to_light()
+            .and_then(|mut light| light.validate().map(|()| light))
+            .map_err(|e| scene_err(format!("light {i} ({}): {e}", l.kind.name())))?;
+        lights.push(light);
     }
     let env = vec3(desc.environment.radiance);
     if !(env.is_finite() && env.min_element() >= 0.0) {
@@ -366,7 +450,7 @@ pub fn build_scene_with_volume(
             medium,
             phase: desc.phase,
             lights: Lights {
-                spheres: desc.lights,
+                lights,
                 environment: env,
             },
         },

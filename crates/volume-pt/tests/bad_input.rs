@@ -223,3 +223,68 @@ fn preset_with_scene_opacity_loads() {
         &["scene.toml", "opacity"],
     );
 }
+
+/// `[[light]]` takes a `type` (sphere when left out); each kind's keys are checked, and a key
+/// of another kind, a missing key, an unknown type or a value out of range is named with the
+/// light's index and kind.
+#[test]
+fn lights_are_typed_and_each_kind_is_checked() {
+    let d = scratch("lights");
+    std::fs::write(d.join("v.raw"), vec![7u8; 512]).unwrap();
+    let volume = "[volume]\nfile = \"v.raw\"\ndims = [8, 8, 8]\ndtype = \"uint8\"";
+    let with = |lights: &str| {
+        let s = write_scene(&d, volume, TF, &format!("{CAMERA}\n{lights}"));
+        (load_scene(&s), s)
+    };
+    let (ok, _) = with(
+        "[[light]]\ncenter = [0, 40, 0]\nradius = 2\nradiance = [5, 5, 5]\n\
+         [[light]]\ntype = \"distant\"\ndirection = [0, -2, 0]\nirradiance = [1, 1, 1]",
+    );
+    let lights = ok
+        .expect("a sphere and a distant light load")
+        .media
+        .lights
+        .lights;
+    assert!(matches!(lights[0], volume_pt::Light::Sphere(_)));
+    match lights[1] {
+        volume_pt::Light::Distant(l) => assert_eq!(l.direction, glam::Vec3::NEG_Y),
+        other => panic!("{other:?}"),
+    }
+    let cases: [(&str, &[&str]); 7] = [
+        (
+            "[[light]]\ntype = \"distant\"\nirradiance = [1, 1, 1]",
+            &["light 0 (distant)", "missing `direction`"],
+        ),
+        (
+            "[[light]]\ntype = \"distant\"\ndirection = [0, 0, 0]\nirradiance = [1, 1, 1]",
+            &["light 0 (distant)", "non-zero"],
+        ),
+        (
+            "[[light]]\ntype = \"distant\"\ndirection = [0, 0, 1]\nirradiance = [1, 1, 1]\nradius = 3",
+            &[
+                "light 0 (distant)",
+                "`radius` is not a key of a distant light",
+            ],
+        ),
+        (
+            "[[light]]\ncenter = [0, 0, 50]\nradius = 1\nradiance = [1, 1, 1]\ndirection = [0, 0, 1]",
+            &["light 0 (sphere)", "`direction`"],
+        ),
+        (
+            "[[light]]\ntype = \"spot\"\ncenter = [0, 0, 50]",
+            &["spot", "sphere", "distant"],
+        ),
+        (
+            "[[light]]\ncenter = [0, 0, 50]\nradius = 1e30\nradiance = [1, 1, 1]",
+            &["light 0 (sphere)", "radius", "at most"],
+        ),
+        (
+            "[[light]]\ncenter = [0, 0, inf]\nradius = 1\nradiance = [1, 1, 1]",
+            &["light 0 (sphere)", "center", "finite"],
+        ),
+    ];
+    for (lights, needles) in cases {
+        let (_, s) = with(lights);
+        expect_error(&s, needles);
+    }
+}

@@ -40,7 +40,11 @@ fn small_default_scene() -> volume_pt::Scene {
 fn zero_transfer_function_or_empty_volume_gives_the_environment_exactly() {
     let mut scene = small_default_scene();
     // Lights stay in the scene but outside the view.
-    scene.media.lights.spheres.retain(|l| l.center.x > 0.0);
+    scene
+        .media
+        .lights
+        .lights
+        .retain(|l| matches!(l, volume_pt::Light::Sphere(s) if s.center.x > 0.0));
     let env = scene.media.lights.environment;
     for integrator in [IntegratorKind::Uniform, IntegratorKind::Nee] {
         scene.settings.path.integrator = integrator;

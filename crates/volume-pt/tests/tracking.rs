@@ -14,7 +14,7 @@ const Z: f64 = 5.0; // two-sided false-alarm rate 5.7e-7 per check
 
 fn lights_env(v: f32) -> Lights {
     Lights {
-        spheres: vec![],
+        lights: vec![],
         environment: Vec3::splat(v),
     }
 }

@@ -670,3 +670,22 @@ fn the_neural_cache_renders_and_its_bad_settings_are_named() {
         assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
     }
 }
+
+/// The benches take their data from `--data` (an installed program has no source tree to read
+/// from); a folder that is not a clone's `data/` is named, before any work.
+#[test]
+fn the_benches_take_their_data_folder_from_a_flag() {
+    let d = scratch("bench-data");
+    for bench in ["pt", "splat", "large", "cache", "stability", "trace"] {
+        let out = gscache()
+            .args(["bench", bench, "--data"])
+            .arg(d.join("nowhere"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("--data") && err.contains("nowhere"),
+            "{bench}: {err}"
+        );
+    }
+}

@@ -14,7 +14,7 @@ use splat_raster::{ColorModel, GaussianCloud};
 use std::num::NonZero;
 
 /// The degree-0 spherical-harmonic basis constant (3DGS's `C0`).
-pub const SH_C0: f32 = 0.282_094_8;
+pub use splat_raster::SH_C0;
 
 /// Mean distance from each point to its three nearest neighbours (other than itself).
 /// Duplicated points count as neighbours at distance 0.

@@ -331,7 +331,7 @@ impl std::fmt::Debug for NeuralCache {
 pub fn spherical_harmonics_2(d: Vec3) -> [f32; 9] {
     let (x, y, z) = (d.x, d.y, d.z);
     [
-        0.282_094_8,
+        render_base::SH_C0,
         0.488_602_5 * y,
         0.488_602_5 * z,
         0.488_602_5 * x,

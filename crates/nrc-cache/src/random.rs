@@ -1,14 +1,8 @@
 //! A small counter-based generator for initialisation and shuffling: splitmix64, so every
 //! draw is a pure function of the seed and the draw's index (no thread or order dependence).
 
-/// splitmix64's finaliser of `x`.
-#[inline]
-pub fn mix64(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
+/// One splitmix64 step from `x` (render-base's, the one definition).
+pub use render_base::hash::splitmix64 as mix64;
 
 /// A sequential splitmix64 stream.
 #[derive(Debug, Clone)]

@@ -1,5 +1,11 @@
-//! The splitmix64 finaliser, defined once: every stateless hash in the project (sample streams,
-//! the neural cache's shuffles and seeds, stochastic acceptance) mixes its counter through it.
+//! The stateless hashes, defined once: a random decision anywhere in the project is a pure
+//! function of its key (seed, pixel, sample, Gaussian id...), so images do not depend on thread
+//! count or order.
+//!
+//! - [`splitmix64_finalize`] / [`splitmix64`]: 64-bit keys (the path tracer's sample streams,
+//!   the neural cache's shuffles and seeds).
+//! - [`hash32`] / [`unit_f32`]: several 32-bit words to one (per-fragment decisions of the
+//!   rasteriser and the ray tracer).
 
 /// 2^64 / golden ratio, odd: the splitmix64 increment.
 pub const GOLDEN_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
@@ -19,6 +25,32 @@ pub const fn splitmix64(x: u64) -> u64 {
     splitmix64_finalize(x.wrapping_add(GOLDEN_GAMMA))
 }
 
+/// The xxHash32 finaliser applied to a running combination of 32-bit words (PCG-style avalanche
+/// in, xxHash32 avalanche out).
+#[inline]
+pub fn hash32(words: &[u32]) -> u32 {
+    const P2: u32 = 0x85eb_ca77;
+    const P3: u32 = 0xc2b2_ae3d;
+    const P4: u32 = 0x27d4_eb2f;
+    const P5: u32 = 0x1656_67b1;
+    let mut h = P5.wrapping_add(4 * words.len() as u32);
+    for &w in words {
+        h = h.wrapping_add(w.wrapping_mul(P3));
+        h = h.rotate_left(17).wrapping_mul(P4);
+    }
+    h ^= h >> 15;
+    h = h.wrapping_mul(P2);
+    h ^= h >> 13;
+    h = h.wrapping_mul(P3);
+    h ^ (h >> 16)
+}
+
+/// A uniform number in [0, 1) from a hash (24 bits).
+#[inline]
+pub fn unit_f32(h: u32) -> f32 {
+    (h >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -29,5 +61,21 @@ mod tests {
         // before mixing, as `splitmix64` does).
         assert_eq!(splitmix64(0), 0xe220_a839_7b1d_cdaf);
         assert_eq!(splitmix64(GOLDEN_GAMMA), 0x6e78_9e6a_a1b9_65f4);
+    }
+
+    #[test]
+    fn hash_is_uniform_over_keys() {
+        // Chi-square over 64 bins; 63 degrees of freedom, the 1e-4 upper quantile is about 117.
+        let mut bins = [0u32; 64];
+        let mut n = 0;
+        for a in 0..64u32 {
+            for b in 0..1024u32 {
+                bins[(unit_f32(hash32(&[7, a, b])) * 64.0) as usize] += 1;
+                n += 1;
+            }
+        }
+        let e = n as f64 / 64.0;
+        let chi2: f64 = bins.iter().map(|&b| (b as f64 - e).powi(2) / e).sum();
+        assert!(chi2 < 117.0, "chi2 {chi2}");
     }
 }

@@ -4,11 +4,21 @@
 //!   or not at all, and no one who can write to the output folder can redirect the write.
 //! - [`control`]: cancellation and progress for long work, in one value ([`Control::none()`]
 //!   for neither).
-//! - [`hash`]: the splitmix64 finaliser every stateless hash is built on.
+//! - [`camera`]: the pinhole camera and the pixel convention every renderer shares (the
+//!   rasteriser, the ray tracers and the path tracer draw the same pixel for the same ray).
+//! - [`hash`]: the stateless hashes every random decision is built on (the splitmix64
+//!   finaliser, a 32-bit word hash).
+//! - [`SH_C0`]: the degree-0 spherical-harmonic constant that maps colours to 3DGS coefficients.
 
 pub mod atomic_file;
+pub mod camera;
 pub mod control;
 pub mod hash;
 
+/// The degree-0 real spherical harmonic, 1 / (2 sqrt(pi)): a 3DGS colour coefficient `dc` is
+/// the colour `0.5 + SH_C0 * dc`.
+pub const SH_C0: f32 = 0.282_094_8;
+
 pub use atomic_file::{AtomicWriter, WriteError, check_writable, write_atomically};
+pub use camera::{Camera, CameraError, MAX_IMAGE_SIDE};
 pub use control::Control;

@@ -174,19 +174,23 @@ fn a_cancelled_frame_is_not_counted_in_the_image() {
 fn a_light_edit_is_checked_like_a_scene_file() {
     let mut session = Session::new(small_scene(), CacheChoice::None).unwrap();
     let mut lights = session.scene().media.lights.clone();
-    lights.lights.push(volume_pt::Light::Distant(volume_pt::DistantLight {
-        direction: glam::Vec3::new(0.0, -2.0, 0.0),
-        irradiance: glam::Vec3::ONE,
-    }));
+    lights
+        .lights
+        .push(volume_pt::Light::Distant(volume_pt::DistantLight {
+            direction: glam::Vec3::new(0.0, -2.0, 0.0),
+            irradiance: glam::Vec3::ONE,
+        }));
     session.edit(Edit::Lights(lights.clone())).unwrap();
     match session.scene().media.lights.lights.last() {
         Some(volume_pt::Light::Distant(d)) => assert_eq!(d.direction, glam::Vec3::NEG_Y),
         other => panic!("{other:?}"),
     }
-    lights.lights.push(volume_pt::Light::Distant(volume_pt::DistantLight {
-        direction: glam::Vec3::ZERO,
-        irradiance: glam::Vec3::ONE,
-    }));
+    lights
+        .lights
+        .push(volume_pt::Light::Distant(volume_pt::DistantLight {
+            direction: glam::Vec3::ZERO,
+            irradiance: glam::Vec3::ONE,
+        }));
     let err = session.edit(Edit::Lights(lights)).unwrap_err().to_string();
     assert!(err.contains("direction"), "{err}");
 }

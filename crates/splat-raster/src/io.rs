@@ -12,7 +12,7 @@ use crate::sh::coeffs_for_degree;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-const SH_C0: f32 = 0.282_094_8;
+use render_base::SH_C0;
 
 /// Why a cloud could not be read or written.
 #[derive(Debug, thiserror::Error)]

@@ -21,7 +21,8 @@
 //! - [`real`]: the f32/f64 scalar the kernels are generic over.
 
 pub mod adamw;
-pub mod camera;
+/// The camera lives in render-base (every renderer shares it); re-exported here.
+pub use render_base::camera;
 pub mod cloud;
 pub mod io;
 pub mod lanes;
@@ -34,10 +35,13 @@ pub mod reference;
 pub mod sh;
 pub mod simd;
 pub mod stochastic;
+pub mod tile;
 pub mod train;
 
 pub use camera::{Camera, CameraError};
 pub use cloud::{CloudGradients, ColorModel, GaussianCloud};
 pub use project::LowPass;
 pub use raster::{PixelGrads, RasterConfig, RenderOutput, backward, render};
+/// The degree-0 spherical-harmonic constant (render-base's, the one definition).
+pub use render_base::SH_C0;
 pub use simd::Kernel;

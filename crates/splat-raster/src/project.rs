@@ -296,32 +296,6 @@ pub fn project<F: Real>(
     })
 }
 
-/// Gradients of the loss with respect to one splat's 2D quantities, summed over its pixels.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct SplatGrad<F: Real> {
-    pub xy: [F; 2],
-    /// With respect to (a, b, c) of the conic, b counted once (as it appears in the exponent).
-    pub conic: [F; 3],
-    pub opacity: F,
-    pub color: [F; 3],
-    pub depth: F,
-}
-
-impl<F: Real> SplatGrad<F> {
-    #[inline]
-    pub fn add(&mut self, o: &SplatGrad<F>) {
-        for i in 0..2 {
-            self.xy[i] = self.xy[i] + o.xy[i];
-        }
-        for i in 0..3 {
-            self.conic[i] = self.conic[i] + o.conic[i];
-            self.color[i] = self.color[i] + o.color[i];
-        }
-        self.opacity = self.opacity + o.opacity;
-        self.depth = self.depth + o.depth;
-    }
-}
-
 /// Back-propagates a splat's 2D gradients to Gaussian `g`'s parameters, adding into `grads`
 /// (a cloud-shaped buffer whose slices for `g` are given).
 #[allow(clippy::too_many_arguments)]

@@ -1,9 +1,8 @@
-//! The scalar type of the kernels and the few small matrix helpers they need.
+//! The scalar type of the kernels, the gradient record they produce per splat, and the few
+//! small matrix helpers they need.
 //!
 //! Kernels are generic over [`Real`] so that the same code runs in f32 (production) and f64
 //! (the finite-difference reference that checks the hand-written gradients).
-
-use crate::project::SplatGrad;
 
 /// f32 or f64.
 pub trait Real:
@@ -31,6 +30,32 @@ impl Real for f32 {
     }
 }
 impl Real for f64 {}
+
+/// Gradients of the loss with respect to one splat's 2D quantities, summed over its pixels.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SplatGrad<F: Real> {
+    pub xy: [F; 2],
+    /// With respect to (a, b, c) of the conic, b counted once (as it appears in the exponent).
+    pub conic: [F; 3],
+    pub opacity: F,
+    pub color: [F; 3],
+    pub depth: F,
+}
+
+impl<F: Real> SplatGrad<F> {
+    #[inline]
+    pub fn add(&mut self, o: &SplatGrad<F>) {
+        for i in 0..2 {
+            self.xy[i] = self.xy[i] + o.xy[i];
+        }
+        for i in 0..3 {
+            self.conic[i] = self.conic[i] + o.conic[i];
+            self.color[i] = self.color[i] + o.color[i];
+        }
+        self.opacity = self.opacity + o.opacity;
+        self.depth = self.depth + o.depth;
+    }
+}
 
 pub type V3<F> = [F; 3];
 /// Row-major 3x3 matrix.

@@ -19,8 +19,9 @@
 #[cfg(target_arch = "x86_64")]
 use crate::lanes::{Avx2, Avx2Token};
 use crate::lanes::{Lanes, exp};
-use crate::project::{ALPHA_MAX, ALPHA_MIN, Splat, SplatGrad, T_MIN};
-use crate::raster::{TILE, TileOut, TilePixels};
+use crate::project::{ALPHA_MAX, ALPHA_MIN, Splat, T_MIN};
+use crate::real::SplatGrad;
+use crate::tile::{TILE, TileOut, TilePixels};
 
 /// Which per-pixel kernel composites the tiles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -358,7 +358,7 @@ mod tests {
     fn native_types_sample_like_their_f32_copy() {
         let dims = UVec3::new(5, 4, 3);
         let n = 60;
-        let hash = |i: u32| splat_raster::random::hash32(&[0xb0c5, i]);
+        let hash = |i: u32| render_base::hash::hash32(&[0xb0c5, i]);
         let grids = [
             (Voxels::U8((0..n).map(|i| hash(i) as u8).collect()), 1),
             (Voxels::I8((0..n).map(|i| hash(i) as i8).collect()), 1),
@@ -376,9 +376,9 @@ mod tests {
             assert_eq!(native.range(), copy.range());
             for k in 0..2000u32 {
                 let u = Vec3::new(
-                    splat_raster::random::unit_f32(hash(3 * k + 1000)) * 6.0 - 0.5,
-                    splat_raster::random::unit_f32(hash(3 * k + 1001)) * 5.0 - 0.5,
-                    splat_raster::random::unit_f32(hash(3 * k + 1002)) * 4.0 - 0.5,
+                    render_base::hash::unit_f32(hash(3 * k + 1000)) * 6.0 - 0.5,
+                    render_base::hash::unit_f32(hash(3 * k + 1001)) * 5.0 - 0.5,
+                    render_base::hash::unit_f32(hash(3 * k + 1002)) * 4.0 - 0.5,
                 );
                 assert_eq!(
                     native.sample_trilinear(u),

@@ -43,8 +43,9 @@ pub use phase::Phase;
 pub use render::{
     CachedFrame, RenderSettings, RenderStats, render, render_frame_with, render_samples,
 };
-/// Cancellation and progress of long work (from render-base, re-exported for callers).
-pub use render_base::Control;
+/// The camera and the cancellation and progress of long work (from render-base, re-exported
+/// for callers).
+pub use render_base::{Camera, Control};
 pub use scene::{Scene, load_scene};
 pub use shard::{PartialRender, RenderKey, Shard};
 pub use transfer::TransferFunction;

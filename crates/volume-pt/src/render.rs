@@ -7,8 +7,8 @@ use crate::film::{ExactRgb, Film, Tile};
 use crate::integrator::{PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
 use rayon::prelude::*;
+use render_base::Camera;
 use render_base::Control;
-use splat_raster::Camera;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Everything a render needs besides the scene.

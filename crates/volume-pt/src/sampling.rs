@@ -8,14 +8,7 @@
 use glam::Vec3;
 use std::f32::consts::PI;
 
-#[inline]
-fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-const GOLDEN: u64 = 0x9e37_79b9_7f4a_7c15;
+use render_base::hash::{GOLDEN_GAMMA as GOLDEN, splitmix64_finalize as mix64};
 
 /// The random numbers of one (seed, pixel, sample): dimension `k` is the k-th draw.
 #[derive(Debug, Clone)]

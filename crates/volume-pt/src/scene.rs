@@ -12,8 +12,8 @@ use crate::render::RenderSettings;
 use crate::transfer::{PiecewiseLinear, TransferFunction, read_paraview_preset};
 use glam::{UVec3, Vec3};
 use hdr_image::ToneMap;
+use render_base::Camera;
 use serde::Deserialize;
-use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 
 /// Which kind of emitter a `[[light]]` table describes.

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use glam::{DVec3, Vec3};
-use splat_raster::Camera;
+use volume_pt::Camera;
 use volume_pt::integrator::{IntegratorKind, PathSettings, SceneMedia, radiance};
 use volume_pt::sampling::SampleStream;
 use volume_pt::{Light, Lights, Phase, SphereLight, load_scene};

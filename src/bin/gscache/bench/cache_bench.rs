@@ -5,6 +5,7 @@
 //! spp, at the scene camera) is compared with a high-spp `nee` reference made once and kept on
 //! disk.
 
+use crate::bench::DataDirs;
 use anyhow::Result;
 use glam::Vec3;
 use gs_cache::{CacheConfig, Lookup};
@@ -16,6 +17,8 @@ use volume_pt::{IntegratorKind, Scene, load_scene};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct CacheBenchArgs {
+    #[command(flatten)]
+    pub data: crate::bench::DataArg,
     /// Scene files (default: every scene in data/scenes; those reading ../shared/data are
     /// skipped with a note when it is absent).
     pub scenes: Vec<PathBuf>,
@@ -47,13 +50,12 @@ pub struct CacheBenchArgs {
 }
 
 /// The scenes measured by default: every volume the project renders.
-pub fn default_scenes() -> Vec<PathBuf> {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes");
+pub fn default_scenes(data: &DataDirs) -> Vec<PathBuf> {
     [
         "default", "ironprot", "hydrogen", "headsq", "chest_ct", "embryo",
     ]
     .iter()
-    .map(|s| root.join(format!("{s}.toml")))
+    .map(|s| data.scene(s))
     .collect()
 }
 
@@ -178,9 +180,9 @@ fn fly(
     ))
 }
 
-pub fn run(args: &CacheBenchArgs) -> Result<()> {
+pub fn run(args: &CacheBenchArgs, data: &DataDirs) -> Result<()> {
     let scenes = if args.scenes.is_empty() {
-        default_scenes()
+        default_scenes(data)
     } else {
         args.scenes.clone()
     };

@@ -18,6 +18,8 @@ use volume_pt::{Film, load_scene, render};
 
 #[derive(clap::Args, Debug)]
 pub struct LargeArgs {
+    #[command(flatten)]
+    pub data: crate::bench::DataArg,
     /// Voxels along each axis of the generated volume (1024: 1.07 G voxels).
     #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(64..=4096))]
     voxels: u32,
@@ -33,7 +35,7 @@ pub struct LargeArgs {
 }
 
 /// The tile: the bundled neghip volume.
-const TILE: &str = "data/volumes/neghip_64x64x64_uint8.raw";
+const TILE: &str = "volumes/neghip_64x64x64_uint8.raw";
 const TILE_SIDE: u32 = 64;
 
 /// Writes `voxels^3` uint8 voxels tiled from `tile` (side `TILE_SIDE`), one z-slice at a time,
@@ -125,15 +127,16 @@ fn peak_resident_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
-pub fn run(args: &LargeArgs) -> Result<()> {
+pub fn run(args: &LargeArgs, data: &crate::bench::DataDirs) -> Result<()> {
     if !args.voxels.is_multiple_of(TILE_SIDE) {
         bail!(
             "--voxels {} is not a multiple of the tile's {TILE_SIDE} voxels",
             args.voxels
         );
     }
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let tile = std::fs::read(root.join(TILE)).with_context(|| format!("reading {TILE}"))?;
+    let tile_path = data.bundled.join(TILE);
+    let tile =
+        std::fs::read(&tile_path).with_context(|| format!("reading {}", tile_path.display()))?;
     if tile.len() != (TILE_SIDE as usize).pow(3) {
         bail!(
             "{TILE}: {} bytes, expected {}",

@@ -17,7 +17,9 @@
 //! - `bench large`: the path tracer on a gigavoxel (a bundled volume tiled to 1024^3): load
 //!   time, peak memory, samples per second.
 //!
-//! Inputs that live in `../shared/data` are skipped, with a note, when it is absent.
+//! The bundled data comes from `--data DIR` (a clone's `data/`), else `data/` in the current
+//! folder, else the source tree the program was built from; inputs that live in `shared/data`
+//! beside the clone are skipped, with a note, when it is absent.
 
 mod cache_bench;
 mod large_bench;
@@ -26,7 +28,7 @@ mod stability_bench;
 mod trace_bench;
 
 use anyhow::Result;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use volume_pt::{Film, IntegratorKind, Scene, load_scene, render};
 
 #[derive(clap::Args, Debug)]
@@ -59,8 +61,19 @@ enum Sub {
     },
 }
 
+/// `--data DIR`, which every bench takes.
+#[derive(clap::Args, Debug, Clone)]
+pub struct DataArg {
+    /// The bundled data folder (a clone's `data/`; default: `data/` here, else the source
+    /// tree's).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+}
+
 #[derive(clap::Args, Debug)]
 struct Args {
+    #[command(flatten)]
+    data: DataArg,
     /// Scene files to measure (default: the bundled and shared scenes in data/scenes).
     scenes: Vec<PathBuf>,
     /// Image width and height.
@@ -91,16 +104,73 @@ fn time_render(scene: &Scene, spp: u32, size: u32) -> (f64, f64) {
     (stats.seconds, stats.samples_per_second())
 }
 
+/// Where the benches' inputs are.
+#[derive(Debug, Clone)]
+pub struct DataDirs {
+    /// The bundled data (`data/` of a clone).
+    pub bundled: PathBuf,
+    /// The shared data beside the clone (`../shared/data`), which may be absent.
+    pub shared: PathBuf,
+}
+
+impl DataDirs {
+    /// `--data`, else `data/` in the current folder, else the source tree's: the first that
+    /// holds `scenes/`. An installed program run elsewhere without `--data` is told so.
+    fn find(flag: Option<&Path>) -> Result<Self> {
+        let is_data = |d: &Path| d.join("scenes").is_dir();
+        let bundled = match flag {
+            Some(d) if is_data(d) => d.to_path_buf(),
+            Some(d) => anyhow::bail!(
+                "--data {}: no scenes/ folder there: expected the data/ folder of a clone",
+                d.display()
+            ),
+            None => [
+                PathBuf::from("data"),
+                PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data"),
+            ]
+            .into_iter()
+            .find(|d| is_data(d))
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "the benches read the bundled data, and there is no data/ here: pass \
+                     --data DIR (the data/ folder of a clone), or run from the clone's folder"
+                )
+            })?,
+        };
+        let shared = bundled.join("../../shared/data");
+        Ok(Self { bundled, shared })
+    }
+
+    /// A bundled scene file by name (`default` is `scenes/default.toml`).
+    pub fn scene(&self, name: &str) -> PathBuf {
+        self.bundled.join("scenes").join(format!("{name}.toml"))
+    }
+}
+
 pub fn run(cli: BenchArgs) -> Result<i32> {
+    if let Some(Sub::Compare { reference, images }) = &cli.command {
+        compare(reference, images)?;
+        return Ok(0);
+    }
+    let flag = match &cli.command {
+        Some(Sub::Splat(a)) => &a.data,
+        Some(Sub::Trace(a)) => &a.data,
+        Some(Sub::Cache(a)) => &a.data,
+        Some(Sub::Stability(a)) => &a.data,
+        Some(Sub::Large(a)) => &a.data,
+        Some(Sub::Pt(a)) => &a.data,
+        Some(Sub::Compare { .. }) | None => &cli.pt.data,
+    };
+    let data = DataDirs::find(flag.data.as_deref())?;
     match cli.command {
-        Some(Sub::Splat(a)) => splat_bench::run(&a),
-        Some(Sub::Trace(a)) => trace_bench::run(&a),
-        Some(Sub::Cache(a)) => cache_bench::run(&a),
-        Some(Sub::Stability(a)) => stability_bench::run(&a),
-        Some(Sub::Large(a)) => large_bench::run(&a),
-        Some(Sub::Pt(a)) => run_pt(a),
-        Some(Sub::Compare { reference, images }) => compare(&reference, &images),
-        None => run_pt(cli.pt),
+        Some(Sub::Splat(a)) => splat_bench::run(&a, &data),
+        Some(Sub::Trace(a)) => trace_bench::run(&a, &data),
+        Some(Sub::Cache(a)) => cache_bench::run(&a, &data),
+        Some(Sub::Stability(a)) => stability_bench::run(&a, &data),
+        Some(Sub::Large(a)) => large_bench::run(&a, &data),
+        Some(Sub::Pt(a)) => run_pt(a, &data),
+        Some(Sub::Compare { .. }) => Ok(()),
+        None => run_pt(cli.pt, &data),
     }?;
     Ok(0)
 }
@@ -127,12 +197,11 @@ fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
-fn run_pt(args: Args) -> Result<()> {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes");
+fn run_pt(args: Args, data: &DataDirs) -> Result<()> {
     let scenes = if args.scenes.is_empty() {
         ["default", "hydrogen", "headsq", "chest_ct", "embryo"]
             .iter()
-            .map(|s| root.join(format!("{s}.toml")))
+            .map(|s| data.scene(s))
             .collect()
     } else {
         args.scenes.clone()

@@ -1,6 +1,7 @@
 //! `bench splat`: forward and backward of the rasteriser, every kernel side by side: a cache
 //! level at 320x180, volume-density clouds and the plant asset at 1280x720.
 
+use crate::bench::DataDirs;
 use anyhow::Result;
 use glam::Vec3;
 use splat_raster::adamw::{AdamW, AdamWConfig};
@@ -8,11 +9,12 @@ use splat_raster::io::read_cloud;
 use splat_raster::random::{hash32, unit_f32};
 use splat_raster::raster::backward;
 use splat_raster::{Camera, ColorModel, GaussianCloud, Kernel, PixelGrads, RasterConfig, render};
-use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct SplatArgs {
+    #[command(flatten)]
+    pub data: crate::bench::DataArg,
     /// Repetitions per measurement (the median is reported).
     #[arg(long, default_value_t = 5)]
     reps: usize,
@@ -40,10 +42,8 @@ fn kernels(with_scalar: bool) -> Vec<Kernel> {
 /// Gaussians spread through the default scene's volume where its transfer function is opaque,
 /// sized like the cache's initialisation (half the mean spacing), seen by its camera: the
 /// density the radiance cache will have.
-pub fn volume_cloud(n: usize) -> Result<(GaussianCloud<f32>, Camera)> {
-    let scene = volume_pt::load_scene(
-        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml"),
-    )?;
+pub fn volume_cloud(n: usize, data: &DataDirs) -> Result<(GaussianCloud<f32>, Camera)> {
+    let scene = volume_pt::load_scene(&data.scene("default"))?;
     let m = &scene.media.medium;
     let (lo, hi) = m.bounds();
     let size = hi - lo;
@@ -150,7 +150,7 @@ fn clock_ghz() -> f64 {
         .map_or(2.6, |mhz| mhz / 1000.0)
 }
 
-pub fn run(a: &SplatArgs) -> Result<()> {
+pub fn run(a: &SplatArgs, data: &DataDirs) -> Result<()> {
     let ghz = clock_ghz();
     println!(
         "Median of {} runs, kernels alternated within each run. Lane evaluations: pixels of every \
@@ -167,18 +167,17 @@ pub fn run(a: &SplatArgs) -> Result<()> {
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut clouds: Vec<(String, GaussianCloud<f32>, Camera)> = Vec::new();
     // A level of the radiance cache as the experiments draw it: 20k Gaussians at 320x180.
-    let (c, mut cam) = volume_cloud(20_000)?;
+    let (c, mut cam) = volume_cloud(20_000, data)?;
     (cam.width, cam.height) = (320, 180);
     clouds.push(("cache level (neghip) 20k".into(), c, cam));
     for n in [10_000, 100_000, 300_000, 1_000_000] {
         if n > a.max_gaussians {
             continue;
         }
-        let (c, cam) = volume_cloud(n)?;
+        let (c, cam) = volume_cloud(n, data)?;
         clouds.push((format!("volume-density (neghip) {}k", n / 1000), c, cam));
     }
-    let plant =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/splats/plant_inria_sh0.ply");
+    let plant = data.shared.join("splats/plant_inria_sh0.ply");
     match read_cloud(&plant) {
         Ok(mut c) => {
             // The asset carries zero SH bands; render it as what it is, degree 0.
@@ -220,7 +219,7 @@ pub fn run(a: &SplatArgs) -> Result<()> {
         }
     }
     // AdamW step over 300k Gaussians (14 floats each, RGB colour).
-    let (cloud, _) = volume_cloud(300_000)?;
+    let (cloud, _) = volume_cloud(300_000, data)?;
     let mut params = cloud.clone();
     let grads = cloud.clone();
     let mut opt = AdamW::new(AdamWConfig::default(), &cloud);

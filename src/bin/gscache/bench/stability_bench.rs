@@ -12,6 +12,8 @@ use volume_pt::IntegratorKind;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct StabilityArgs {
+    #[command(flatten)]
+    pub data: crate::bench::DataArg,
     /// Scene files (default: every scene in data/scenes).
     pub scenes: Vec<PathBuf>,
     #[arg(long, default_value_t = 320)]
@@ -85,9 +87,9 @@ fn inspect(cache: &GsCache, lo: glam::Vec3, hi: glam::Vec3) -> Inspection {
     r
 }
 
-pub fn run(args: &StabilityArgs) -> Result<()> {
+pub fn run(args: &StabilityArgs, data: &crate::bench::DataDirs) -> Result<()> {
     let scenes = if args.scenes.is_empty() {
-        default_scenes()
+        default_scenes(data)
     } else {
         args.scenes.clone()
     };

@@ -4,12 +4,13 @@ use anyhow::Result;
 use glam::Vec3;
 use splat_raster::Camera;
 use splat_raster::io::read_cloud;
-use std::path::PathBuf;
 use std::time::Instant;
 use stochastic_rt::{Estimator, GaussianScene, RandomKind, TraceSettings, trace_image};
 
 #[derive(clap::Args, Debug)]
 pub struct TraceArgs {
+    #[command(flatten)]
+    pub data: crate::bench::DataArg,
     /// Image width (height is 3/4 of it).
     #[arg(long, default_value_t = 1280)]
     width: u32,
@@ -79,9 +80,8 @@ fn mse(a: &[Vec3], b: &[Vec3]) -> f64 {
         / a.len() as f64
 }
 
-pub fn run(a: &TraceArgs) -> Result<()> {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/splats/plant_inria_sh0.ply");
+pub fn run(a: &TraceArgs, data: &crate::bench::DataDirs) -> Result<()> {
+    let path = data.shared.join("splats/plant_inria_sh0.ply");
     let cloud = match read_cloud(&path) {
         Ok(c) => c.sh_truncated(0),
         Err(e) => {
@@ -191,7 +191,7 @@ pub fn run(a: &TraceArgs) -> Result<()> {
     println!("|---|---|---|---|---|---|");
     hash_table("plant", &scene, &cam, a.spp);
     if a.volume_gaussians > 0 {
-        let (vcloud, mut vcam) = crate::bench::splat_bench::volume_cloud(a.volume_gaussians)?;
+        let (vcloud, mut vcam) = crate::bench::splat_bench::volume_cloud(a.volume_gaussians, data)?;
         vcam.width = w;
         vcam.height = h;
         let t = Instant::now();

@@ -689,3 +689,27 @@ fn the_benches_take_their_data_folder_from_a_flag() {
         );
     }
 }
+
+/// A closed pipe is not a panic: `gscache render bad.toml 2>&1 | head -c 1` once exited 101
+/// ("failed printing to stderr"). Both streams are closed before the program writes a word.
+#[cfg(unix)]
+#[test]
+fn a_closed_pipe_is_not_a_panic() {
+    let d = scratch("pipe");
+    let bad = d.join("bad.toml");
+    std::fs::write(&bad, "[volume]\nfile = \"missing.raw\"\n").unwrap();
+    let out = gscache()
+        .arg("render")
+        .arg(&bad)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .and_then(|mut child| {
+            // Close the reading ends at once: every write the program makes meets EPIPE.
+            drop(child.stdout.take());
+            drop(child.stderr.take());
+            child.wait()
+        })
+        .unwrap();
+    assert_eq!(out.code(), Some(1), "{out:?}");
+}

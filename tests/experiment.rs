@@ -362,3 +362,86 @@ fn sharded_experiment_merges_to_the_one_process_results() {
     assert!(e.contains("another version of the experiment"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A shard file is checked before it is merged: a flipped byte fails its checksum, and behind
+/// the checksum (the file re-signed after the edit, as a careless script might) every value is
+/// checked as a fresh measurement would be, so a short image, a NaN pixel, a negative time, a
+/// 0-spp snapshot or a deleted snapshot is refused with the file and the unit, never panicked
+/// on or merged into a silently wrong table.
+#[test]
+fn tampered_shard_files_are_refused() {
+    use gscache_cli::experiment::measure::Budget;
+    use gscache_cli::experiment::shard::{ShardFile, UnitResult};
+    let dir = scratch("tampered");
+    let file = tiny_experiment(&dir);
+    let quiet = |_: &str| {};
+    let whole = dir.join("all.json");
+    gscache_cli::experiment::run_experiment_shard(
+        &file,
+        volume_pt::Shard::new(0, 1).unwrap(),
+        &whole,
+        &quiet,
+    )
+    .unwrap();
+    let merge = |p: &Path| {
+        gscache_cli::experiment::merge_experiment(
+            &file,
+            &[p.to_path_buf()],
+            Some(&dir.join("m")),
+            &quiet,
+        )
+        .map(|_| ())
+        .map_err(|e| format!("{e:#}"))
+    };
+    merge(&whole).expect("the untouched shard merges");
+    // One byte flipped inside an image's base64: the checksum no longer matches.
+    let text = std::fs::read_to_string(&whole).unwrap();
+    let at = text.find("\"image\":\"").unwrap() + 20;
+    let mut flipped = text.into_bytes();
+    flipped[at] = if flipped[at] == b'A' { b'B' } else { b'A' };
+    let path = dir.join("flipped.json");
+    std::fs::write(&path, flipped).unwrap();
+    let e = merge(&path).unwrap_err();
+    assert!(e.contains("flipped.json") && e.contains("checksum"), "{e}");
+    // Edits re-signed by `write`: the values behind the checksum are checked.
+    type Edit = fn(&mut ShardFile);
+    fn first_method(f: &mut ShardFile) -> &mut Vec<gscache_cli::experiment::measure::Snapshot> {
+        f.units
+            .iter_mut()
+            .find_map(|(_, u)| match u {
+                UnitResult::Method { snapshots, .. } => Some(snapshots),
+                _ => None,
+            })
+            .unwrap()
+    }
+    let cases: [(Edit, &str); 6] = [
+        (
+            |f| {
+                first_method(f)[0].image.pop();
+            },
+            "1295 pixels",
+        ),
+        (|f| first_method(f)[0].image[7].y = f32::NAN, "pixel 7"),
+        (|f| first_method(f)[1].image[3].x = -1.0, "pixel 3"),
+        (|f| first_method(f)[0].seconds = -1.0, "-1"),
+        (|f| first_method(f)[2].spp = 0, "0 spp"),
+        (
+            |f| {
+                first_method(f).retain(|s| s.budget != Budget::Spp(8));
+            },
+            "budget 8 spp",
+        ),
+    ];
+    for (i, (edit, needle)) in cases.into_iter().enumerate() {
+        let mut f = ShardFile::read(&whole).unwrap();
+        edit(&mut f);
+        let path = dir.join(format!("edit{i}.json"));
+        f.write(&path).unwrap();
+        let e = merge(&path).unwrap_err();
+        assert!(
+            e.contains(&format!("edit{i}.json")) && e.contains("unit 0") && e.contains(needle),
+            "case {i}: {e}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -72,13 +72,15 @@ pub fn merge_experiment(
 ) -> Result<Results> {
     let exp = load_with_output(path, output)?;
     let (main, ablation) = run::all_budgets(&exp);
-    let count = shard::units(&exp, &main, &ablation).len();
-    let key = shard::experiment_key(path, &exp, count)?;
+    let specs = shard::units(&exp, &main, &ablation);
+    let key = shard::experiment_key(path, &exp, specs.len())?;
     let files = shard_files
         .iter()
         .map(|p| Ok((p.clone(), shard::ShardFile::read(p)?)))
         .collect::<Result<Vec<_>>>()?;
-    let measured = shard::gather_units(&files, &key, count)?;
+    let scene = run::experiment_scene(&exp)?;
+    let pixels = scene.camera.width as usize * scene.camera.height as usize;
+    let measured = shard::gather_units(&files, &key, &specs, pixels)?;
     let results = run::merge(&exp, measured, progress)?;
     write_outputs(&exp, &results, progress)?;
     Ok(results)

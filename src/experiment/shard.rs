@@ -135,9 +135,16 @@ pub struct ShardFile {
     pub shard: String,
     pub unit_count: usize,
     pub units: Vec<(usize, UnitResult)>,
+    /// FNV-1a of the key, the unit count and the units as written: a file edited or damaged
+    /// after it was written is refused.
+    #[serde(default)]
+    pub checksum: String,
 }
 
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
+
+/// The longest a unit's time may be (seconds): 115 days. A larger one is not a measurement.
+const MAX_SECONDS: f64 = 1e7;
 
 /// Measures the units of `shard`.
 pub fn run_shard(
@@ -163,14 +170,27 @@ pub fn run_shard(
         shard: shard.to_string(),
         unit_count: units.len(),
         units: measured,
+        checksum: String::new(),
     })
 }
 
 impl ShardFile {
     /// Writes the file atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text = serde_json::to_string(self)?;
-        crate::write_text(path, &text)
+        let signed = ShardFile {
+            checksum: self.payload_checksum()?,
+            ..self.clone()
+        };
+        crate::write_text(path, &serde_json::to_string(&signed)?)
+    }
+
+    /// The checksum of what the file says (key, unit count, units).
+    fn payload_checksum(&self) -> Result<String> {
+        Ok(RenderKey::new()
+            .part(self.key.as_bytes())
+            .part(&(self.unit_count as u64).to_le_bytes())
+            .part(serde_json::to_string(&self.units)?.as_bytes())
+            .hex())
     }
 
     pub fn read(path: &Path) -> Result<Self> {
@@ -186,22 +206,31 @@ impl ShardFile {
         })?;
         if f.format != FORMAT {
             bail!(
-                "{}: shard file format {}: expected {FORMAT}",
+                "{}: shard file format {}: expected {FORMAT} (run the shard again with this gscache)",
                 path.display(),
                 f.format
+            );
+        }
+        if f.payload_checksum()? != f.checksum {
+            bail!(
+                "{}: the checksum does not match: the file was changed or damaged after it was written",
+                path.display()
             );
         }
         Ok(f)
     }
 }
 
-/// Every unit from `files`, checked against the experiment's key and unit count: none
-/// missing, none twice.
+/// Every unit from `files`, checked against the experiment's key and units (`specs`, whose
+/// images have `pixels` pixels): none missing, none twice, and each one checked as a fresh
+/// measurement would be ([`check_unit`]).
 pub fn gather_units(
     files: &[(std::path::PathBuf, ShardFile)],
     key: &str,
-    unit_count: usize,
+    specs: &[UnitSpec<'_>],
+    pixels: usize,
 ) -> Result<BTreeMap<usize, UnitResult>> {
+    let unit_count = specs.len();
     let mut out = BTreeMap::new();
     for (path, f) in files {
         if f.key != key || f.unit_count != unit_count {
@@ -219,6 +248,8 @@ pub fn gather_units(
                     path.display()
                 );
             }
+            check_unit(&specs[*k], r, pixels)
+                .map_err(|e| anyhow::anyhow!("{}: unit {k}: {e}", path.display()))?;
         }
     }
     let missing: Vec<String> = (0..unit_count)
@@ -232,6 +263,103 @@ pub fn gather_units(
         );
     }
     Ok(out)
+}
+
+/// Checks a unit read from a shard file as a fresh measurement would be: the kind of unit its
+/// spec says; every budget of the spec snapshotted exactly once; images of `pixels` pixels,
+/// each finite and >= 0; times finite, >= 0 and at most [`MAX_SECONDS`]; at least 1 spp.
+pub fn check_unit(spec: &UnitSpec<'_>, r: &UnitResult, pixels: usize) -> Result<(), String> {
+    let seconds = |what: &str, s: f64| {
+        if (0.0..=MAX_SECONDS).contains(&s) {
+            Ok(())
+        } else {
+            Err(format!(
+                "{what} {s}: expected a time in seconds from 0 to {MAX_SECONDS:e}"
+            ))
+        }
+    };
+    let image = |what: &str, px: &[Vec3]| {
+        if px.len() != pixels {
+            return Err(format!(
+                "{what} has {} pixels: expected the experiment's {pixels}",
+                px.len()
+            ));
+        }
+        match px
+            .iter()
+            .position(|p| !(p.is_finite() && p.min_element() >= 0.0))
+        {
+            Some(i) => Err(format!(
+                "{what}: pixel {i} is {}: expected finite radiance >= 0",
+                px[i]
+            )),
+            None => Ok(()),
+        }
+    };
+    let loss = |l: &Option<f64>| match l {
+        Some(v) if !(*v >= 0.0 && v.is_finite()) => Err(format!("a training loss of {v}")),
+        _ => Ok(()),
+    };
+    match (spec, r) {
+        (UnitSpec::Method { budgets, .. }, UnitResult::Method { snapshots, record }) => {
+            for b in budgets.iter() {
+                let n = snapshots.iter().filter(|s| s.budget == *b).count();
+                if n != 1 {
+                    return Err(format!(
+                        "{n} snapshots at budget {b}: expected exactly one per budget"
+                    ));
+                }
+            }
+            if snapshots.len() != budgets.len() {
+                return Err(format!(
+                    "{} snapshots for {} budgets",
+                    snapshots.len(),
+                    budgets.len()
+                ));
+            }
+            for s in snapshots {
+                if s.spp == 0 {
+                    return Err(format!("the snapshot at {} has 0 spp", s.budget));
+                }
+                seconds(&format!("the snapshot at {} took", s.budget), s.seconds)?;
+                image(&format!("the snapshot at {}", s.budget), &s.image)?;
+            }
+            if let Some(c) = record {
+                seconds("the cache's initialisation took", c.init_seconds)?;
+                seconds("the cache's warm-up took", c.warmup_seconds)?;
+                for f in &c.frame_seconds {
+                    for &x in f {
+                        seconds("a cached frame's part took", x)?;
+                    }
+                }
+                for l in c.level_mse.iter().flatten() {
+                    loss(l)?;
+                }
+                for (i, level) in c.level_images.iter().enumerate() {
+                    image(&format!("the cache's level image {i}"), level)?;
+                }
+            }
+            Ok(())
+        }
+        (UnitSpec::Fly { .. }, UnitResult::Fly(frames)) => {
+            for f in frames {
+                let at = format!("fly-through `{}` frame {}", f.flythrough, f.frame);
+                for ms in [f.trace_ms, f.splat_ms, f.train_ms, f.total_ms] {
+                    seconds(&format!("{at} took"), ms / 1e3)?;
+                }
+                if let Some(e) = f.rel_mse
+                    && !(e >= 0.0 && e.is_finite())
+                {
+                    return Err(format!("{at}: relMSE {e}: expected a finite value >= 0"));
+                }
+                for l in &f.level_mse {
+                    loss(l)?;
+                }
+            }
+            Ok(())
+        }
+        _ => Err("a unit of another kind than the experiment has here".into()),
+    }
 }
 
 /// Images in shard files: f32 bits in base64 (exact, and a third the size of decimal text).

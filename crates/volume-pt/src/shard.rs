@@ -12,8 +12,12 @@
 //! settings: [`RenderKey`]); a merge refuses parts of another render and any sample range
 //! given twice, so a stale or repeated shard cannot slip into an image.
 //!
-//! The file is `GSPARTIAL 1\n`, one line of JSON (the header), then per pixel, row-major,
-//! three little-endian i128 sums and a u32 count (52 bytes).
+//! The file is `GSPARTIAL 2\n`, one line of JSON (the header), then per pixel, row-major,
+//! three little-endian i128 sums and a u32 count (52 bytes). The header carries a checksum of
+//! itself and the pixels, and a file is read as a fresh render would be checked: no pixel holds
+//! more samples than its ranges, no sum more than its samples can carry, and a merge's
+//! arithmetic is checked, so a damaged or edited file is refused rather than merged into wrong
+//! pixels.
 
 use crate::error::{Error, Result};
 use crate::film::{ExactRgb, Film};
@@ -118,9 +122,26 @@ struct Header {
     spp: u32,
     ranges: Vec<[u32; 2]>,
     nonfinite_samples: u64,
+    /// FNV-1a of the header (with this field empty) and the pixel bytes, 16 hex digits.
+    #[serde(default)]
+    checksum: String,
 }
 
-const MAGIC: &[u8] = b"GSPARTIAL 1\n";
+const MAGIC: &[u8] = b"GSPARTIAL 2\n";
+
+/// The largest fixed-point sum one sample adds to a channel: [`crate::film::MAX_SAMPLE_RADIANCE`]
+/// in 2^-56 steps (2^95). A pixel's sums are at most its count times this.
+const MAX_STEPS_PER_SAMPLE: i128 = 1 << 95;
+
+/// The checksum of a header (its own checksum left empty) and the pixel bytes.
+fn checksum(header: &Header, pixels: &[u8]) -> String {
+    let unsigned = Header {
+        checksum: String::new(),
+        ..header.clone()
+    };
+    let text = serde_json::to_string(&unsigned).expect("the header serialises");
+    RenderKey::new().part(text.as_bytes()).part(pixels).hex()
+}
 const BYTES_PER_PIXEL: u64 = 3 * 16 + 4;
 /// The header line's longest allowed length: a header is a few hundred bytes.
 const MAX_HEADER: usize = 1 << 20;
@@ -150,6 +171,7 @@ impl PartialRender {
                     vec![[samples.start, samples.end]]
                 },
                 nonfinite_samples: film.nonfinite_samples,
+                checksum: String::new(),
             },
             sums,
             counts,
@@ -212,12 +234,26 @@ impl PartialRender {
                 )));
             }
         }
-        for (s, o) in self.sums.iter_mut().zip(&other.sums) {
-            *s += *o;
+        // Checked before anything changes: a sum or a count that would overflow is refused
+        // (a partial read from a file has been checked, but two valid ones can still add up to
+        // more samples than a pixel holds).
+        let overflow = |what: &str| {
+            Error::Invalid(format!(
+                "merging these partials overflows a pixel's {what}: they cannot be parts of one render"
+            ))
+        };
+        let mut sums = self.sums.clone();
+        for (s, o) in sums.iter_mut().zip(&other.sums) {
+            for (a, b) in s.0.iter_mut().zip(o.0) {
+                *a = a.checked_add(b).ok_or_else(|| overflow("sum"))?;
+            }
         }
-        for (c, o) in self.counts.iter_mut().zip(&other.counts) {
-            *c = c.saturating_add(*o);
+        let mut counts = self.counts.clone();
+        for (c, o) in counts.iter_mut().zip(&other.counts) {
+            *c = c.checked_add(*o).ok_or_else(|| overflow("sample count"))?;
         }
+        self.sums = sums;
+        self.counts = counts;
         // Kept sorted and coalesced, so a complete merge holds the one range `0..spp`.
         let mut ranges = std::mem::take(&mut self.header.ranges);
         ranges.extend(b.ranges.iter().copied());
@@ -228,7 +264,10 @@ impl PartialRender {
                 _ => self.header.ranges.push(r),
             }
         }
-        self.header.nonfinite_samples += b.nonfinite_samples;
+        self.header.nonfinite_samples = self
+            .header
+            .nonfinite_samples
+            .saturating_add(b.nonfinite_samples);
         Ok(())
     }
 
@@ -258,19 +297,23 @@ impl PartialRender {
 
     /// The file's bytes.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let header = serde_json::to_string(&self.header).expect("the header serialises");
-        let mut out = Vec::with_capacity(
-            MAGIC.len() + header.len() + 1 + self.counts.len() * BYTES_PER_PIXEL as usize,
-        );
+        let mut pixels = Vec::with_capacity(self.counts.len() * BYTES_PER_PIXEL as usize);
+        for (s, c) in self.sums.iter().zip(&self.counts) {
+            for v in s.0 {
+                pixels.extend_from_slice(&v.to_le_bytes());
+            }
+            pixels.extend_from_slice(&c.to_le_bytes());
+        }
+        let header = Header {
+            checksum: checksum(&self.header, &pixels),
+            ..self.header.clone()
+        };
+        let header = serde_json::to_string(&header).expect("the header serialises");
+        let mut out = Vec::with_capacity(MAGIC.len() + header.len() + 1 + pixels.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(header.as_bytes());
         out.push(b'\n');
-        for (s, c) in self.sums.iter().zip(&self.counts) {
-            for v in s.0 {
-                out.extend_from_slice(&v.to_le_bytes());
-            }
-            out.extend_from_slice(&c.to_le_bytes());
-        }
+        out.extend_from_slice(&pixels);
         out
     }
 
@@ -278,6 +321,12 @@ impl PartialRender {
     /// against the bytes present before anything is allocated.
     pub fn from_bytes(bytes: &[u8], origin: &Path) -> Result<Self> {
         let bad = |m: String| Error::format(origin, format!("partial render: {m}"));
+        if bytes.starts_with(b"GSPARTIAL ") && !bytes.starts_with(MAGIC) {
+            return Err(bad(
+                "written by an older version of gscache (no checksum): render the shard again"
+                    .into(),
+            ));
+        }
         let rest = bytes.strip_prefix(MAGIC).ok_or_else(|| {
             bad("not a partial render (expected a file written by `gscache render --partial` or `Partial.write`)".into())
         })?;
@@ -288,7 +337,8 @@ impl PartialRender {
             .ok_or_else(|| bad("the header line is missing or too long".into()))?;
         let text =
             std::str::from_utf8(&rest[..end]).map_err(|_| bad("the header is not UTF-8".into()))?;
-        let header: Header = serde_json::from_str(text).map_err(|e| bad(format!("header: {e}")))?;
+        let mut header: Header =
+            serde_json::from_str(text).map_err(|e| bad(format!("header: {e}")))?;
         let data = &rest[end + 1..];
         let pixels = header.width as u64 * header.height as u64;
         if pixels == 0 || data.len() as u64 != pixels * BYTES_PER_PIXEL {
@@ -300,6 +350,13 @@ impl PartialRender {
                 pixels * BYTES_PER_PIXEL
             )));
         }
+        let stated = std::mem::take(&mut header.checksum);
+        if checksum(&header, data) != stated {
+            return Err(bad(
+                "the checksum does not match: the file was changed or damaged after it was written"
+                    .into(),
+            ));
+        }
         for r in &header.ranges {
             if !(r[0] < r[1] && r[1] <= header.spp) {
                 return Err(bad(format!(
@@ -308,18 +365,42 @@ impl PartialRender {
                 )));
             }
         }
+        // Ranges that overlap, or more samples than a pixel's count can hold, are refused
+        // like a merge of the same shard twice.
+        let mut sorted = header.ranges.clone();
+        sorted.sort_by_key(|r| r[0]);
+        if sorted.windows(2).any(|w| w[1][0] < w[0][1]) {
+            return Err(bad("sample ranges overlap".into()));
+        }
+        let range_samples: u64 = sorted.iter().map(|r| (r[1] - r[0]) as u64).sum();
         let mut sums = Vec::with_capacity(pixels as usize);
         let mut counts = Vec::with_capacity(pixels as usize);
-        for px in data.chunks_exact(BYTES_PER_PIXEL as usize) {
+        for (i, px) in data.chunks_exact(BYTES_PER_PIXEL as usize).enumerate() {
+            let at = || {
+                let w = header.width as usize;
+                format!("pixel ({}, {})", i % w, i / w)
+            };
+            let count = u32::from_le_bytes(px[48..52].try_into().expect("4 bytes"));
+            if count as u64 > range_samples {
+                return Err(bad(format!(
+                    "{} holds {count} samples, but its sample ranges hold {range_samples}",
+                    at()
+                )));
+            }
+            let most = count as i128 * MAX_STEPS_PER_SAMPLE;
             let mut s = [0i128; 3];
             for (k, v) in s.iter_mut().enumerate() {
                 *v = i128::from_le_bytes(px[16 * k..16 * k + 16].try_into().expect("16 bytes"));
-                if *v < 0 {
-                    return Err(bad("a negative sum (the file is damaged)".into()));
+                if !(0..=most).contains(v) {
+                    return Err(bad(format!(
+                        "{} has a sum its {count} samples cannot carry (negative, or above \
+                         {count} x the largest sample)",
+                        at()
+                    )));
                 }
             }
             sums.push(ExactRgb(s));
-            counts.push(u32::from_le_bytes(px[48..52].try_into().expect("4 bytes")));
+            counts.push(count);
         }
         Ok(Self {
             header,
@@ -359,5 +440,116 @@ impl PartialRender {
             .and_then(|f| f.take(limit).read_to_end(&mut bytes))
             .map_err(|e| Error::io(path, e))?;
         Self::from_bytes(&bytes, path)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 3x2 partial of samples 2..6 of an 8-sample render: every pixel 4 samples of 0.5.
+    fn partial() -> PartialRender {
+        let mut film = Film::new(3, 2);
+        let sample = ExactRgb::from_sample(glam::Vec3::splat(0.5)).unwrap();
+        let (mut sums, counts) = film.exact_sums();
+        for s in &mut sums {
+            for _ in 0..4 {
+                *s += sample;
+            }
+        }
+        film.nonfinite_samples = 0;
+        let mut p = PartialRender::from_film(&film, "key", 8, 2..6);
+        p.sums = sums;
+        p.counts = counts.iter().map(|_| 4).collect();
+        p
+    }
+
+    /// The bytes of `p` as written, with its pixels edited by `edit` and the checksum made to
+    /// match again: what the value checks behind the checksum must catch on their own.
+    fn resigned(p: &PartialRender, edit: impl FnOnce(&mut PartialRender)) -> Vec<u8> {
+        let mut q = p.clone();
+        edit(&mut q);
+        q.to_bytes()
+    }
+
+    fn refusal(bytes: &[u8]) -> String {
+        match PartialRender::from_bytes(bytes, Path::new("t.gspartial")) {
+            Ok(_) => panic!("a tampered partial was read"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn every_flipped_byte_is_caught_by_the_checksum() {
+        let p = partial();
+        let bytes = p.to_bytes();
+        assert_eq!(
+            PartialRender::from_bytes(&bytes, Path::new("t")).unwrap(),
+            PartialRender {
+                header: Header {
+                    checksum: String::new(),
+                    ..p.header.clone()
+                },
+                ..p.clone()
+            }
+        );
+        let header_end = MAGIC.len()
+            + bytes[MAGIC.len()..]
+                .iter()
+                .position(|&b| b == b'\n')
+                .unwrap();
+        // Every byte of the pixels, and every byte of the header's values (flipping its
+        // punctuation breaks the JSON first, which is refused too).
+        for i in MAGIC.len()..bytes.len() {
+            if i == header_end {
+                continue;
+            }
+            let mut b = bytes.clone();
+            b[i] ^= 0x10;
+            assert!(
+                PartialRender::from_bytes(&b, Path::new("t")).is_err(),
+                "byte {i} flipped was read"
+            );
+        }
+        let mut old = bytes.clone();
+        old[..MAGIC.len()].copy_from_slice(b"GSPARTIAL 1\n");
+        assert!(refusal(&old).contains("older version"));
+    }
+
+    #[test]
+    fn values_no_render_can_hold_are_refused_behind_the_checksum() {
+        let p = partial();
+        let e = refusal(&resigned(&p, |q| q.sums[1].0[0] = i128::MAX));
+        assert!(
+            e.contains("pixel (1, 0)") && e.contains("cannot carry"),
+            "{e}"
+        );
+        let e = refusal(&resigned(&p, |q| q.sums[4].0[2] = -1));
+        assert!(e.contains("pixel (1, 1)"), "{e}");
+        let e = refusal(&resigned(&p, |q| q.counts[2] = u32::MAX));
+        assert!(e.contains("holds 4294967295 samples"), "{e}");
+        let e = refusal(&resigned(&p, |q| q.counts[0] = 0));
+        assert!(
+            e.contains("pixel (0, 0)") && e.contains("cannot carry"),
+            "{e}"
+        );
+        let e = refusal(&resigned(&p, |q| q.header.ranges = vec![[2, 6], [4, 8]]));
+        assert!(e.contains("overlap"), "{e}");
+    }
+
+    /// Partials that have been read are checked, so no two possible ones overflow on merge;
+    /// the merge's own arithmetic is checked all the same (partials made in memory are not read
+    /// from a file), and a refused merge leaves the partial merged into as it was.
+    #[test]
+    fn a_merge_that_would_overflow_is_refused() {
+        let mut a = partial();
+        let mut b = partial();
+        b.header.ranges = vec![[6, 8]];
+        a.sums[0].0[0] = i128::MAX - 5;
+        b.sums[0].0[0] = 10;
+        let before = a.clone();
+        let e = a.merge(&b).unwrap_err().to_string();
+        assert!(e.contains("overflows"), "{e}");
+        assert_eq!(a, before);
     }
 }

@@ -9,6 +9,24 @@
 //! `--threads` and `--quiet` apply to all of them; long work stops cleanly on Ctrl-C, SIGTERM
 //! or SIGHUP and keeps what it has done (see `common`).
 
+/// `println!` that never panics. The standard one panics when stdout is a closed pipe
+/// (`gscache render ... | head -c 1`); this one drops the line and lets the work (an image being
+/// written) finish. Defined before the modules, so it shadows the standard macro in all of them.
+macro_rules! println {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
+/// `eprintln!` that never panics on a closed stderr (see `println!` above).
+macro_rules! eprintln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
 mod bench;
 mod common;
 mod experiment;

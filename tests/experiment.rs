@@ -171,6 +171,19 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         std::fs::metadata(&reference).unwrap().modified().unwrap(),
         modified
     );
+    // A kept reference with a NaN pixel is rendered again, not reused (it once gave relMSE
+    // NaN, PSNR 2760 dB and an efficiency of 1e300).
+    let mut damaged = hdr_image::RgbImage::read_exr(&reference).unwrap();
+    damaged.pixels_mut()[5] = glam::Vec3::new(f32::NAN, 0.0, 0.0);
+    damaged.write_exr(&reference).unwrap();
+    let third = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    assert!(!third.reference.reused);
+    assert!(
+        third
+            .runs
+            .iter()
+            .all(|r| r.rel_mse.is_finite() && r.psnr_hdr < 200.0)
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -95,6 +95,12 @@ pub(crate) fn splat_render<'py>(
     stochastic: Option<u32>,
     kernel: &str,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    if stochastic == Some(0) {
+        // The program refuses `--stochastic 0` at its flag; 0 samples would be a black image.
+        return Err(crate::error(
+            "stochastic = 0: expected at least 1 sample per pixel (or None for sorted compositing)",
+        ));
+    }
     let cam = camera(eye, target, up, fov, width, height)?;
     let cfg = RasterConfig {
         low_pass: if mip { LowPass::Mip } else { LowPass::Classic },

@@ -21,8 +21,13 @@ pub(crate) struct Outcome<T> {
 
 /// A pool of `threads` workers (all cores when `None`).
 pub(crate) fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
-    if threads == Some(0) {
-        return Err(crate::error("threads = 0: expected at least 1 thread"));
+    if let Some(t) = threads
+        && !(1..=render_base::MAX_THREADS).contains(&t)
+    {
+        return Err(crate::error(format!(
+            "threads = {t}: expected 1 to {} threads",
+            render_base::MAX_THREADS
+        )));
     }
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {

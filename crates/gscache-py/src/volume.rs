@@ -42,11 +42,28 @@ fn hash_voxels<T: Copy, const N: usize>(
 
 fn array_voxels(array: &Bound<'_, PyAny>) -> PyResult<(Voxels, [usize; 3], &'static str)> {
     // `iter()` walks a view in logical (C) order whatever its strides: (z, y, x), x fastest.
-    fn take<T: numpy::Element + Copy>(a: PyReadonlyArray3<'_, T>) -> (Vec<T>, [usize; 3]) {
+    // The size is checked as a volume file's is (the program's own check, against the memory
+    // available) before the copy is allocated: a broadcast view of a few bytes can claim
+    // petabytes, and copying it used to abort the interpreter.
+    fn take<T: numpy::Element + Copy>(
+        a: PyReadonlyArray3<'_, T>,
+        dtype: volume_pt::io::DType,
+    ) -> PyResult<(Vec<T>, [usize; 3])> {
         let v = a.as_array();
         let s = v.shape();
         let shape = [s[0], s[1], s[2]];
-        (v.iter().copied().collect(), shape)
+        let dims = [s[2], s[1], s[0]].map(|n| i64::try_from(n).unwrap_or(i64::MAX));
+        volume_pt::io::check_volume_size(std::path::Path::new("<numpy array>"), dims, dtype)
+            .map_err(crate::error)?;
+        let mut out = Vec::new();
+        out.try_reserve_exact(v.len()).map_err(|_| {
+            pyo3::exceptions::PyMemoryError::new_err(format!(
+                "a {}x{}x{} array: not enough memory for its copy",
+                s[2], s[1], s[0]
+            ))
+        })?;
+        out.extend(v.iter().copied());
+        Ok((out, shape))
     }
     let ndim: usize = array.getattr("ndim")?.extract()?;
     let dtype = array.getattr("dtype")?.str()?.to_string();
@@ -56,23 +73,23 @@ fn array_voxels(array: &Bound<'_, PyAny>) -> PyResult<(Voxels, [usize; 3], &'sta
         )));
     }
     if let Ok(a) = array.extract::<PyReadonlyArray3<'_, u8>>() {
-        let (v, s) = take(a);
+        let (v, s) = take(a, volume_pt::io::DType::U8)?;
         return Ok((Voxels::U8(v), s, "uint8"));
     }
     if let Ok(a) = array.extract::<PyReadonlyArray3<'_, i8>>() {
-        let (v, s) = take(a);
+        let (v, s) = take(a, volume_pt::io::DType::I8)?;
         return Ok((Voxels::I8(v), s, "int8"));
     }
     if let Ok(a) = array.extract::<PyReadonlyArray3<'_, u16>>() {
-        let (v, s) = take(a);
+        let (v, s) = take(a, volume_pt::io::DType::U16)?;
         return Ok((Voxels::U16(v), s, "uint16"));
     }
     if let Ok(a) = array.extract::<PyReadonlyArray3<'_, i16>>() {
-        let (v, s) = take(a);
+        let (v, s) = take(a, volume_pt::io::DType::I16)?;
         return Ok((Voxels::I16(v), s, "int16"));
     }
     if let Ok(a) = array.extract::<PyReadonlyArray3<'_, f32>>() {
-        let (v, s) = take(a);
+        let (v, s) = take(a, volume_pt::io::DType::F32)?;
         return Ok((Voxels::F32(v), s, "float32"));
     }
     Err(PyTypeError::new_err(format!(

@@ -10,6 +10,11 @@
 //!   finaliser, a 32-bit word hash).
 //! - [`SH_C0`]: the degree-0 spherical-harmonic constant that maps colours to 3DGS coefficients.
 
+/// The most worker threads any entry point (the program's `--threads`, Python's `threads=`)
+/// accepts: one limit, so the two cannot drift apart. More than this is a typo, and a pool of
+/// 100,000 threads hangs the machine rather than failing.
+pub const MAX_THREADS: usize = 1024;
+
 pub mod atomic_file;
 pub mod camera;
 pub mod control;

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(clap::Args, Debug, Clone, Copy)]
 pub struct Global {
     /// Worker threads (default: all cores). Results do not depend on it.
-    #[arg(long, global = true, value_parser = clap::value_parser!(u16).range(1..=1024))]
+    #[arg(long, global = true, value_parser = clap::value_parser!(u16).range(1..=render_base::MAX_THREADS as i64))]
     pub threads: Option<u16>,
     /// No progress bar.
     #[arg(long, short, global = true)]

@@ -1,0 +1,42 @@
+"""Hostile input to the package's entry points: each is refused with a clear message (never an
+abort, a hang or a silent black image), with the same limits as the program. Each case once
+aborted, hung or returned black (issue 32)."""
+
+import numpy as np
+import pytest
+
+import gscache
+from conftest import small_default_scene
+
+
+def small_scene(repo, tmp_path):
+    return gscache.Scene.load(str(small_default_scene(repo, tmp_path, 16, 12)))
+
+
+def test_a_broadcast_view_claiming_petabytes_is_refused_before_the_copy():
+    # 10^15 voxels claimed by a 1-byte array: the copy once aborted the interpreter
+    # ("memory allocation of 1000000000000000 bytes failed").
+    huge = np.broadcast_to(np.zeros(1, np.uint8), (100_000,) * 3)
+    with pytest.raises(gscache.GscacheError, match="100000x100000x100000"):
+        gscache.Volume.from_array(huge)
+
+
+def test_a_thread_count_past_the_programs_limit_is_refused(repo, tmp_path):
+    scene = small_scene(repo, tmp_path)
+    for threads in (0, 100_000):
+        with pytest.raises(gscache.GscacheError, match=f"threads = {threads}: expected 1 to 1024"):
+            gscache.render(scene, spp=1, threads=threads)
+
+
+def test_zero_stochastic_samples_is_refused_not_black(repo):
+    cloud = gscache.Cloud.read(str(repo / "data/splats/fruit_drops_minimal.ply"))
+    with pytest.raises(gscache.GscacheError, match="stochastic = 0"):
+        gscache.splat_render(cloud, [0.0, 0.0, 3.0], [0.0, 0.0, 0.0], width=8, height=8, stochastic=0)
+
+
+def test_a_warm_up_that_would_wrap_is_refused_before_any_work(repo, tmp_path):
+    cache = gscache.Cache(small_scene(repo, tmp_path), {"points": 256, "levels": 2})
+    for warmup in (2**32 - 1, 2**31):
+        with pytest.raises(gscache.GscacheError, match="2\\^32"):
+            cache.render(frames=2, warmup=warmup, spp=2)
+    assert cache.frames == 0

@@ -12,9 +12,21 @@ pub fn level_path(dir: &Path, length: usize) -> PathBuf {
     dir.join(format!("length_{length}.ply"))
 }
 
+/// An empty folder path is refused: it would mean the current folder, which the caller did not
+/// name (the C ABI's `gs_cache_save(h, "")` once wrote its levels there).
+fn refuse_empty(dir: &Path) -> Result<()> {
+    if dir.as_os_str().is_empty() {
+        return Err(CacheError::Config(
+            "the cache folder path is empty: expected a folder to write the levels into".into(),
+        ));
+    }
+    Ok(())
+}
+
 impl GsCache {
     /// Writes every level into `dir` (created if missing).
     pub fn save(&self, dir: &Path) -> Result<()> {
+        refuse_empty(dir)?;
         std::fs::create_dir_all(dir).map_err(|source| CacheError::Io {
             path: dir.to_path_buf(),
             source,
@@ -31,6 +43,7 @@ impl GsCache {
     /// Reads the levels `length_1.ply`, `length_2.ply`, ... from `dir` (as many as are present
     /// in sequence) into a cache with `config`'s settings.
     pub fn load(dir: &Path, config: CacheConfig) -> Result<Self> {
+        refuse_empty(dir)?;
         let mut clouds = Vec::new();
         while clouds.len() < crate::config::MAX_LEVELS {
             let path = level_path(dir, clouds.len() + 1);
@@ -141,5 +154,13 @@ mod tests {
             .err()
             .map(|e| e.to_string());
         assert!(e.is_some_and(|e| e.contains("too few")));
+    }
+
+    #[test]
+    fn an_empty_folder_path_is_refused() {
+        let e = GsCache::load(Path::new(""), CacheConfig::default())
+            .err()
+            .map(|e| e.to_string());
+        assert!(e.is_some_and(|e| e.contains("path is empty")));
     }
 }

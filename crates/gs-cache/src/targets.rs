@@ -5,6 +5,7 @@
 //! every sample in it (a pixel's mean taken with weight 1 would undo them: one path per pixel
 //! has a weighted mean equal to its own sample).
 
+use splat_raster::MAX_SAMPLE_RADIANCE;
 use crate::resolution::PixelMap;
 use crate::termination::luminance;
 use glam::Vec3;
@@ -57,8 +58,9 @@ impl TrainingTargets {
         self.dropped
     }
 
-    /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite and
-    /// non-negative are dropped (they would poison the loss) and counted.
+    /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite,
+    /// negative or above [`MAX_SAMPLE_RADIANCE`] are dropped (they would poison the loss, or
+    /// overflow it) and counted.
     pub fn add(&mut self, level: usize, pixel: usize, value: [f32; 3]) {
         self.add_weighted(level, pixel, value, 1.0);
     }
@@ -67,7 +69,11 @@ impl TrainingTargets {
     /// and counted).
     pub fn add_weighted(&mut self, level: usize, pixel: usize, value: [f32; 3], weight: f32) {
         // Written so that NaN fails.
-        if !(value.iter().all(|v| *v >= 0.0 && v.is_finite()) && weight > 0.0 && weight.is_finite())
+        if !(value
+            .iter()
+            .all(|v| (0.0..=MAX_SAMPLE_RADIANCE).contains(v))
+            && weight > 0.0
+            && weight.is_finite())
         {
             self.dropped += 1;
             return;
@@ -231,6 +237,7 @@ impl TileTargets {
             // so that NaN fails.
             if !(value.is_finite()
                 && value.min_element() >= 0.0
+                && value.max_element() <= MAX_SAMPLE_RADIANCE
                 && weight >= 0.0
                 && weight.is_finite())
             {
@@ -271,6 +278,19 @@ impl TrainingTargets {
 
 #[cfg(test)]
 mod tests {
+
+    /// A target brighter than any sample a film accepts is refused and counted like a NaN one:
+    /// frames of 3e38 targets once overflowed the loss and drew a level of infinite pixels
+    /// (and the C ABI returned OK).
+    #[test]
+    fn targets_above_the_largest_sample_are_dropped() {
+        let mut t = TrainingTargets::new(1, 2, 1);
+        t.add(0, 0, [3e38; 3]);
+        t.add(0, 0, [1.0, MAX_SAMPLE_RADIANCE * 2.0, 1.0]);
+        t.add(0, 1, [MAX_SAMPLE_RADIANCE; 3]);
+        assert_eq!(t.dropped(), 2);
+    }
+
     use super::*;
 
     /// A NaN or negative sample is refused and counted; the pixel keeps the mean of the rest

@@ -15,6 +15,11 @@
 /// 100,000 threads hangs the machine rather than failing.
 pub const MAX_THREADS: usize = 1024;
 
+/// The largest radiance one sample may carry per channel: 2^39 (5.5e11). The film refuses a
+/// brighter sample like a NaN one (its exact sums stay within an i128), and the caches refuse it
+/// as a training target (a level trained on 3e38 drew infinite pixels): one bound for both.
+pub const MAX_SAMPLE_RADIANCE: f32 = (1u64 << 39) as f32;
+
 pub mod atomic_file;
 pub mod camera;
 pub mod control;

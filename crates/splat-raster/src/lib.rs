@@ -43,5 +43,5 @@ pub use cloud::{CloudGradients, ColorModel, GaussianCloud};
 pub use project::LowPass;
 pub use raster::{PixelGrads, RasterConfig, RenderOutput, backward, render};
 /// The degree-0 spherical-harmonic constant (render-base's, the one definition).
-pub use render_base::SH_C0;
+pub use render_base::{MAX_SAMPLE_RADIANCE, SH_C0};
 pub use simd::Kernel;

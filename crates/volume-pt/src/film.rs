@@ -19,7 +19,7 @@ const EXACT_SCALE: f64 = (1u64 << 56) as f64;
 /// The largest radiance a sample may carry per channel: 2^39 (5.5e11). An i128 sum holds
 /// 2^71 in these steps, so even 2^32 samples (the count's limit) at this bound cannot overflow.
 /// A brighter sample is refused like a NaN one (counted, and black).
-pub const MAX_SAMPLE_RADIANCE: f32 = (1u64 << 39) as f32;
+pub const MAX_SAMPLE_RADIANCE: f32 = render_base::MAX_SAMPLE_RADIANCE;
 
 /// An RGB sum in fixed point (2^-56 steps): sums are exact, so any grouping gives the same bits.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

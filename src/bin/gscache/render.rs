@@ -224,7 +224,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     } else {
         1
     };
-    let choice = args.cache.choice(&scene)?;
+    let choice = args.cache.choice()?;
     let spp = scene.settings.spp;
     let mut session = Session::new(scene, choice)?;
     describe_cache(&session, args.cache.load_cache.is_some());
@@ -426,8 +426,7 @@ fn check_image_memory(width: u32, height: u32) -> Result<()> {
 
 impl CacheRun {
     /// The cache these flags ask for.
-    fn choice(&self, scene: &Scene) -> Result<CacheChoice> {
-        let _ = scene;
+    fn choice(&self) -> Result<CacheChoice> {
         Ok(if self.nrc {
             self.nrc_settings.validate()?;
             CacheChoice::Neural(self.nrc_settings)

@@ -713,3 +713,29 @@ fn a_closed_pipe_is_not_a_panic() {
         .unwrap();
     assert_eq!(out.code(), Some(1), "{out:?}");
 }
+
+/// Frame counts that would pass a pixel's 2^32 sample indices are refused before any work
+/// (`--warmup 4294967295` once wrapped and rendered black with exit 0), and nothing is written.
+#[test]
+fn frame_counts_that_would_wrap_are_refused() {
+    let d = scratch("wrap");
+    let exr = d.join("wrapped.exr");
+    for args in [
+        &["--warmup", "4294967295", "--frames", "1", "--spp", "1"][..],
+        &["--warmup", "4294967294", "--frames", "2", "--spp", "1"][..],
+        &["--frames", "2147483648", "--spp", "2"][..],
+    ] {
+        let out = render()
+            .arg(repo().join("data/scenes/default.toml"))
+            .args(["--width", "8", "--height", "8", "-q", "--cache"])
+            .args(args)
+            .arg("-o")
+            .arg(&exr)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("2^32"), "{args:?}: {err}");
+        assert!(!exr.exists(), "{args:?} wrote an image");
+    }
+}

@@ -5,10 +5,10 @@
 //! every sample in it (a pixel's mean taken with weight 1 would undo them: one path per pixel
 //! has a weighted mean equal to its own sample).
 
-use splat_raster::MAX_SAMPLE_RADIANCE;
 use crate::resolution::PixelMap;
 use crate::termination::luminance;
 use glam::Vec3;
+use splat_raster::MAX_SAMPLE_RADIANCE;
 
 /// Training samples of one frame, one image per level, row-major.
 #[derive(Debug, Clone)]

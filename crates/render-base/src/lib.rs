@@ -20,6 +20,12 @@ pub const MAX_THREADS: usize = 1024;
 /// as a training target (a level trained on 3e38 drew infinite pixels): one bound for both.
 pub const MAX_SAMPLE_RADIANCE: f32 = (1u64 << 39) as f32;
 
+/// The largest coordinate, size or distance a volume scene may state (scene units), and the
+/// inverse of the smallest voxel spacing. Positions are f32: at 1e6 a unit is still resolved to
+/// 0.06, and a larger value is a unit mistake (metres read as micrometres, a NIfTI `pixdim` of
+/// 1e30) that would render nonsense or march forever rather than fail.
+pub const MAX_COORDINATE: f32 = 1e6;
+
 pub mod atomic_file;
 pub mod camera;
 pub mod control;

@@ -52,10 +52,24 @@ impl Medium {
         tf: TransferFunction,
         macrocell: u32,
     ) -> crate::Result<Self> {
+        use render_base::MAX_COORDINATE;
         if !(spacing.min_element() > 0.0 && spacing.is_finite() && origin.is_finite()) {
             return Err(crate::Error::Invalid(format!(
                 "volume spacing {spacing} / origin {origin} is invalid: expected finite values and \
                  spacing > 0"
+            )));
+        }
+        // Written so that NaN fails (it cannot reach here, but the form is kept).
+        let far = origin + spacing * grid.dims().as_vec3();
+        if !(spacing.min_element() >= 1.0 / MAX_COORDINATE
+            && origin.abs().max_element() <= MAX_COORDINATE
+            && far.abs().max_element() <= MAX_COORDINATE)
+        {
+            return Err(crate::Error::Invalid(format!(
+                "volume origin {origin}, spacing {spacing}: the box reaches {far}; expected \
+                 coordinates within +-{MAX_COORDINATE:e} and a spacing of at least \
+                 {:e} (check the file's units, or set `spacing` and `origin` in the scene)",
+                1.0 / MAX_COORDINATE
             )));
         }
         let ranges = ValueRanges::build(&grid, macrocell);

@@ -288,3 +288,28 @@ fn lights_are_typed_and_each_kind_is_checked() {
         expect_error(&s, needles);
     }
 }
+
+/// A volume placed or sized past what f32 positions resolve (an origin of 1e9, a spacing of
+/// 1e30 as a NIfTI `pixdim` once gave) is refused with the limit, not rendered as nonsense or
+/// marched through forever.
+#[test]
+fn geometry_past_the_sanity_limits_is_refused() {
+    let d = scratch("geometry");
+    std::fs::write(d.join("v.raw"), vec![7u8; 512]).unwrap();
+    let base = "[volume]\nfile = \"v.raw\"\ndims = [8, 8, 8]\ndtype = \"uint8\"";
+    for (extra, needles) in [
+        ("origin = [1e9, 0, 0]", &["origin", "1e6"][..]),
+        ("spacing = [1e30, 1, 1]", &["spacing", "1e6"][..]),
+        ("spacing = [1e-9, 1, 1]", &["spacing", "1e-6"][..]),
+    ] {
+        let s = write_scene(&d, &format!("{base}\n{extra}"), TF, CAMERA);
+        expect_error(&s, needles);
+    }
+    let s = write_scene(
+        &d,
+        &format!("{base}\nspacing = [1e3, 1e3, 1e3]"),
+        TF,
+        CAMERA,
+    );
+    load_scene(&s).expect("8 km across is within the limits");
+}

@@ -21,10 +21,7 @@ pub use sphere::SphereLight;
 use crate::sampling::{UNIFORM_SPHERE_PDF, uniform_sphere};
 use glam::Vec3;
 
-/// The largest coordinate, radius or distance a scene may state (scene units). Positions are
-/// f32: at 1e6 a unit is still resolved to 0.06, and anything larger is a unit mistake (metres
-/// read as micrometres) that would render nonsense rather than fail.
-pub const MAX_COORDINATE: f32 = 1e6;
+pub use render_base::MAX_COORDINATE;
 
 /// Checks an RGB quantity: finite and >= 0 in every channel.
 fn check_rgb(name: &str, c: Vec3) -> Result<(), String> {

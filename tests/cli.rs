@@ -739,3 +739,59 @@ fn frame_counts_that_would_wrap_are_refused() {
         assert!(!exr.exists(), "{args:?} wrote an image");
     }
 }
+
+/// `splat trace` and `splat render --stochastic` keep their image on SIGINT and SIGTERM (each
+/// pixel the mean of what it finished) and exit 130: they once lost it.
+#[test]
+fn an_interrupted_splat_render_or_trace_writes_what_it_has() {
+    let asset = repo().join("data/splats/fruit_drops_minimal.ply");
+    let view = [
+        "--eye",
+        "0.76,-0.2,-1.4",
+        "--target",
+        "0.76,0.13,-2.1",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "-q",
+    ];
+    for (what, args) in [
+        ("trace", &["trace", "--spp", "100000000"][..]),
+        ("stochastic", &["render", "--stochastic", "100000000"][..]),
+    ] {
+        for signal in ["-INT", "-TERM"] {
+            let d = scratch(&format!("splat-{what}{signal}"));
+            let exr = d.join("partial.exr");
+            let child = gscache()
+                .arg("splat")
+                .args(args)
+                .arg(&asset)
+                .args(view)
+                .arg("-o")
+                .arg(&exr)
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(1500));
+            let status = Command::new("kill")
+                .args([signal, &child.id().to_string()])
+                .status()
+                .unwrap();
+            assert!(status.success());
+            let out = child.wait_with_output().unwrap();
+            assert_eq!(
+                out.status.code(),
+                Some(130),
+                "{what} {signal}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let px = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
+            assert!(
+                px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0),
+                "{what} {signal}"
+            );
+        }
+    }
+}

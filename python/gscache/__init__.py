@@ -32,7 +32,6 @@ from ._gscache import (
     __version__,
     read_exr,
     splat_render,
-    splat_trace,
     write_exr,
     write_png,
 )
@@ -181,6 +180,20 @@ def render(
     )
     if interrupted:
         raise Interrupted(image, samples)
+    return image
+
+
+def splat_trace(cloud: Cloud, eye: Sequence[float], target: Sequence[float], **options: Any) -> np.ndarray:
+    """Ray-traces ``cloud`` with stochastic transparency (Sun et al., 2025) or a baseline:
+    float32 (height, width, 3). ``options`` are ``up``, ``fov``, ``width``, ``height``, ``mode``
+    (``"exact"``, ``"kbuffer"``, ``"stochastic"``, ``"stochastic-pass"``), ``spp``, ``seed``,
+    ``k``, ``min_transmittance``, ``samples_per_traversal``, ``depth``, ``random``,
+    ``background`` and ``threads``, as ``gscache splat trace`` takes them. The GIL is released;
+    Ctrl-C raises ``Interrupted`` holding the image traced so far (each pixel the mean of the
+    estimates it finished)."""
+    image, done, interrupted = _gscache._splat_trace(cloud, eye, target, **options)
+    if interrupted:
+        raise Interrupted(image, done)
     return image
 
 

@@ -40,3 +40,39 @@ def test_a_warm_up_that_would_wrap_is_refused_before_any_work(repo, tmp_path):
         with pytest.raises(gscache.GscacheError, match="2\\^32"):
             cache.render(frames=2, warmup=warmup, spp=2)
     assert cache.frames == 0
+
+
+def test_ctrl_c_stops_splat_trace_with_the_image_so_far(repo):
+    # splat_trace once ignored Ctrl-C (the GIL was released with nothing polling). A timer in
+    # the child sends SIGINT while a trace of 10^7 estimates a pixel runs; the child installs
+    # Python's handler itself (see test_render's Ctrl-C test) and dumps stacks if it hangs.
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        f"""
+        import faulthandler, os, signal, threading, numpy as np, gscache
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        faulthandler.dump_traceback_later(60, exit=True)
+        cloud = gscache.Cloud.read({str(repo / "data/splats/fruit_drops_minimal.ply")!r})
+        threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        try:
+            gscache.splat_trace(cloud, [0.76, -0.2, -1.4], [0.76, 0.13, -2.1], width=32,
+                                height=24, spp=10_000_000)
+            print("not interrupted")
+        except gscache.Interrupted as e:
+            img = e.image
+            print("interrupted", e.samples, bool(np.isfinite(img).all()), float(img.max()) > 0.0)
+        """
+    )
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+        )
+    except subprocess.TimeoutExpired as e:
+        raise AssertionError(f"the child hung; its stderr: {e.stderr}") from e
+    assert done.returncode == 0, done.stderr
+    words = done.stdout.split()
+    assert words[0] == "interrupted", done.stdout
+    assert int(words[1]) > 0 and words[2:] == ["True", "True"], done.stdout

@@ -10,7 +10,9 @@ use splat_raster::io::{read_cloud, write_ply};
 use splat_raster::stochastic::render_stochastic;
 use splat_raster::{Camera, GaussianCloud, LowPass, RasterConfig};
 use std::path::PathBuf;
-use stochastic_rt::{DepthMode, Estimator, GaussianScene, RandomKind, TraceSettings, trace_image};
+use stochastic_rt::{
+    DepthMode, Estimator, GaussianScene, RandomKind, TraceSettings, trace_image_with,
+};
 
 /// A cloud of 3D Gaussians.
 #[pyclass(frozen, module = "gscache._gscache")]
@@ -119,9 +121,11 @@ pub(crate) fn splat_render<'py>(
 
 /// Ray-traces `cloud`: `mode` is `exact` (every hit sorted: the reference), `kbuffer`,
 /// `stochastic` (one traversal, each hit accepted with its opacity) or `stochastic-pass`.
-/// Float32 (height, width, 3).
+/// Returns (float32 (height, width, 3), estimates traced, interrupted): the GIL is released
+/// and Ctrl-C stops it, each pixel keeping the mean of the estimates it finished (the Python
+/// layer raises `Interrupted` with that image).
 #[pyfunction]
-#[pyo3(signature = (cloud, eye, target, *, up=[0.0, -1.0, 0.0], fov=50.0, width=1280, height=720, mode="stochastic", spp=16, seed=0, k=16, min_transmittance=0.0, samples_per_traversal=1, depth="mean", random="hash", background=[0.0; 3]))]
+#[pyo3(name = "_splat_trace", signature = (cloud, eye, target, *, up=[0.0, -1.0, 0.0], fov=50.0, width=1280, height=720, mode="stochastic", spp=16, seed=0, k=16, min_transmittance=0.0, samples_per_traversal=1, depth="mean", random="hash", background=[0.0; 3], threads=None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments
 pub(crate) fn splat_trace<'py>(
     py: Python<'py>,
@@ -141,7 +145,8 @@ pub(crate) fn splat_trace<'py>(
     depth: &str,
     random: &str,
     background: [f32; 3],
-) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    threads: Option<usize>,
+) -> PyResult<(Bound<'py, PyArray3<f32>>, u64, bool)> {
     let cam = camera(eye, target, up, fov, width, height)?;
     if spp == 0 || k == 0 || !(1..=64).contains(&samples_per_traversal) {
         return Err(crate::error(
@@ -183,6 +188,12 @@ pub(crate) fn splat_trace<'py>(
         random,
     };
     let c = &cloud.cloud;
-    let px = py.detach(|| trace_image(&GaussianScene::new(c), &cam, &settings));
-    image_array(py, width, height, &px)
+    let outcome = crate::run::run_polled(py, threads, None, |control| {
+        trace_image_with(&GaussianScene::new(c), &cam, &settings, control).0
+    })?;
+    Ok((
+        image_array(py, width, height, &outcome.value)?,
+        outcome.done,
+        outcome.interrupted,
+    ))
 }

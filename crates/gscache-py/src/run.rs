@@ -17,6 +17,8 @@ const POLL: Duration = Duration::from_millis(50);
 pub(crate) struct Outcome<T> {
     pub value: T,
     pub interrupted: bool,
+    /// The units the work reported done.
+    pub done: u64,
 }
 
 /// A pool of `threads` workers (all cores when `None`).
@@ -110,6 +112,10 @@ pub(crate) fn run_polled<T: Send>(
         joined.map_err(|_| crate::error("the render thread panicked (a bug: please report it)"))?;
     match failure {
         Some(e) => Err(e),
-        None => Ok(Outcome { value, interrupted }),
+        None => Ok(Outcome {
+            value,
+            interrupted,
+            done: done.load(Ordering::Relaxed),
+        }),
     }
 }

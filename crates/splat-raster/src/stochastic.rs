@@ -13,6 +13,7 @@ use crate::raster::{
     RasterConfig, RenderOutput, TILE, bin_for_stochastic, splat_alpha, tile_pixels,
 };
 use rayon::prelude::*;
+use render_base::Control;
 
 /// Renders `samples` stochastic samples per pixel and returns their mean (transmittance is the
 /// fraction of samples that accepted nothing).
@@ -23,6 +24,21 @@ pub fn render_stochastic(
     samples: u32,
     seed: u32,
 ) -> RenderOutput<f32> {
+    render_stochastic_with(cloud, camera, config, samples, seed, &Control::none()).0
+}
+
+/// [`render_stochastic`] that stops when `control` is cancelled (read before every sample),
+/// each pixel keeping the mean of the samples it finished (a pixel that finished none is the
+/// background); reports each pixel's samples to it. Also returns whether it was cancelled.
+/// Uncancelled, the image is [`render_stochastic`]'s bit for bit.
+pub fn render_stochastic_with(
+    cloud: &GaussianCloud<f32>,
+    camera: &Camera,
+    config: &RasterConfig,
+    samples: u32,
+    seed: u32,
+    control: &Control,
+) -> (RenderOutput<f32>, bool) {
     let (w, h) = (camera.width, camera.height);
     let (splats, ids, entries, tile_ranges, tiles_x) = bin_for_stochastic(cloud, camera, config);
     let tile_px = (TILE * TILE) as usize;
@@ -46,7 +62,12 @@ pub fn render_stochastic(
                     let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
                     let mut sum = [0.0f64; 3];
                     let mut empty = 0u32;
+                    let mut taken = 0u32;
                     for s in 0..samples {
+                        if control.cancelled() {
+                            break;
+                        }
+                        taken += 1;
                         let mut best_depth = f32::INFINITY;
                         let mut best = bg;
                         for &e in list {
@@ -70,8 +91,14 @@ pub fn render_stochastic(
                         }
                     }
                     let p = (j * TILE + i) as usize;
-                    col[p] = sum.map(|v| (v / samples.max(1) as f64) as f32);
-                    tr[p] = empty as f32 / samples.max(1) as f32;
+                    control.progress(taken as u64);
+                    if taken == 0 {
+                        col[p] = bg;
+                        tr[p] = 1.0;
+                        continue;
+                    }
+                    col[p] = sum.map(|v| (v / taken as f64) as f32);
+                    tr[p] = empty as f32 / taken as f32;
                 }
             }
             (col, tr)
@@ -91,5 +118,5 @@ pub fn render_stochastic(
             out.transmittance[q] = tr[p];
         }
     }
-    out
+    (out, control.cancelled())
 }

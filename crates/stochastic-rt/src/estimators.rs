@@ -19,6 +19,7 @@ use crate::random::{RandomKind, SampleKey, acceptance};
 use crate::scene::GaussianScene;
 use glam::Vec3;
 use rayon::prelude::*;
+use render_base::Control;
 use splat_raster::Camera;
 use splat_raster::random::{hash32, unit_f32};
 
@@ -295,20 +296,44 @@ pub fn trace_ray(
 /// Traces the camera's image: the mean of `spp` estimates per pixel, row-major (one estimate
 /// for the deterministic estimators).
 pub fn trace_image(scene: &GaussianScene, camera: &Camera, settings: &TraceSettings) -> Vec<Vec3> {
+    trace_image_with(scene, camera, settings, &Control::none()).0
+}
+
+/// [`trace_image`] that stops when `control` is cancelled (read before every estimate), each
+/// pixel keeping the mean of the estimates it finished (a pixel that finished none is black);
+/// reports each pixel's estimates to it. Also returns whether it was cancelled. Uncancelled,
+/// the image is [`trace_image`]'s bit for bit.
+pub fn trace_image_with(
+    scene: &GaussianScene,
+    camera: &Camera,
+    settings: &TraceSettings,
+    control: &Control,
+) -> (Vec<Vec3>, bool) {
     let spp = match settings.estimator {
         Estimator::Exact | Estimator::KBuffer { .. } => 1,
         _ => settings.spp.max(1),
     };
-    (0..camera.width * camera.height)
+    let image = (0..camera.width * camera.height)
         .into_par_iter()
         .with_min_len(64)
         .map(|p| {
             let r = TraceRay::through_pixel(camera, p, settings.depth_mode);
             let mut sum = glam::DVec3::ZERO;
+            let mut taken = 0u32;
             for s in 0..spp {
+                if control.cancelled() {
+                    break;
+                }
                 sum += trace_ray(scene, &r, settings, p, s).as_dvec3();
+                taken += 1;
             }
-            (sum / spp as f64).as_vec3()
+            control.progress(taken as u64);
+            if taken == 0 {
+                Vec3::ZERO
+            } else {
+                (sum / taken as f64).as_vec3()
+            }
         })
-        .collect()
+        .collect();
+    (image, control.cancelled())
 }

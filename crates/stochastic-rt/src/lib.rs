@@ -17,7 +17,7 @@ pub mod gaussians;
 pub mod random;
 pub mod scene;
 
-pub use estimators::{Estimator, TraceSettings, trace_image};
+pub use estimators::{Estimator, TraceSettings, trace_image, trace_image_with};
 pub use gaussians::{DepthMode, TraceGaussians};
 pub use random::RandomKind;
 pub use scene::GaussianScene;

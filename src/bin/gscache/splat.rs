@@ -2,7 +2,10 @@
 //! differentiable rasteriser, fit a cloud to a target EXR seen from a given camera, or ray-trace
 //! it with stochastic transparency (Sun et al., 2025).
 
-use crate::common::{Global, finite_f32, finite_vec3, positive_f32, prepare_output, unit_f32};
+use crate::common::{
+    Global, INTERRUPTED, cancellation, finite_f32, finite_vec3, positive_f32, prepare_output,
+    unit_f32,
+};
 use anyhow::{Result, bail};
 use clap::{Args as ClapArgs, Subcommand};
 use glam::Vec3;
@@ -10,11 +13,12 @@ use hdr_image::{RgbImage, ToneMap};
 use splat_raster::adamw::{AdamW, AdamWConfig};
 use splat_raster::io::{read_cloud, write_ply};
 use splat_raster::loss::Loss;
-use splat_raster::stochastic::render_stochastic;
+use splat_raster::stochastic::render_stochastic_with;
 use splat_raster::train::train_step;
 use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, RasterConfig, render};
 use std::path::PathBuf;
 use stochastic_rt::{DepthMode, RandomKind};
+use volume_pt::Control;
 
 #[derive(Subcommand, Debug)]
 pub enum SplatCommand {
@@ -222,7 +226,10 @@ fn make_camera(c: &CameraArgs, cloud: Option<&GaussianCloud<f32>>) -> Result<Cam
     )?)
 }
 
-pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
+pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
+    // Set when a long render (stochastic splatting, ray tracing) was interrupted and wrote what
+    // it had: the exit status is then 130.
+    let mut interrupted = false;
     match command {
         SplatCommand::Render(a) => {
             prepare_output(&a.output)?;
@@ -243,10 +250,29 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             };
             let t0 = std::time::Instant::now();
             let (img, info) = match a.stochastic {
-                Some(n) => (
-                    render_stochastic(&cloud, &cam, &cfg, n, 0),
-                    format!("stochastic, {n} samples per pixel"),
-                ),
+                Some(n) => {
+                    // Many samples per pixel take long: Ctrl-C keeps what each pixel has.
+                    let cancel = cancellation()?;
+                    let total = n as u64 * cam.width as u64 * cam.height as u64;
+                    let bar = global.progress(total, "samples");
+                    let report = |k| bar.inc(k);
+                    let (img, stopped) = render_stochastic_with(
+                        &cloud,
+                        &cam,
+                        &cfg,
+                        n,
+                        0,
+                        &Control::new(&cancel, &report),
+                    );
+                    bar.finish_and_clear();
+                    interrupted = stopped;
+                    let info = if stopped {
+                        format!("stochastic, interrupted before {n} samples per pixel")
+                    } else {
+                        format!("stochastic, {n} samples per pixel")
+                    };
+                    (img, info)
+                }
                 None => {
                     let (img, state) = render(&cloud, &cam, &cfg);
                     let info = format!(
@@ -337,7 +363,7 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             if let Some(png) = &a.png {
                 prepare_output(png)?;
             }
-            use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image};
+            use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image_with};
             let cloud = load_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
             let estimator = match a.mode {
@@ -364,7 +390,25 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
                 random,
             };
             let t1 = std::time::Instant::now();
-            let img = trace_image(&scene, &cam, &settings);
+            let cancel = cancellation()?;
+            let per_pixel = match estimator {
+                Estimator::Exact | Estimator::KBuffer { .. } => 1,
+                _ => settings.spp.max(1),
+            };
+            let bar = global.progress(
+                per_pixel as u64 * cam.width as u64 * cam.height as u64,
+                "rays",
+            );
+            let report = |k| bar.inc(k);
+            let (img, stopped) =
+                trace_image_with(&scene, &cam, &settings, &Control::new(&cancel, &report));
+            bar.finish_and_clear();
+            interrupted = stopped;
+            if stopped {
+                eprintln!(
+                    "interrupted: each pixel is the mean of the estimates it finished; writing them"
+                );
+            }
             let secs = t1.elapsed().as_secs_f64();
             let image = RgbImage::from_pixels(cam.width, cam.height, img)?;
             image.write_exr(&a.output)?;
@@ -393,7 +437,7 @@ pub fn run(command: SplatCommand, _global: &Global) -> Result<i32> {
             );
         }
     }
-    Ok(0)
+    Ok(if interrupted { INTERRUPTED } else { 0 })
 }
 
 /// Random small Gaussians spread through the camera's view between two depths (a hash-based

@@ -20,6 +20,7 @@ Errors the renderer refuses are ``GscacheError``, with the message the program p
 from __future__ import annotations
 
 import json
+import math
 from typing import Any, Callable, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
@@ -120,6 +121,7 @@ class Scene:
         for name, table in (("phase", phase), ("render", render), ("output", output)):
             if table is not None:
                 tables[name] = dict(table)
+        _finite_tables(tables, "")
         self._inner = _gscache.Scene(volume, json.dumps(tables, default=_json_number))
 
     @classmethod
@@ -148,6 +150,22 @@ class Scene:
 
     def __repr__(self) -> str:
         return repr(self._inner)
+
+
+def _finite_tables(value: Any, where: str) -> None:
+    """Refuses a NaN or infinite number anywhere in scene tables, naming where it is: JSON has
+    no such numbers, and the parser's own complaint ("expected value at line 1 column 63")
+    names no field."""
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            _finite_tables(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(value, np.ndarray):
+        _finite_tables(value.tolist(), where)
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _finite_tables(v, f"{where}[{i}]")
+    elif isinstance(value, (float, np.floating)) and not math.isfinite(float(value)):
+        raise ValueError(f"{where} is {float(value)}: expected a finite number")
 
 
 def _json_number(v: Any) -> Any:
@@ -287,4 +305,7 @@ class Cache:
 
 
 def _config_json(config: Optional[Mapping[str, Any]]) -> Optional[str]:
-    return None if config is None else json.dumps(dict(config), default=_json_number)
+    if config is None:
+        return None
+    _finite_tables(dict(config), "cache")
+    return json.dumps(dict(config), default=_json_number)

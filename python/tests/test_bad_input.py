@@ -76,3 +76,20 @@ def test_ctrl_c_stops_splat_trace_with_the_image_so_far(repo):
     words = done.stdout.split()
     assert words[0] == "interrupted", done.stdout
     assert int(words[1]) > 0 and words[2:] == ["True", "True"], done.stdout
+
+
+def test_nan_in_a_scene_table_is_named(repo, tmp_path):
+    # It once gave the JSON parser's "expected value at line 1 column 63", naming no field.
+    volume = gscache.Volume.from_array(np.ones((4, 4, 4), np.float32))
+    camera = {"eye": [0, 0, 20], "target": [0, 0, 0], "fov_y": 30, "width": 8, "height": 8}
+    transfer = {"window": [0, 1], "points": [{"value": 0, "color": [1, 1, 1], "opacity": float("nan")}]}
+    with pytest.raises(ValueError, match=r"transfer\.points\[0\]\.opacity is nan"):
+        gscache.Scene(volume, transfer=transfer, camera=camera)
+    with pytest.raises(ValueError, match=r"camera\.eye\[2\] is inf"):
+        gscache.Scene(volume, transfer={**transfer, "points": []}, camera={**camera, "eye": [0, 0, np.inf]})
+
+
+def test_a_list_is_refused_with_what_to_do():
+    # It once raised AttributeError ('list' object has no attribute 'ndim').
+    with pytest.raises(TypeError, match="a list: expected a numpy array.*asarray"):
+        gscache.Volume.from_array([[[1]]])

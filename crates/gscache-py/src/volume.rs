@@ -65,7 +65,14 @@ fn array_voxels(array: &Bound<'_, PyAny>) -> PyResult<(Voxels, [usize; 3], &'sta
         out.extend(v.iter().copied());
         Ok((out, shape))
     }
-    let ndim: usize = array.getattr("ndim")?.extract()?;
+    // A list (or anything else without numpy's attributes) once raised AttributeError.
+    let Ok(ndim) = array.getattr("ndim").and_then(|n| n.extract::<usize>()) else {
+        return Err(PyTypeError::new_err(format!(
+            "a {}: expected a numpy array of shape (nz, ny, nx) (wrap it in numpy.asarray(..., \
+             dtype=numpy.float32))",
+            array.get_type().name()?
+        )));
+    };
     let dtype = array.getattr("dtype")?.str()?.to_string();
     if ndim != 3 {
         return Err(PyTypeError::new_err(format!(

@@ -89,22 +89,48 @@ impl<F: Real> GaussianCloud<F> {
     /// How many Gaussians no renderer can use: a non-finite parameter, or a zero quaternion
     /// (no orientation). Renderers skip them; a program that loads a file says how many.
     pub fn count_unusable(&self) -> usize {
+        (0..self.len()).filter(|&g| !self.is_usable(g)).count()
+    }
+
+    /// Whether Gaussian `g` can be rendered: every parameter finite and a non-zero quaternion.
+    pub fn is_usable(&self, g: usize) -> bool {
         let stride = self.color_stride();
-        (0..self.len())
-            .filter(|&g| {
-                let q = &self.rotations[4 * g..4 * g + 4];
-                let q_norm2 = q.iter().fold(F::zero(), |a, &v| a + v * v);
-                let finite = self.means[3 * g..3 * g + 3]
-                    .iter()
-                    .chain(&self.log_scales[3 * g..3 * g + 3])
-                    .chain(q)
-                    .chain(&self.colors[g * stride..(g + 1) * stride])
-                    .chain(std::iter::once(&self.opacity_logits[g]))
-                    .all(|v| v.is_finite());
-                // Written so that NaN counts as unusable.
-                !(finite && q_norm2 > F::zero() && q_norm2.is_finite())
-            })
-            .count()
+        let q = &self.rotations[4 * g..4 * g + 4];
+        let q_norm2 = q.iter().fold(F::zero(), |a, &v| a + v * v);
+        let finite = self.means[3 * g..3 * g + 3]
+            .iter()
+            .chain(&self.log_scales[3 * g..3 * g + 3])
+            .chain(q)
+            .chain(&self.colors[g * stride..(g + 1) * stride])
+            .chain(std::iter::once(&self.opacity_logits[g]))
+            .all(|v| v.is_finite());
+        // Written so that NaN counts as unusable.
+        finite && q_norm2 > F::zero() && q_norm2.is_finite()
+    }
+
+    /// The cloud without its unusable Gaussians (see [`GaussianCloud::count_unusable`]): what a
+    /// program that trains a cloud and writes it back starts from, so no NaN row is written.
+    pub fn without_unusable(&self) -> Self {
+        let stride = self.color_stride();
+        let mut out = Self {
+            color_model: self.color_model,
+            means: Vec::new(),
+            log_scales: Vec::new(),
+            rotations: Vec::new(),
+            colors: Vec::new(),
+            opacity_logits: Vec::new(),
+        };
+        for g in (0..self.len()).filter(|&g| self.is_usable(g)) {
+            out.means.extend_from_slice(&self.means[3 * g..3 * g + 3]);
+            out.log_scales
+                .extend_from_slice(&self.log_scales[3 * g..3 * g + 3]);
+            out.rotations
+                .extend_from_slice(&self.rotations[4 * g..4 * g + 4]);
+            out.colors
+                .extend_from_slice(&self.colors[g * stride..(g + 1) * stride]);
+            out.opacity_logits.push(self.opacity_logits[g]);
+        }
+        out
     }
 
     /// Checks the array lengths agree (a cloud built field by field can be inconsistent).

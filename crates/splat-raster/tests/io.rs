@@ -168,3 +168,26 @@ fn counts_that_wrap_or_exceed_the_file_are_refused() {
     let e = read_ply(&dir).unwrap_err().to_string();
     assert!(e.contains("not a regular file"), "{e}");
 }
+
+/// A cloud without its unusable rows keeps every usable one exactly, in order: what `splat fit
+/// --init` starts from, so a NaN row is not written back.
+#[test]
+fn unusable_rows_are_dropped_and_the_rest_kept() {
+    use splat_raster::{ColorModel, GaussianCloud};
+    let mut c = GaussianCloud::<f32>::new(ColorModel::Rgb);
+    for i in 0..5 {
+        let x = if i == 1 { f32::NAN } else { i as f32 };
+        let q = if i == 3 {
+            [0.0; 4]
+        } else {
+            [1.0, 0.0, 0.0, 0.0]
+        };
+        c.push([x, 0.0, 0.0], [-1.0; 3], q, &[0.5, 0.5, 0.5], 0.0);
+    }
+    assert_eq!(c.count_unusable(), 2);
+    let kept = c.without_unusable();
+    assert_eq!(kept.len(), 3);
+    assert_eq!(kept.count_unusable(), 0);
+    let xs: Vec<f32> = kept.means.chunks(3).map(|m| m[0]).collect();
+    assert_eq!(xs, [0.0, 2.0, 4.0]);
+}

@@ -189,8 +189,14 @@ impl TransferFunction {
         for (x, c) in albedo.points() {
             // Per component, so that NaN fails (glam's min/max skip NaN).
             if !(c.cmpge(Vec3::ZERO).all() && c.cmple(Vec3::ONE).all()) {
+                // Named by the fault: above 1 creates energy, below 0 (or NaN) is no fraction.
+                let why = if c.cmpgt(Vec3::ONE).any() {
+                    "a scattering albedo above 1 creates energy"
+                } else {
+                    "an albedo is the fraction of extinguished light that scatters, from 0 to 1"
+                };
                 return Err(Error::TransferFunction(format!(
-                    "albedo {c} at {x} is outside [0, 1]: a scattering albedo above 1 creates energy"
+                    "albedo {c} at {x} is outside [0, 1]: {why}"
                 )));
             }
         }

@@ -313,3 +313,57 @@ fn geometry_past_the_sanity_limits_is_refused() {
     );
     load_scene(&s).expect("8 km across is within the limits");
 }
+
+/// Messages that once misled (issue 32, item 10): a NIfTI `dim[0]` of 9 was reported as a
+/// nonsense `sizeof_hdr`, a negative albedo as "above 1", a legacy VTK parse failure as
+/// "Parse error: Alt", and a missing file's OS error printed twice.
+#[test]
+fn messages_name_the_real_fault() {
+    let d = scratch("messages");
+    let mut nii = std::fs::read(data_dir().join("fixtures/hydrogen.nii")).unwrap();
+    nii[40..42].copy_from_slice(&9i16.to_le_bytes());
+    std::fs::write(d.join("dims.nii"), &nii).unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"dims.nii\"", TF, CAMERA);
+    expect_error(&s, &["dims.nii", "dim[0] is 9", "3 to 7"]);
+    let e = load_scene(&s).unwrap_err().to_string();
+    assert!(!e.contains("sizeof_hdr"), "{e}");
+
+    std::fs::write(d.join("v.raw"), vec![7u8; 512]).unwrap();
+    let volume = "[volume]\nfile = \"v.raw\"\ndims = [8, 8, 8]\ndtype = \"uint8\"";
+    let negative = TF.replace(
+        "color = [1, 1, 1], opacity = 1.0",
+        "color = [1, -0.5, 1], opacity = 1.0",
+    );
+    let s = write_scene(&d, volume, &negative, CAMERA);
+    let e = load_scene(&s).unwrap_err().to_string();
+    assert!(e.contains("from 0 to 1") && !e.contains("above 1"), "{e}");
+
+    std::fs::write(
+        d.join("bad.vtk"),
+        b"# vtk DataFile Version 3.0\ntitle\nASCII\nDATASET POLYDATA\n",
+    )
+    .unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"bad.vtk\"", TF, CAMERA);
+    let e = load_scene(&s).unwrap_err().to_string();
+    assert!(
+        e.contains("bad.vtk") && e.contains("STRUCTURED_POINTS"),
+        "{e}"
+    );
+
+    // A scene "inside" a file: the OS says "Not a directory", once.
+    let err = load_scene(&d.join("v.raw/scene.toml")).unwrap_err();
+    let chain = anyhow_like(&err);
+    assert_eq!(chain.matches("os error").count(), 1, "{chain}");
+}
+
+/// The error with its sources, as `anyhow`'s `{:#}` prints a chain: "a: b: c".
+fn anyhow_like(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut out = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        out.push_str(": ");
+        out.push_str(&s.to_string());
+        source = s.source();
+    }
+    out
+}

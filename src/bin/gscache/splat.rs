@@ -165,7 +165,7 @@ fn load_cloud(path: &std::path::Path) -> Result<GaussianCloud<f32>> {
     if unusable > 0 {
         eprintln!(
             "warning: {}: {unusable} of {} Gaussians have a non-finite parameter or a zero \
-             quaternion and are skipped",
+             quaternion and are skipped (and left out of what a fit writes)",
             path.display(),
             cloud.len()
         );
@@ -323,7 +323,14 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
                 );
             }
             let loss = a.loss;
-            let init = a.init.as_deref().map(load_cloud).transpose()?;
+            // The fit writes its cloud back: an unusable row would be written back as it was
+            // (NaN in the output), so the start drops them (load_cloud's warning counts them).
+            let init = a
+                .init
+                .as_deref()
+                .map(load_cloud)
+                .transpose()?
+                .map(|c| c.without_unusable());
             let cam = make_camera(&a.camera, init.as_ref())?;
             let mut cloud = match init {
                 Some(c) => c,

@@ -66,6 +66,28 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             "cannot read a NIfTI-1 header ({HEADER_BYTES} bytes): {e}"
         ))
     })?;
+    // The byte order is told by dim[0] (1 to 7 in the file's order); with any other value the
+    // reader guesses the other order and reports a nonsense sizeof_hdr. A header whose
+    // sizeof_hdr is right in either order is a NIfTI-1 header: name the bad dim[0] instead.
+    for (order, sizeof, dim0) in [
+        (
+            "little",
+            i32::from_le_bytes(head[0..4].try_into().expect("4 bytes")),
+            i16::from_le_bytes(head[40..42].try_into().expect("2 bytes")),
+        ),
+        (
+            "big",
+            i32::from_be_bytes(head[0..4].try_into().expect("4 bytes")),
+            i16::from_be_bytes(head[40..42].try_into().expect("2 bytes")),
+        ),
+    ] {
+        if sizeof == HEADER_BYTES as i32 && !(1..=7).contains(&dim0) {
+            return Err(bad(format!(
+                "NIfTI dim[0] is {dim0} ({order}-endian header): expected the number of \
+                 dimensions, 3 to 7"
+            )));
+        }
+    }
     let header = NiftiHeader::from_reader(&head[..])
         .map_err(|e| bad(format!("cannot read NIfTI file: {e}")))?;
     if header.sizeof_hdr != HEADER_BYTES as i32 {

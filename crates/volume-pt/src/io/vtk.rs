@@ -76,7 +76,19 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     } else {
         vtkio::Vtk::parse_xml(&bytes[..])
     }
-    .map_err(|e| bad(format!("cannot parse VTK file: {e}")))?;
+    .map_err(|e| {
+        // vtkio's own message is a parser's ("Parse error: Alt"): say what was expected.
+        let expected = if is_legacy {
+            "a legacy VTK file: `# vtk DataFile Version x.y`, a title line, ASCII or BINARY, \
+             `DATASET STRUCTURED_POINTS` with DIMENSIONS, SPACING (or ASPECT_RATIO) and ORIGIN, \
+             then `POINT_DATA n` and one `SCALARS name type` array"
+        } else {
+            "a VTK XML ImageData file (.vti) with one point-data array"
+        };
+        bad(format!(
+            "cannot parse VTK file (the parser said: {e}): expected {expected}"
+        ))
+    })?;
     let DataSet::ImageData {
         extent,
         origin,

@@ -1,5 +1,6 @@
 //! A mutation fuzzer over every reader, on stable Rust: volumes (raw, NRRD, NIfTI, VTK legacy and
-//! XML), scene and experiment TOML, Gaussian clouds (PLY, `.splat`) and saved caches.
+//! XML), scene and experiment TOML, Gaussian clouds (PLY, `.splat`), saved caches, partial films,
+//! experiment shard files and EXR images (references are kept as EXR).
 //!
 //! Each bundled file is a seed. Case `i` of a seed applies mutations drawn from a counter-based
 //! hash of `(seed file, i)`: bit flips, "interesting" integers written over header bytes, numbers
@@ -7,7 +8,9 @@
 //! chunks; gzip files are mutated inside the stream and recompressed, so the header behind the
 //! compression is reached. A reader passes a case when it returns (a value or an error) without
 //! panicking, within [`CASE_TIME_LIMIT`]; an allocation failure would abort the whole test
-//! binary, which fails the test too.
+//! binary, which fails the test too. Partial films and shard files carry checksums, so for them
+//! a mutant read as a value other than the seed's is a failure too ("silent wrong"): it would
+//! merge into wrong pixels or tables.
 //!
 //! First every file in `tests/fuzz-corpus/` is replayed (the hostile inputs found so far, kept
 //! as a regression corpus), then fuzz cases run until `GSCACHE_FUZZ_SECONDS` (default 20) is
@@ -176,32 +179,175 @@ enum Reader {
     Experiment,
     Cloud,
     SavedCache,
+    PartialFilm,
+    ExperimentShard,
+    Exr,
 }
 
-/// Runs `reader` on `path` on its own thread: Err(why) on a panic or a hang.
-fn run_reader(reader: Reader, path: &Path) -> Result<(), String> {
+/// How a reader took a case.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Outcome {
+    /// An error naming the fault.
+    Refused,
+    /// A value (for the checksummed formats: the seed's own value).
+    Read,
+    /// A checksummed format read as a value other than the seed's.
+    SilentWrong,
+}
+
+/// The seed values the checksummed readers compare against, made once.
+fn seed_partial() -> (Vec<u8>, volume_pt::PartialRender) {
+    let mut scene = volume_pt::load_scene(&repo().join("data/scenes/default.toml")).unwrap();
+    scene.camera = scene.camera.with_size(6, 4).unwrap();
+    let mut film = volume_pt::Film::new(6, 4);
+    volume_pt::render_samples(
+        &scene.media,
+        &scene.camera,
+        &scene.settings,
+        2..5,
+        &mut film,
+        &volume_pt::Control::none(),
+    );
+    let p = volume_pt::PartialRender::from_film(&film, "fuzz", 8, 2..5);
+    let bytes = p.to_bytes();
+    let read = volume_pt::PartialRender::from_bytes(&bytes, Path::new("seed")).unwrap();
+    (bytes, read)
+}
+
+fn seed_shard(dir: &Path) -> Vec<u8> {
+    use gscache_cli::experiment::measure::{Budget, Snapshot};
+    use gscache_cli::experiment::shard::{FORMAT, ShardFile, UnitResult};
+    let image = |k: f32| {
+        (0..24)
+            .map(|i| glam::Vec3::splat(0.01 * i as f32 + k))
+            .collect()
+    };
+    let file = ShardFile {
+        format: FORMAT,
+        experiment: "fuzz".into(),
+        key: "0123456789abcdef".into(),
+        shard: "0/1".into(),
+        unit_count: 1,
+        units: vec![(
+            0,
+            UnitResult::Method {
+                snapshots: vec![
+                    Snapshot {
+                        budget: Budget::Spp(1),
+                        spp: 1,
+                        seconds: 0.0125,
+                        image: image(0.1),
+                    },
+                    Snapshot {
+                        budget: Budget::Seconds(0.05),
+                        spp: 4,
+                        seconds: 0.0501,
+                        image: image(0.2),
+                    },
+                ],
+                record: None,
+            },
+        )],
+        checksum: String::new(),
+    };
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("seed.json");
+    file.write(&path).unwrap();
+    std::fs::read(&path).unwrap()
+}
+
+/// A small EXR as the program writes references: 12x8, linear, with a bright pixel.
+fn exr_seed(dir: &Path) -> Vec<u8> {
+    let mut img = hdr_image::RgbImage::new(12, 8);
+    for (i, p) in img.pixels_mut().iter_mut().enumerate() {
+        *p = glam::Vec3::new(i as f32 * 0.01, 0.5, 2.0);
+    }
+    img.pixels_mut()[5] = glam::Vec3::splat(3e4);
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("seed.exr");
+    img.write_exr(&path).unwrap();
+    std::fs::read(&path).unwrap()
+}
+
+/// The seed file's bytes: read from disk, or made here for the formats no bundled file has.
+fn seed_bytes(path: &Path, name: &str, scratch: &Path) -> Vec<u8> {
+    match name {
+        "generated.splat" => splat_seed(),
+        "part.gspartial" => seed_partial().0,
+        "shard.json" => seed_shard(scratch),
+        "image.exr" => exr_seed(scratch),
+        _ => std::fs::read(path).unwrap(),
+    }
+}
+
+fn expected(scratch: &Path) -> Expected {
+    let shard = seed_shard(scratch);
+    let path = scratch.join("expected-shard.json");
+    std::fs::write(&path, shard).unwrap();
+    let f = gscache_cli::experiment::shard::ShardFile::read(&path).unwrap();
+    Expected {
+        partial: seed_partial().1,
+        shard: shard_text(&f),
+    }
+}
+
+/// What a shard's units say, for comparing a mutant's with the seed's.
+fn shard_text(f: &gscache_cli::experiment::shard::ShardFile) -> String {
+    serde_json::to_string(&(&f.key, f.unit_count, &f.units)).unwrap()
+}
+
+/// The values a checksummed mutant must equal to count as read correctly.
+#[derive(Clone)]
+struct Expected {
+    partial: volume_pt::PartialRender,
+    shard: String,
+}
+
+/// Runs `reader` on `path` on its own thread: how it took the case, or Err(why) on a panic or
+/// a hang.
+fn run_reader(reader: Reader, path: &Path, expected: &Expected) -> Result<Outcome, String> {
     let path = path.to_path_buf();
+    let expected = expected.clone();
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
+        let read = |ok: bool| if ok { Outcome::Read } else { Outcome::Refused };
         let outcome = catch_unwind(AssertUnwindSafe(|| match reader {
-            Reader::Volume => {
-                let _ = volume_pt::io::read_volume(&path, &Default::default());
-            }
-            Reader::Scene => {
-                let _ = volume_pt::load_scene(&path);
-            }
+            Reader::Volume => read(volume_pt::io::read_volume(&path, &Default::default()).is_ok()),
+            Reader::Scene => read(volume_pt::load_scene(&path).is_ok()),
             Reader::Experiment => {
-                let _ = gscache_cli::experiment::config::load_experiment(&path);
+                read(gscache_cli::experiment::config::load_experiment(&path).is_ok())
             }
-            Reader::Cloud => {
-                if let Ok(cloud) = splat_raster::io::read_cloud(&path) {
+            Reader::Cloud => match splat_raster::io::read_cloud(&path) {
+                Ok(cloud) => {
                     let _ = cloud.count_unusable();
+                    Outcome::Read
                 }
-            }
+                Err(_) => Outcome::Refused,
+            },
             Reader::SavedCache => {
                 let dir = path.parent().unwrap();
-                let _ = gs_cache::GsCache::load(dir, gs_cache::CacheConfig::default());
+                read(gs_cache::GsCache::load(dir, gs_cache::CacheConfig::default()).is_ok())
             }
+            Reader::PartialFilm => match volume_pt::PartialRender::read(&path) {
+                Ok(p) if p == expected.partial => Outcome::Read,
+                Ok(_) => Outcome::SilentWrong,
+                Err(_) => Outcome::Refused,
+            },
+            Reader::ExperimentShard => {
+                match gscache_cli::experiment::shard::ShardFile::read(&path) {
+                    Ok(f) if shard_text(&f) == expected.shard => Outcome::Read,
+                    Ok(_) => Outcome::SilentWrong,
+                    Err(_) => Outcome::Refused,
+                }
+            }
+            Reader::Exr => match hdr_image::RgbImage::read_exr(&path) {
+                Ok(img) => {
+                    // What a kept reference is checked for before it is reused.
+                    let _ = img.pixels().iter().all(|p| p.is_finite());
+                    Outcome::Read
+                }
+                Err(_) => Outcome::Refused,
+            },
         }));
         let _ = tx.send(outcome.map_err(|p| {
             p.downcast_ref::<String>()
@@ -211,7 +357,8 @@ fn run_reader(reader: Reader, path: &Path) -> Result<(), String> {
         }));
     });
     match rx.recv_timeout(CASE_TIME_LIMIT) {
-        Ok(Ok(())) => Ok(()),
+        Ok(Ok(Outcome::SilentWrong)) => Err("read as a value other than the seed's".into()),
+        Ok(Ok(outcome)) => Ok(outcome),
         Ok(Err(panic)) => Err(format!("panicked: {panic}")),
         Err(_) => Err(format!("still running after {CASE_TIME_LIMIT:?}")),
     }
@@ -292,6 +439,22 @@ fn seeds() -> Vec<(PathBuf, Reader, String)> {
         Reader::SavedCache,
         "length_1.ply".into(),
     ));
+    // Made in memory (`seed_partial`, `seed_shard`); the path only has to exist.
+    out.push((
+        data.join("scenes/default.toml"),
+        Reader::PartialFilm,
+        "part.gspartial".into(),
+    ));
+    out.push((
+        data.join("scenes/default.toml"),
+        Reader::ExperimentShard,
+        "shard.json".into(),
+    ));
+    out.push((
+        data.join("scenes/default.toml"),
+        Reader::Exr,
+        "image.exr".into(),
+    ));
     out.retain(|(p, ..)| p.exists());
     out
 }
@@ -344,6 +507,12 @@ fn stage(dir: &Path, reader: Reader, name: &str, bytes: &[u8]) -> PathBuf {
 fn reader_for_corpus_file(name: &str) -> Reader {
     if name.ends_with(".ply") || name.ends_with(".splat") {
         Reader::Cloud
+    } else if name.ends_with(".gspartial") {
+        Reader::PartialFilm
+    } else if name.ends_with(".exr") {
+        Reader::Exr
+    } else if name.starts_with("shard") && name.ends_with(".json") {
+        Reader::ExperimentShard
     } else if name.ends_with(".toml") {
         if name.starts_with("experiment") {
             Reader::Experiment
@@ -358,6 +527,8 @@ fn reader_for_corpus_file(name: &str) -> Reader {
 #[test]
 fn the_regression_corpus_is_refused_cleanly() {
     let corpus = repo().join("tests/fuzz-corpus");
+    let scratch = std::env::temp_dir().join(format!("gscache-corpus-seeds-{}", std::process::id()));
+    let expected = expected(&scratch);
     let mut failures = Vec::new();
     let mut count = 0;
     for e in std::fs::read_dir(&corpus).expect("tests/fuzz-corpus exists") {
@@ -370,7 +541,7 @@ fn the_regression_corpus_is_refused_cleanly() {
         let reader = reader_for_corpus_file(&name);
         let dir = std::env::temp_dir().join(format!("gscache-corpus-{}", std::process::id()));
         let staged = stage(&dir, reader, &name, &std::fs::read(&p).unwrap());
-        if let Err(why) = run_reader(reader, &staged) {
+        if let Err(why) = run_reader(reader, &staged, &expected) {
             failures.push(format!("{name}: {why}"));
         }
     }
@@ -392,15 +563,14 @@ fn mutated_files_never_panic_or_hang() {
     assert!(seeds.len() >= 12, "only {} seed files", seeds.len());
     let per_seed = Duration::from_secs_f64(seconds / seeds.len() as f64);
     let failures_dir = repo().join("target/fuzz-failures");
+    let scratch = std::env::temp_dir().join(format!("gscache-fuzz-seeds-{}", std::process::id()));
+    let expected = expected(&scratch);
     let mut failures = Vec::new();
     let mut total = 0u64;
-    let mut per_reader: std::collections::BTreeMap<String, u64> = Default::default();
+    // Per format: cases, refused cleanly, read (correctly, for the checksummed formats).
+    let mut per_reader: std::collections::BTreeMap<String, [u64; 3]> = Default::default();
     for (seed_path, reader, name) in &seeds {
-        let seed = if name == "generated.splat" {
-            splat_seed()
-        } else {
-            std::fs::read(seed_path).unwrap()
-        };
+        let seed = seed_bytes(seed_path, name, &scratch);
         let dir = std::env::temp_dir().join(format!(
             "gscache-fuzz-{}-{}",
             std::process::id(),
@@ -412,26 +582,33 @@ fn mutated_files_never_panic_or_hang() {
             let mut n = Numbers::new(name, case);
             let bytes = mutant(&seed, &mut n);
             let staged = stage(&dir, *reader, name, &bytes);
-            if let Err(why) = run_reader(*reader, &staged) {
-                std::fs::create_dir_all(&failures_dir).unwrap();
-                let kept = failures_dir.join(format!("{name}.case{case}"));
-                std::fs::write(&kept, &bytes).unwrap();
-                failures.push(format!("{name} case {case} ({}): {why}", kept.display()));
+            let kind = match reader {
+                Reader::Volume | Reader::Cloud => name.rsplit('.').next().unwrap_or("").to_string(),
+                other => format!("{other:?}"),
+            };
+            let counts = per_reader.entry(kind).or_default();
+            counts[0] += 1;
+            match run_reader(*reader, &staged, &expected) {
+                Ok(Outcome::Refused) => counts[1] += 1,
+                Ok(_) => counts[2] += 1,
+                Err(why) => {
+                    std::fs::create_dir_all(&failures_dir).unwrap();
+                    let kept = failures_dir.join(format!("{name}.case{case}"));
+                    std::fs::write(&kept, &bytes).unwrap();
+                    failures.push(format!("{name} case {case} ({}): {why}", kept.display()));
+                }
             }
             case += 1;
         }
         total += case;
-        let kind = match reader {
-            Reader::Volume | Reader::Cloud => name.rsplit('.').next().unwrap_or("").to_string(),
-            other => format!("{other:?}"),
-        };
-        *per_reader.entry(kind).or_default() += case;
         let _ = std::fs::remove_dir_all(&dir);
     }
     eprintln!(
-        "fuzz: {total} cases over {} seed files: {per_reader:?}",
+        "fuzz: {total} cases over {} seed files in {seconds} s; per format (cases, refused \
+         cleanly, read): {per_reader:?}",
         seeds.len()
     );
+    let _ = std::fs::remove_dir_all(&scratch);
     assert!(
         failures.is_empty(),
         "{} failures:\n{}",

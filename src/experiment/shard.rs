@@ -141,7 +141,8 @@ pub struct ShardFile {
     pub checksum: String,
 }
 
-const FORMAT: u32 = 2;
+/// The shard file format this program writes and reads.
+pub const FORMAT: u32 = 2;
 
 /// The longest a unit's time may be (seconds): 115 days. A larger one is not a measurement.
 const MAX_SECONDS: f64 = 1e7;

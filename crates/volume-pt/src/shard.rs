@@ -341,13 +341,16 @@ impl PartialRender {
             serde_json::from_str(text).map_err(|e| bad(format!("header: {e}")))?;
         let data = &rest[end + 1..];
         let pixels = header.width as u64 * header.height as u64;
-        if pixels == 0 || data.len() as u64 != pixels * BYTES_PER_PIXEL {
+        // Checked: a header can state sides whose bytes pass 2^64 (the fuzzer found the
+        // overflow this once was).
+        let need = pixels.checked_mul(BYTES_PER_PIXEL);
+        if pixels == 0 || need != Some(data.len() as u64) {
             return Err(bad(format!(
                 "{} bytes of pixels for {}x{}: expected {} (52 a pixel)",
                 data.len(),
                 header.width,
                 header.height,
-                pixels * BYTES_PER_PIXEL
+                need.map_or("more than 2^64".to_string(), |n| n.to_string())
             )));
         }
         let stated = std::mem::take(&mut header.checksum);

@@ -367,3 +367,22 @@ fn anyhow_like(e: &(dyn std::error::Error + 'static)) -> String {
     }
     out
 }
+
+/// A VTK XML piece whose extent runs backwards (`0 -1`) is refused before vtkio, which
+/// subtracts extents unchecked and panicked on it (found by the fuzzer).
+#[test]
+fn a_backwards_vti_piece_extent_is_refused() {
+    let d = scratch("vti-extent");
+    let text = r#"<?xml version="1.0"?>
+<VTKFile type="ImageData" version="0.1" byte_order="LittleEndian">
+  <ImageData WholeExtent="0 3 0 3 0 3" Origin="0 0 0" Spacing="1 1 1">
+    <Piece Extent="0 3 0 -1 0 3">
+      <PointData Scalars="v"><DataArray type="UInt8" Name="v" format="ascii">0 1 2 3</DataArray></PointData>
+    </Piece>
+  </ImageData>
+</VTKFile>
+"#;
+    std::fs::write(d.join("v.vti"), text).unwrap();
+    let s = write_scene(&d, "[volume]\nfile = \"v.vti\"", TF, CAMERA);
+    expect_error(&s, &["v.vti", "0 3 0 -1 0 3", "runs backwards"]);
+}

@@ -208,6 +208,23 @@ fn stated_size(bytes: &[u8], legacy: bool) -> std::result::Result<([i64; 3], DTy
         let e = ints(extent)
             .filter(|v| v.len() == 6)
             .ok_or_else(|| format!("VTK WholeExtent `{extent}` is not six integers"))?;
+        // Every extent (the whole one and each piece's) must run forwards: vtkio subtracts
+        // them unchecked (a piece's `0 -1` panicked inside it; the fuzzer found it).
+        let mut rest: &str = &head;
+        while let Some(at) = rest.find("Extent=\"") {
+            let value = &rest[at + 8..];
+            let value = &value[..value.find('"').unwrap_or(value.len())];
+            let v = ints(value)
+                .filter(|v| v.len() == 6)
+                .ok_or_else(|| format!("VTK extent `{value}` is not six integers"))?;
+            if (0..3).any(|i| v[2 * i + 1] < v[2 * i]) {
+                return Err(format!(
+                    "VTK extent `{value}` runs backwards: expected x0 x1 y0 y1 z0 z1 with each \
+                     end at or after its start"
+                ));
+            }
+            rest = &rest[at + 8..];
+        }
         let axis = |i: usize| e[2 * i + 1].saturating_sub(e[2 * i]).saturating_add(1);
         Ok(([axis(0), axis(1), axis(2)], DType::F64))
     }

@@ -404,8 +404,24 @@ pub unsafe extern "C" fn gs_cache_new(
         if positions.is_null() || albedo.is_null() || config.is_null() {
             return Err(null("positions, albedo or config"));
         }
-        // SAFETY: non-NULL, and by the caller's contract each holds 3 * count floats and
-        // config points to a GsCacheConfig.
+        // The count comes from the caller: checked before it sizes a slice (3 * count could
+        // wrap) or an allocation.
+        if count > crate::config::MAX_POINTS {
+            return Err(invalid(format!(
+                "count = {count}: expected at most {} points",
+                crate::config::MAX_POINTS
+            )));
+        }
+        let mut points = Vec::new();
+        let mut albedos = Vec::new();
+        if points.try_reserve_exact(count).is_err() || albedos.try_reserve_exact(count).is_err() {
+            return Err((
+                GsCacheStatus::OutOfMemory,
+                format!("{count} points cannot be allocated"),
+            ));
+        }
+        // SAFETY: non-NULL, and by the caller's contract each holds 3 * count floats (3 * count
+        // does not overflow: count <= MAX_POINTS) and config points to a GsCacheConfig.
         let (p, a, config) = unsafe {
             (
                 std::slice::from_raw_parts(positions, 3 * count),
@@ -413,11 +429,11 @@ pub unsafe extern "C" fn gs_cache_new(
                 &*config,
             )
         };
-        let points: Vec<Vec3> = p.chunks_exact(3).map(Vec3::from_slice).collect();
-        let albedo: Vec<Vec3> = a.chunks_exact(3).map(Vec3::from_slice).collect();
+        points.extend(p.chunks_exact(3).map(Vec3::from_slice));
+        albedos.extend(a.chunks_exact(3).map(Vec3::from_slice));
         let mut config = CacheConfig::try_from(config).map_err(invalid)?;
         config.points = count;
-        GsCache::new(&points, &albedo, config).map_err(|e| invalid(e.to_string()))
+        GsCache::new(&points, &albedos, config).map_err(|e| invalid(e.to_string()))
     })
 }
 
@@ -699,6 +715,11 @@ mod tests {
         assert!(h.is_null());
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert!(msg.to_str().unwrap().contains("lookup = 7"), "{msg:?}");
+        // A count no slice can hold is refused before it sizes one (3 * count would wrap).
+        let h = unsafe { gs_cache_new(p.as_ptr(), p.as_ptr(), usize::MAX / 2, &c) };
+        assert!(h.is_null());
+        let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
+        assert!(msg.to_str().unwrap().contains("count = "), "{msg:?}");
     }
 
     #[test]

@@ -458,3 +458,70 @@ fn tampered_shard_files_are_refused() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Ctrl-C stops an experiment between units and keeps what it measured; `--resume` goes on
+/// from there, and the result has the one-process run's bits (spp budgets and fly-throughs, as
+/// a shard merge has). Here the stop comes after the first method's three seeds.
+#[test]
+fn an_interrupted_experiment_keeps_its_units_and_resumes() {
+    use gscache_cli::experiment::measure::Budget;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let dir = scratch("resume");
+    let file = tiny_experiment(&dir);
+    let quiet = |_: &str| {};
+    let whole = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let cancel = AtomicBool::new(false);
+    let stop_after_first_method = |line: &str| {
+        if line.ends_with(" runs") {
+            cancel.store(true, Ordering::SeqCst);
+        }
+    };
+    let control = volume_pt::Control::cancellable(&cancel);
+    let out = dir.join("stopped");
+    let e = gscache_cli::experiment::run_experiment_resumable(
+        &file,
+        Some(&out),
+        &stop_after_first_method,
+        &control,
+        None,
+    )
+    .unwrap_err();
+    let stopped = e
+        .downcast_ref::<gscache_cli::experiment::Interrupted>()
+        .unwrap_or_else(|| panic!("{e:#}"));
+    assert_eq!(stopped.done, 3, "{stopped}");
+    assert!(stopped.to_string().contains("--resume"), "{stopped}");
+    let resumed = gscache_cli::experiment::run_experiment_resumable(
+        &file,
+        Some(&out),
+        &quiet,
+        &volume_pt::Control::none(),
+        Some(&stopped.file),
+    )
+    .unwrap();
+    assert_eq!(resumed.runs.len(), whole.runs.len());
+    for (a, b) in whole.runs.iter().zip(&resumed.runs) {
+        assert_eq!((&a.method, a.budget, a.seed), (&b.method, b.budget, b.seed));
+        if matches!(a.budget, Budget::Spp(_)) {
+            assert_eq!(a.rel_mse.to_bits(), b.rel_mse.to_bits(), "{a:?}");
+        }
+    }
+    // A resume file from another version of the experiment is refused.
+    std::fs::write(
+        &file,
+        std::fs::read_to_string(&file)
+            .unwrap()
+            .replace("seeds = [1, 2, 3]", "seeds = [1, 2, 4]"),
+    )
+    .unwrap();
+    let e = gscache_cli::experiment::run_experiment_resumable(
+        &file,
+        Some(&out),
+        &quiet,
+        &volume_pt::Control::none(),
+        Some(&stopped.file),
+    )
+    .unwrap_err();
+    assert!(format!("{e:#}").contains("another version"), "{e:#}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -40,6 +40,109 @@ pub fn run_experiment(
     Ok(results)
 }
 
+/// An experiment stopped between units (Ctrl-C): the units measured so far were written to
+/// `file`, which `--resume` reads to go on from there.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "interrupted after {done} of {total} units; the measured units are in {}: go on with \
+     `gscache experiment {} --resume {}`",
+    file.display(),
+    experiment.display(),
+    file.display()
+)]
+pub struct Interrupted {
+    pub done: usize,
+    pub total: usize,
+    pub file: std::path::PathBuf,
+    pub experiment: std::path::PathBuf,
+}
+
+/// [`run_experiment`] that stops between units when `control` is cancelled, keeping what it
+/// measured in `OUTPUT/interrupted-units.json` (an [`Interrupted`] error says so), and that
+/// takes the units of `resume` (such a file) as measured. A resume file of another version of
+/// the experiment is refused, and its units are checked as a shard's are.
+pub fn run_experiment_resumable(
+    path: &Path,
+    output: Option<&Path>,
+    progress: &dyn Fn(&str),
+    control: &render_session::Control,
+    resume: Option<&Path>,
+) -> Result<Results> {
+    let exp = load_with_output(path, output)?;
+    let (main, ablation) = run::all_budgets(&exp);
+    let specs = shard::units(&exp, &main, &ablation);
+    let key = shard::experiment_key(path, &exp, specs.len())?;
+    let done = match resume {
+        Some(file) => {
+            let f = shard::ShardFile::read(file)?;
+            let scene = run::experiment_scene(&exp)?;
+            let pixels = scene.camera.width as usize * scene.camera.height as usize;
+            // The checks of a shard merge, without requiring every unit.
+            let mut units = std::collections::BTreeMap::new();
+            if f.key != key || f.unit_count != specs.len() {
+                anyhow::bail!(
+                    "{}: measured for another version of the experiment: run it afresh",
+                    file.display()
+                );
+            }
+            for (k, r) in f.units {
+                if k >= specs.len() || units.contains_key(&k) {
+                    anyhow::bail!(
+                        "{}: unit {k} is given twice or does not exist",
+                        file.display()
+                    );
+                }
+                shard::check_unit(&specs[k], &r, pixels)
+                    .map_err(|e| anyhow::anyhow!("{}: unit {k}: {e}", file.display()))?;
+                units.insert(k, r);
+            }
+            progress(&format!(
+                "resuming: {} of {} units read from {}",
+                units.len(),
+                specs.len(),
+                file.display()
+            ));
+            units
+        }
+        None => Default::default(),
+    };
+    let mut kept: Vec<(usize, shard::UnitResult)> =
+        done.iter().map(|(k, r)| (*k, r.clone())).collect();
+    let outcome = run::run_resumable(&exp, progress, control, done, &mut |k, r| {
+        kept.push((k, r.clone()))
+    });
+    match outcome {
+        Ok(results) => {
+            write_outputs(&exp, &results, progress)?;
+            Ok(results)
+        }
+        Err(e) if e.is::<run::Cancelled>() => {
+            std::fs::create_dir_all(&exp.output)?;
+            let file = exp.output.join("interrupted-units.json");
+            kept.sort_by_key(|(k, _)| *k);
+            let done = kept.len();
+            shard::ShardFile {
+                format: shard::FORMAT,
+                experiment: exp.name.clone(),
+                key,
+                shard: "interrupted".into(),
+                unit_count: specs.len(),
+                units: kept,
+                checksum: String::new(),
+            }
+            .write(&file)?;
+            Err(Interrupted {
+                done,
+                total: specs.len(),
+                file,
+                experiment: path.to_path_buf(),
+            }
+            .into())
+        }
+        Err(e) => Err(e),
+    }
+}
+
 /// Measures shard `shard` of the experiment in `path` and writes its units to `shard_file`.
 pub fn run_experiment_shard(
     path: &Path,

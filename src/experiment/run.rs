@@ -390,11 +390,43 @@ pub fn all_budgets(exp: &Experiment) -> (Vec<Budget>, Vec<Vec<Budget>>) {
 
 /// Runs the experiment in one process; `progress` receives one line per step.
 pub fn run(exp: &Experiment, progress: &dyn Fn(&str)) -> Result<Results> {
+    run_resumable(
+        exp,
+        progress,
+        &render_session::Control::none(),
+        Default::default(),
+        &mut |_, _| {},
+    )
+}
+
+/// Stops an experiment between units: [`run_resumable`]'s error when its control is cancelled.
+#[derive(Debug, thiserror::Error)]
+#[error("the experiment was interrupted between units")]
+pub struct Cancelled;
+
+/// [`run`] that takes the units in `done` as measured (a resumed run), hands each unit it
+/// measures to `measured`, and stops with [`Cancelled`] before the next unit once `control` is
+/// cancelled, so the caller can keep what was measured.
+pub fn run_resumable(
+    exp: &Experiment,
+    progress: &dyn Fn(&str),
+    control: &render_session::Control,
+    mut done: std::collections::BTreeMap<usize, UnitResult>,
+    measured: &mut dyn FnMut(usize, &UnitResult),
+) -> Result<Results> {
     let scene = experiment_scene(exp)?;
     let (main, ablation) = all_budgets(exp);
     let units = units(exp, &main, &ablation);
     assemble(exp, &scene, progress, &mut |k| {
-        measure_unit(exp, &scene, units[k], progress)
+        if let Some(r) = done.remove(&k) {
+            return Ok(r);
+        }
+        if control.cancelled() {
+            return Err(Cancelled.into());
+        }
+        let r = measure_unit(exp, &scene, units[k], progress)?;
+        measured(k, &r);
+        Ok(r)
     })
 }
 

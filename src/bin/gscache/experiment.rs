@@ -29,6 +29,11 @@ pub struct ExperimentArgs {
     /// Where a shard's measured units go (JSON, written atomically).
     #[arg(long, requires = "shard")]
     shard_output: Option<PathBuf>,
+    /// Go on from an interrupted run: the units measured before it stopped
+    /// (`OUTPUT/interrupted-units.json`, written when Ctrl-C stops an experiment between
+    /// units) are taken as measured.
+    #[arg(long, conflicts_with = "shard")]
+    resume: Option<PathBuf>,
 }
 
 #[derive(clap::Subcommand, Debug)]
@@ -77,8 +82,27 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
         gscache_cli::experiment::run_experiment_shard(&cli.experiments[0], shard, out, &progress)?;
         return Ok(0);
     }
+    if cli.resume.is_some() && cli.experiments.len() > 1 {
+        anyhow::bail!("--resume names one experiment's units: give one experiment file with it");
+    }
+    // Ctrl-C (or SIGTERM, SIGHUP) stops between units and keeps what was measured.
+    let cancel = crate::common::cancellation()?;
+    let control = volume_pt::Control::cancellable(&cancel);
     for path in &cli.experiments {
-        gscache_cli::experiment::run_experiment(path, cli.output.as_deref(), &progress)?;
+        let run = gscache_cli::experiment::run_experiment_resumable(
+            path,
+            cli.output.as_deref(),
+            &progress,
+            &control,
+            cli.resume.as_deref(),
+        );
+        if let Err(e) = &run
+            && let Some(stopped) = e.downcast_ref::<gscache_cli::experiment::Interrupted>()
+        {
+            eprintln!("{stopped}");
+            return Ok(crate::common::INTERRUPTED);
+        }
+        run?;
     }
     Ok(0)
 }

@@ -108,3 +108,59 @@ fn acceptance_numbers_are_independent_between_samples_and_along_a_ray() {
         );
     }
 }
+
+/// The trigonometric hash's remaining bias, measured (issue 32): even in f64, `fract(43758.5
+/// sin(.))` is not uniform (the sine's values crowd near +-1), and a hit of opacity 0.1-0.3 is
+/// accepted about 0.13% too rarely. That is what darkens its images (-0.026% on the fruit
+/// asset) and why `hash` is the default and the help says so. 2^27 draws an opacity: standard
+/// error 2.6e-5 at 0.1 and 4.0e-5 at 0.3. The integer hash, drawn the same way, is held to
+/// |z| < 5 (false alarm 6e-7 each); the trigonometric hash must show its bias (z below -3;
+/// measured -0.139% at 0.1, z -5.4, and -0.130% at 0.3, z -9.9, with these fixed draws) and no
+/// more than 0.5% of it. Should the hash ever be made unbiased, this test fails and the help
+/// and README must change with it.
+#[test]
+fn the_trigonometric_hash_accepts_faint_hits_slightly_too_rarely() {
+    use rayon::prelude::*;
+    let alphas = [0.1f32, 0.3];
+    let chunks = 128u32;
+    let per_chunk = 1u32 << 20;
+    let n = chunks as f64 * per_chunk as f64;
+    for kind in KINDS {
+        let counts: Vec<[u64; 2]> = (0..chunks)
+            .into_par_iter()
+            .map(|c| {
+                let mut counts = [0u64; 2];
+                for i in 0..per_chunk {
+                    let u = acceptance(
+                        kind,
+                        &SampleKey::new(11, c, i),
+                        i,
+                        0,
+                        point(c ^ i.rotate_left(7)),
+                    );
+                    for (k, a) in alphas.iter().enumerate() {
+                        counts[k] += (u < *a) as u64;
+                    }
+                }
+                counts
+            })
+            .collect();
+        for (k, &a) in alphas.iter().enumerate() {
+            let hits: u64 = counts.iter().map(|c| c[k]).sum();
+            let a = a as f64;
+            let f = hits as f64 / n;
+            let z = (f - a) / (a * (1.0 - a) / n).sqrt();
+            eprintln!(
+                "{kind:?} at opacity {a}: accepted {f:.6} ({:+.3}%, z {z:+.1})",
+                (f / a - 1.0) * 100.0
+            );
+            match kind {
+                RandomKind::Hash => assert!(z.abs() < 5.0, "hash at {a}: z {z}"),
+                RandomKind::Trig => assert!(
+                    z < -3.0 && (f / a - 1.0).abs() < 5e-3,
+                    "trig at {a}: {f} (z {z}): the documented bias is gone or grown"
+                ),
+            }
+        }
+    }
+}

@@ -795,3 +795,51 @@ fn an_interrupted_splat_render_or_trace_writes_what_it_has() {
         }
     }
 }
+
+/// Output names: `-o NAME.png` names the PNG and puts the EXR beside it (it once wrote the PNG
+/// over the EXR: "wrote out/x.png and out/x.png"), and a cached render's default name differs
+/// from the plain one's, so neither overwrites the other.
+#[test]
+fn outputs_do_not_overwrite_each_other() {
+    let d = scratch("outputs");
+    let png = d.join("x.png");
+    let out = render()
+        .arg(repo().join("data/scenes/default.toml"))
+        .args(["--spp", "1", "--width", "16", "--height", "12", "-q", "-o"])
+        .arg(&png)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("x.exr") && stdout.contains("x.png"),
+        "{stdout}"
+    );
+    assert!(hdr_image::RgbImage::read_exr(&d.join("x.exr")).is_ok());
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    for (flags, name) in [
+        (&[][..], "default.exr"),
+        (&["--cache"][..], "default.cache.exr"),
+    ] {
+        let out = render()
+            .current_dir(&d)
+            .arg(repo().join("data/scenes/default.toml"))
+            .args(["--spp", "1", "--width", "16", "--height", "12", "-q"])
+            .args(flags)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            d.join("out").join(name).exists(),
+            "{flags:?}: no out/{name}"
+        );
+    }
+}

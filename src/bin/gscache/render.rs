@@ -43,7 +43,9 @@ pub struct RenderArgs {
     /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
     #[arg(long)]
     macrocell: Option<u32>,
-    /// Linear EXR output (default: out/<scene>.exr).
+    /// Linear EXR output (default: out/<scene>.exr, out/<scene>.cache.exr with --cache,
+    /// out/<scene>.nrc.exr with --nrc). `-o NAME.png` names the PNG and puts the EXR beside it
+    /// as NAME.exr.
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
     /// Tone-mapped PNG output (default: next to the EXR).
@@ -162,14 +164,19 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "render".into());
-    let exr_path = args
-        .output
-        .clone()
-        .unwrap_or_else(|| PathBuf::from("out").join(format!("{stem}.exr")));
-    let png_path = args
-        .png
-        .clone()
-        .unwrap_or_else(|| exr_path.with_extension("png"));
+    // Cached renders are named apart from the plain one, so that neither overwrites the other.
+    let method = if args.cache.cache {
+        ".cache"
+    } else if args.cache.nrc {
+        ".nrc"
+    } else {
+        ""
+    };
+    let (exr_path, png_path) = output_paths(
+        args.output.as_deref(),
+        args.png.as_deref(),
+        &PathBuf::from("out").join(format!("{stem}{method}.exr")),
+    );
     prepare_output(&exr_path)?;
     prepare_output(&png_path)?;
     for dir in [&args.cache.save_cache, &args.cache.cache_images]
@@ -323,29 +330,28 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             stats.nonfinite_samples
         );
     }
+    let (w, h) = (cam.width, cam.height);
     let done = if stats.cancelled {
         format!(
-            "interrupted after {:.1} of {} spp",
-            film.total_samples() as f64 / (cam.width as f64 * cam.height as f64),
-            scene.settings.spp
+            "interrupted after {:.1} of {} spp: kept {w}x{h}",
+            film.total_samples() as f64 / (w as f64 * h as f64),
+            scene.settings.spp as u64 * frames as u64
         )
     } else if args.cache.cache {
         format!(
-            "{} frames of {} spp with the cache ({:?} lookup)",
+            "rendered {w}x{h} at {} frames of {} spp with the cache ({:?} lookup)",
             args.cache.frames, scene.settings.spp, args.cache.settings.lookup
         )
     } else if args.cache.nrc {
         format!(
-            "{} frames of {} spp with the neural cache",
+            "rendered {w}x{h} at {} frames of {} spp with the neural cache",
             args.cache.frames, scene.settings.spp
         )
     } else {
-        format!("{} spp", scene.settings.spp)
+        format!("rendered {w}x{h} at {} spp", scene.settings.spp)
     };
     println!(
-        "rendered {}x{} at {done} ({}, {depth}, seed {}) in {:.2} s: {:.3} M samples/s on {} threads; wrote {} and {}",
-        cam.width,
-        cam.height,
+        "{done} ({}, {depth}, seed {}) in {:.2} s: {:.3} M samples/s on {} threads; wrote {} and {}",
         scene.settings.path.integrator,
         scene.settings.seed,
         stats.seconds,
@@ -482,4 +488,24 @@ fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
         sum(|r| r.lookup_seconds),
         sum(|r| r.train_seconds)
     );
+}
+
+/// The EXR and PNG a render writes: `-o` and `--png` when given, else `default` and its PNG.
+/// `-o NAME.png` names the PNG (the EXR goes beside it as NAME.exr): it once wrote the PNG over
+/// the EXR ("wrote out/x.png and out/x.png").
+fn output_paths(
+    output: Option<&std::path::Path>,
+    png: Option<&std::path::Path>,
+    default: &std::path::Path,
+) -> (PathBuf, PathBuf) {
+    let exr = output.unwrap_or(default).to_path_buf();
+    let named_png = exr
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let (exr, implied_png) = if named_png {
+        (exr.with_extension("exr"), exr)
+    } else {
+        (exr.clone(), exr.with_extension("png"))
+    };
+    (exr, png.map_or(implied_png, |p| p.to_path_buf()))
 }

@@ -843,3 +843,29 @@ fn outputs_do_not_overwrite_each_other() {
         );
     }
 }
+
+/// `splat render` and `splat trace` name their default output after the asset (every render
+/// once wrote out/splat.exr, whatever the asset), the trace apart from the raster render.
+#[test]
+fn splat_outputs_are_named_after_the_asset() {
+    let d = scratch("splat-names");
+    let asset = repo().join("data/splats/fruit_drops_minimal.ply");
+    for (sub, name) in [
+        ("render", "fruit_drops_minimal.exr"),
+        ("trace", "fruit_drops_minimal.trace.exr"),
+    ] {
+        let out = gscache()
+            .current_dir(&d)
+            .args(["splat", sub])
+            .arg(&asset)
+            .args(["--width", "16", "--height", "12", "-q"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{sub}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(d.join("out").join(name).exists(), "{sub}: no out/{name}");
+    }
+}

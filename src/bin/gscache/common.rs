@@ -36,11 +36,26 @@ impl Global {
         } else {
             ProgressBar::new(total)
         };
+        // The rate in thousands or millions a second ("1.35 M/s"): indicatif's own prints
+        // "13,501.0297/s".
         bar.set_style(
             ProgressStyle::with_template(&format!(
-                "{{bar:40}} {{percent:>3}}% {{human_pos}}/{{human_len}} {unit}, {{per_sec}}, eta {{eta}}"
+                "{{bar:40}} {{percent:>3}}% {{human_pos}}/{{human_len}} {unit}, {{rate}}, eta {{eta}}"
             ))
-            .expect("valid template"),
+            .expect("valid template")
+            .with_key(
+                "rate",
+                |state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                    let r = state.per_sec();
+                    let _ = if r >= 1e6 {
+                        write!(w, "{:.2} M/s", r / 1e6)
+                    } else if r >= 1e3 {
+                        write!(w, "{:.1} k/s", r / 1e3)
+                    } else {
+                        write!(w, "{r:.0}/s")
+                    };
+                },
+            ),
         );
         bar
     }

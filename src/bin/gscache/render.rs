@@ -245,16 +245,13 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     session.check_frames(all_frames)?;
 
     let cancel = cancellation()?;
-    let total = spp as u64 * cam.width as u64 * cam.height as u64 * frames as u64;
+    // The bar counts the warm-up's samples too: it once sat at 0% through the warm-up.
+    let total = spp as u64 * cam.width as u64 * cam.height as u64 * all_frames as u64;
     let bar = global.progress(total, "samples");
     let report_progress = |n| bar.inc(n);
     let control = Control::new(&cancel, &report_progress);
     let start = std::time::Instant::now();
-    let warm = session.warm_up(
-        args.cache.warmup,
-        args.cache.warmup_orbit,
-        &control.silent(),
-    )?;
+    let warm = session.warm_up(args.cache.warmup, args.cache.warmup_orbit, &control)?;
     let mut accumulated = Vec::with_capacity(frames as usize);
     for _ in 0..frames {
         if control.cancelled() {
@@ -339,8 +336,10 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         )
     } else if args.cache.cache {
         format!(
-            "rendered {w}x{h} at {} frames of {} spp with the cache ({:?} lookup)",
-            args.cache.frames, scene.settings.spp, args.cache.settings.lookup
+            "rendered {w}x{h} at {} frames of {} spp with the cache ({} lookup)",
+            args.cache.frames,
+            scene.settings.spp,
+            format!("{:?}", args.cache.settings.lookup).to_lowercase()
         )
     } else if args.cache.nrc {
         format!(
@@ -493,7 +492,7 @@ fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
 /// The EXR and PNG a render writes: `-o` and `--png` when given, else `default` and its PNG.
 /// `-o NAME.png` names the PNG (the EXR goes beside it as NAME.exr): it once wrote the PNG over
 /// the EXR ("wrote out/x.png and out/x.png").
-fn output_paths(
+pub fn output_paths(
     output: Option<&std::path::Path>,
     png: Option<&std::path::Path>,
     default: &std::path::Path,

@@ -76,8 +76,9 @@ pub struct TraceArgs {
     /// Background colour `r,g,b`.
     #[arg(long, value_parser = finite_vec3, default_value = "0,0,0")]
     background: Vec3,
-    #[arg(short = 'o', long, default_value = "out/trace.exr")]
-    output: PathBuf,
+    /// EXR output (default: out/<asset>.trace.exr; `-o NAME.png` names the PNG, the EXR beside).
+    #[arg(short = 'o', long)]
+    output: Option<PathBuf>,
     #[arg(long)]
     png: Option<PathBuf>,
 }
@@ -130,8 +131,9 @@ pub struct RenderArgs {
     /// `lanes8` (AVX2 + FMA), `lanes4` (SSE2 / NEON) or `scalar` (the reference).
     #[arg(long, default_value = "auto")]
     kernel: splat_raster::Kernel,
-    #[arg(short = 'o', long, default_value = "out/splat.exr")]
-    output: PathBuf,
+    /// EXR output (default: out/<asset>.exr; `-o NAME.png` names the PNG, the EXR beside).
+    #[arg(short = 'o', long)]
+    output: Option<PathBuf>,
     #[arg(long)]
     png: Option<PathBuf>,
 }
@@ -232,10 +234,13 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
     let mut interrupted = false;
     match command {
         SplatCommand::Render(a) => {
-            prepare_output(&a.output)?;
-            if let Some(png) = &a.png {
-                prepare_output(png)?;
-            }
+            let (exr_path, png_path) = crate::render::output_paths(
+                a.output.as_deref(),
+                a.png.as_deref(),
+                &default_output(&a.asset, ""),
+            );
+            prepare_output(&exr_path)?;
+            prepare_output(&png_path)?;
             let cloud = load_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
             let cfg = RasterConfig {
@@ -287,17 +292,16 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
             };
             let secs = t0.elapsed().as_secs_f64();
             let image = RgbImage::from_rgb(cam.width, cam.height, &img.color)?;
-            image.write_exr(&a.output)?;
-            let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
-            image.write_png(&png, 0.0, ToneMap::Clip)?;
+            image.write_exr(&exr_path)?;
+            image.write_png(&png_path, 0.0, ToneMap::Clip)?;
             println!(
                 "rendered {} Gaussians at {}x{} in {:.1} ms ({info}); wrote {} and {}",
                 cloud.len(),
                 cam.width,
                 cam.height,
                 secs * 1e3,
-                a.output.display(),
-                png.display()
+                exr_path.display(),
+                png_path.display()
             );
         }
         SplatCommand::Fit(a) => {
@@ -366,10 +370,13 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
             );
         }
         SplatCommand::Trace(a) => {
-            prepare_output(&a.output)?;
-            if let Some(png) = &a.png {
-                prepare_output(png)?;
-            }
+            let (exr_path, png_path) = crate::render::output_paths(
+                a.output.as_deref(),
+                a.png.as_deref(),
+                &default_output(&a.asset, ".trace"),
+            );
+            prepare_output(&exr_path)?;
+            prepare_output(&png_path)?;
             use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image_with};
             let cloud = load_cloud(&a.asset)?;
             let cam = make_camera(&a.camera, Some(&cloud))?;
@@ -418,9 +425,8 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
             }
             let secs = t1.elapsed().as_secs_f64();
             let image = RgbImage::from_pixels(cam.width, cam.height, img)?;
-            image.write_exr(&a.output)?;
-            let png = a.png.unwrap_or_else(|| a.output.with_extension("png"));
-            image.write_png(&png, 0.0, ToneMap::Clip)?;
+            image.write_exr(&exr_path)?;
+            image.write_png(&png_path, 0.0, ToneMap::Clip)?;
             let rays = match estimator {
                 Estimator::Exact | Estimator::KBuffer { .. } => 1,
                 _ => settings.spp,
@@ -439,8 +445,8 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
                 secs,
                 rays / secs / 1e6,
                 rayon::current_num_threads(),
-                a.output.display(),
-                png.display()
+                exr_path.display(),
+                png_path.display()
             );
         }
     }
@@ -468,4 +474,14 @@ fn random_in_view(cam: &Camera, n: usize, near: f32, far: f32) -> GaussianCloud<
         );
     }
     c
+}
+
+/// `out/<asset stem><suffix>.exr`: each asset (and the ray tracer) gets its own default name,
+/// so renders of two assets do not overwrite each other.
+fn default_output(asset: &std::path::Path, suffix: &str) -> PathBuf {
+    let stem = asset
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "splat".into());
+    PathBuf::from("out").join(format!("{stem}{suffix}.exr"))
 }

@@ -93,3 +93,13 @@ def test_a_list_is_refused_with_what_to_do():
     # It once raised AttributeError ('list' object has no attribute 'ndim').
     with pytest.raises(TypeError, match="a list: expected a numpy array.*asarray"):
         gscache.Volume.from_array([[[1]]])
+
+
+def test_big_endian_arrays_are_read_as_their_values():
+    # nibabel gives big-endian NIfTI volumes as `>i2`: they were refused, though int16 is read.
+    native = (np.arange(4 * 5 * 6, dtype=np.int16).reshape(4, 5, 6) * 7) - 50
+    big = native.astype(">i2")
+    a = gscache.Volume.from_array(native)
+    b = gscache.Volume.from_array(big)
+    # Same shape, dtype and value range (the name says which array it came from).
+    assert repr(a).split("shape=")[1] == repr(b).split("shape=")[1], (repr(a), repr(b))

@@ -79,6 +79,24 @@ fn array_voxels(array: &Bound<'_, PyAny>) -> PyResult<(Voxels, [usize; 3], &'sta
             "a {ndim}-D array: expected a 3-D array of shape (nz, ny, nx)"
         )));
     }
+    // Another byte order (nibabel reads big-endian NIfTI as `>i2`) is converted to the
+    // machine's: the values are the same, and the dtype is supported. It was refused.
+    let swapped;
+    let array = if array
+        .getattr("dtype")?
+        .getattr("byteorder")?
+        .extract::<String>()?
+        == ">"
+        && cfg!(target_endian = "little")
+    {
+        let native = array
+            .getattr("dtype")?
+            .call_method1("newbyteorder", ("=",))?;
+        swapped = array.call_method1("astype", (native,))?;
+        &swapped
+    } else {
+        array
+    };
     if let Ok(a) = array.extract::<PyReadonlyArray3<'_, u8>>() {
         let (v, s) = take(a, volume_pt::io::DType::U8)?;
         return Ok((Voxels::U8(v), s, "uint8"));

@@ -14,7 +14,7 @@ pub enum RandomKind {
     Hash,
     /// `xi(p) = r2(p_xy + r1(p_z))` with `r1(q) = fract(b1 sin(a1 q))` and
     /// `r2(q) = fract(b2 sin(a2 . q))` (Sun et al. 2025, Eq. 8-10), at the perturbed hit position,
-    /// evaluated in f64 (see [`trig_hash`]). Slightly biased even in f64: against an independent
+    /// evaluated in f64 (in f32 it is grossly biased). Slightly biased even in f64: against an independent
     /// f64 exact compositor on the fruit asset (4,096 samples a pixel over two seeds, 8 a
     /// traversal) its image mean is -0.026% (-7 standard errors), and more where transmittance
     /// is high (-0.25% at 0.9-0.999): it accepts hits of opacity 0.1-0.3 about 0.13% too

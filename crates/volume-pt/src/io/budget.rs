@@ -22,18 +22,92 @@ pub struct VolumeSize {
     pub payload_bytes: usize,
 }
 
-/// Memory available to this process, in bytes: Linux's `MemAvailable` (free memory plus what the
-/// kernel can reclaim), or, where that cannot be read, 8 GiB as a cautious guess.
+/// Memory available to this process, in bytes: the smaller of the machine's `MemAvailable`
+/// (free memory plus what the kernel can reclaim) and the headroom under this process's cgroup
+/// memory limit, which SLURM, Docker and systemd set (a job's volume that "fits" the machine
+/// but not its limit would be killed instead of refused with the estimate). Where neither can
+/// be read, 8 GiB as a cautious guess.
 pub fn available_memory() -> u64 {
     const FALLBACK: u64 = 8 << 30;
-    std::fs::read_to_string("/proc/meminfo")
+    let machine = std::fs::read_to_string("/proc/meminfo")
         .ok()
         .and_then(|text| {
             let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
             let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
             kib.checked_mul(1024)
+        });
+    let job = std::fs::read_to_string("/proc/self/cgroup")
+        .ok()
+        .and_then(|text| cgroup_headroom(&text, &|p| std::fs::read_to_string(p).ok()));
+    match (machine, job) {
+        (Some(m), Some(j)) => m.min(j),
+        (Some(m), None) => m,
+        (None, Some(j)) => j,
+        (None, None) => FALLBACK,
+    }
+}
+
+/// A limit at or above this is "no limit" (cgroup v1 writes 2^63 rounded to a page).
+const NO_LIMIT: u64 = 1 << 60;
+
+/// The headroom under the memory limit of the cgroup that `/proc/self/cgroup` (`proc_cgroup`)
+/// names, reading files through `read`: limit minus what the group uses, not counting the
+/// inactive file cache the kernel reclaims first (as container runtimes count a working set).
+/// cgroup v2 (`0::/path`: `memory.max`, `memory.current`, `memory.stat`'s `inactive_file`) and
+/// v1 (`N:memory:/path`: `memory.limit_in_bytes`, `memory.usage_in_bytes`,
+/// `total_inactive_file`), at the group's path or, in a container that shows its own group as
+/// the root, at the controller's root. None where no limit is set or nothing can be read.
+pub fn cgroup_headroom(proc_cgroup: &str, read: &dyn Fn(&str) -> Option<String>) -> Option<u64> {
+    let number = |text: String| text.trim().parse::<u64>().ok();
+    let stat_value = |text: String, key: &str| {
+        text.lines().find_map(|l| {
+            let (k, v) = l.split_once(' ')?;
+            (k == key).then(|| v.trim().parse::<u64>().ok()).flatten()
         })
-        .unwrap_or(FALLBACK)
+    };
+    let headroom = |limit: u64, usage: u64, inactive: u64| {
+        (limit < NO_LIMIT).then(|| limit.saturating_sub(usage.saturating_sub(inactive)))
+    };
+    for line in proc_cgroup.lines() {
+        let mut parts = line.splitn(3, ':');
+        let (id, controllers, path) = (parts.next()?, parts.next()?, parts.next()?);
+        let path = path.trim_end_matches('/');
+        if id == "0" && controllers.is_empty() {
+            for dir in [
+                format!("/sys/fs/cgroup{path}"),
+                "/sys/fs/cgroup".to_string(),
+            ] {
+                let Some(max) = read(&format!("{dir}/memory.max")) else {
+                    continue;
+                };
+                if max.trim() == "max" {
+                    return None;
+                }
+                let limit = number(max)?;
+                let usage = read(&format!("{dir}/memory.current")).and_then(number)?;
+                let inactive = read(&format!("{dir}/memory.stat"))
+                    .and_then(|t| stat_value(t, "inactive_file"))
+                    .unwrap_or(0);
+                return headroom(limit, usage, inactive);
+            }
+        } else if controllers.split(',').any(|c| c == "memory") {
+            for dir in [
+                format!("/sys/fs/cgroup/memory{path}"),
+                "/sys/fs/cgroup/memory".to_string(),
+            ] {
+                let Some(limit) = read(&format!("{dir}/memory.limit_in_bytes")).and_then(number)
+                else {
+                    continue;
+                };
+                let usage = read(&format!("{dir}/memory.usage_in_bytes")).and_then(number)?;
+                let inactive = read(&format!("{dir}/memory.stat"))
+                    .and_then(|t| stat_value(t, "total_inactive_file"))
+                    .unwrap_or(0);
+                return headroom(limit, usage, inactive);
+            }
+        }
+    }
+    None
 }
 
 /// `bytes` for people: "3.2 GiB".
@@ -238,6 +312,69 @@ fn read_bounded_into(
 
 #[cfg(test)]
 mod tests {
+
+    /// The job's memory limit is read for cgroup v2 and v1, at the group's own path or at the
+    /// controller's root (a container), with the reclaimable file cache not counted; no limit
+    /// (v2 "max", v1 2^63) and unreadable files give none.
+    #[test]
+    fn the_cgroup_headroom_is_read_for_both_versions() {
+        let files = |pairs: &'static [(&'static str, &'static str)]| {
+            move |p: &str| {
+                pairs
+                    .iter()
+                    .find(|(k, _)| *k == p)
+                    .map(|(_, v)| v.to_string())
+            }
+        };
+        // v2, SLURM-style path: 4 GiB limit, 3 GiB used of which 1 GiB inactive cache.
+        let v2 = files(&[
+            ("/sys/fs/cgroup/slurm/job_7/memory.max", "4294967296\n"),
+            ("/sys/fs/cgroup/slurm/job_7/memory.current", "3221225472\n"),
+            (
+                "/sys/fs/cgroup/slurm/job_7/memory.stat",
+                "anon 1\ninactive_file 1073741824\n",
+            ),
+        ]);
+        assert_eq!(cgroup_headroom("0::/slurm/job_7\n", &v2), Some(2 << 30));
+        let unlimited = files(&[("/sys/fs/cgroup/memory.max", "max\n")]);
+        assert_eq!(cgroup_headroom("0::/\n", &unlimited), None);
+        // v1 in a container: the group's path is not mounted, the controller's root is.
+        let v1 = files(&[
+            (
+                "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                "2147483648\n",
+            ),
+            (
+                "/sys/fs/cgroup/memory/memory.usage_in_bytes",
+                "2684354560\n",
+            ),
+            (
+                "/sys/fs/cgroup/memory/memory.stat",
+                "cache 5\ntotal_inactive_file 1073741824\n",
+            ),
+        ]);
+        let text = "5:devices:/\n4:memory:/process_api/abc\n0::/\n";
+        assert_eq!(cgroup_headroom(text, &v1), Some(512 << 20));
+        let v1_unlimited = files(&[
+            (
+                "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                "9223372036854771712\n",
+            ),
+            (
+                "/sys/fs/cgroup/memory/memory.usage_in_bytes",
+                "10254323712\n",
+            ),
+        ]);
+        assert_eq!(cgroup_headroom(text, &v1_unlimited), None);
+        // Over the limit already: no headroom, not a wrapped number.
+        let over = files(&[
+            ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "1000\n"),
+            ("/sys/fs/cgroup/memory/memory.usage_in_bytes", "5000\n"),
+        ]);
+        assert_eq!(cgroup_headroom(text, &over), Some(0));
+        assert_eq!(cgroup_headroom("garbage", &over), None);
+    }
+
     use super::*;
 
     #[test]

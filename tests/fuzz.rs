@@ -34,18 +34,12 @@ struct Numbers(u64);
 
 impl Numbers {
     fn new(seed: &str, case: u64) -> Self {
-        let mut h = 0xcbf2_9ce4_8422_2325u64;
-        for b in seed.bytes() {
-            h = (h ^ b as u64).wrapping_mul(0x100_0000_01b3);
-        }
-        Numbers(h ^ case.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+        use render_base::hash::{FNV_OFFSET, GOLDEN_GAMMA, fnv1a64};
+        Numbers(fnv1a64(seed.as_bytes(), FNV_OFFSET) ^ case.wrapping_mul(GOLDEN_GAMMA))
     }
     fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
+        self.0 = self.0.wrapping_add(render_base::hash::GOLDEN_GAMMA);
+        render_base::hash::splitmix64_finalize(self.0)
     }
     fn below(&mut self, n: usize) -> usize {
         (self.next() % n.max(1) as u64) as usize

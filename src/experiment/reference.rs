@@ -12,16 +12,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 use volume_pt::{Control, Film, IntegratorKind, Scene, render};
 
-/// FNV-1a, 64 bits.
-pub fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
-    for &b in bytes {
-        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-    }
-    h
-}
-
-/// The FNV-1a offset basis: the hash of nothing.
-pub const FNV_START: u64 = 0xcbf2_9ce4_8422_2325;
+/// FNV-1a, 64 bits (render-base's, the one definition), and its offset basis.
+pub use render_base::hash::{FNV_OFFSET as FNV_START, fnv1a64 as fnv1a};
 
 /// A reference image and where it lives.
 #[derive(Debug, Clone)]

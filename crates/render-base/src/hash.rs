@@ -6,6 +6,20 @@
 //!   the neural cache's shuffles and seeds).
 //! - [`hash32`] / [`unit_f32`]: several 32-bit words to one (per-fragment decisions of the
 //!   rasteriser and the ray tracer).
+//! - [`fnv1a64`]: byte strings to the keys of renders, references and experiments.
+
+/// The FNV-1a offset basis: the 64-bit FNV-1a hash of nothing.
+pub const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// 64-bit FNV-1a of `bytes`, continuing from `state` ([`FNV_OFFSET`] to start): the keys that
+/// name renders, references and experiments. Not cryptographic: it guards against mistakes.
+#[inline]
+pub fn fnv1a64(bytes: &[u8], mut state: u64) -> u64 {
+    for &b in bytes {
+        state = (state ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    state
+}
 
 /// 2^64 / golden ratio, odd: the splitmix64 increment.
 pub const GOLDEN_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
@@ -54,6 +68,18 @@ pub fn unit_f32(h: u32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fnv1a_matches_its_published_vectors() {
+        assert_eq!(fnv1a64(b"", FNV_OFFSET), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a64(b"a", FNV_OFFSET), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a64(b"foobar", FNV_OFFSET), 0x8594_4171_f739_67e8);
+        // Continuing from a state is hashing the concatenation.
+        assert_eq!(
+            fnv1a64(b"bar", fnv1a64(b"foo", FNV_OFFSET)),
+            fnv1a64(b"foobar", FNV_OFFSET)
+        );
+    }
 
     #[test]
     fn matches_the_reference_sequence() {

@@ -88,15 +88,13 @@ pub struct RenderKey(u64);
 
 impl RenderKey {
     pub fn new() -> Self {
-        Self(0xcbf2_9ce4_8422_2325)
+        Self(render_base::hash::FNV_OFFSET)
     }
 
     /// Adds one part, its length first, so parts cannot run into each other.
     pub fn part(mut self, bytes: &[u8]) -> Self {
-        for b in (bytes.len() as u64).to_le_bytes().iter().chain(bytes) {
-            self.0 ^= *b as u64;
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
+        use render_base::hash::fnv1a64;
+        self.0 = fnv1a64(bytes, fnv1a64(&(bytes.len() as u64).to_le_bytes(), self.0));
         self
     }
 

@@ -17,7 +17,7 @@ impl SplitMix {
         }
     }
     pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        self.state = self.state.wrapping_add(render_base::hash::GOLDEN_GAMMA);
         mix64(self.state)
     }
     /// Uniform in [0, 1).

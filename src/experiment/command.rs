@@ -32,7 +32,7 @@ fn flag_args<T: serde::Serialize>(prefix: &str, config: &T, defaults: &T) -> Vec
         args.push(format!("--{prefix}-{}", key.replace('_', "-")));
         args.push(match value {
             toml::Value::String(s) => s.clone(),
-            other => other.to_string(),
+            other => short_value(other),
         });
     }
     args
@@ -113,4 +113,51 @@ pub fn render_command(
         .map(|a| quote(a))
         .collect();
     format!("gscache {}", args.join(" "))
+}
+
+/// A setting's value as it was typed: an f32 setting in its shortest form that reads back the
+/// same (`0.1`, not the f64 expansion `0.10000000149011612` that serialising it gives).
+pub fn short_value(value: &toml::Value) -> String {
+    match value {
+        toml::Value::Float(f) if (*f as f32) as f64 == *f => format!("{}", *f as f32),
+        other => other.to_string(),
+    }
+}
+
+/// Settings as `key = value, ...` (an experiment file's table), values as typed.
+pub fn settings_text<T: serde::Serialize>(settings: &T) -> String {
+    let Ok(table) = toml::Table::try_from(settings) else {
+        return String::new();
+    };
+    table
+        .iter()
+        .map(|(k, v)| format!("{k} = {}", short_value(v)))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_print_as_they_were_typed() {
+        let c = CacheConfig {
+            lr_color: 0.3,
+            c: 0.7,
+            ..Default::default()
+        };
+        let args = cache_args(&c);
+        let at = args.iter().position(|a| a == "--cache-lr-color").unwrap();
+        assert_eq!(args[at + 1], "0.3");
+        let text = settings_text(&c);
+        assert!(
+            text.contains("lr_color = 0.3,") && text.contains("c = 0.7,"),
+            "{text}"
+        );
+        assert!(
+            !text.contains("0.30000001") && !text.contains("0.69999998"),
+            "{text}"
+        );
+    }
 }

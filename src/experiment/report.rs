@@ -177,16 +177,10 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     );
     let _ = writeln!(md, "## Methods\n");
     for m in &r.methods {
-        let table = |t: String| t.replace('\n', ", ").trim_end_matches(", ").to_string();
+        use super::command::settings_text;
         let cache = match (&m.cache, &m.nrc) {
-            (Some(c), _) => format!(
-                ": cache `{}`",
-                table(toml::to_string(c).unwrap_or_default())
-            ),
-            (_, Some(n)) => format!(
-                ": neural cache `{}`",
-                table(toml::to_string(n).unwrap_or_default())
-            ),
+            (Some(c), _) => format!(": cache `{}`", settings_text(c)),
+            (_, Some(n)) => format!(": neural cache `{}`", settings_text(n)),
             _ => String::new(),
         };
         let _ = writeln!(md, "- `{}`: {}{cache}", m.name, m.integrator);

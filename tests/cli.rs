@@ -96,34 +96,43 @@ fn bad_input_is_a_clear_error_not_a_panic() {
 fn an_interrupt_writes_what_was_accumulated_and_exits_130() {
     for signal in ["-INT", "-TERM", "-HUP"] {
         let d = scratch(&format!("signal{signal}"));
-        let exr = d.join("partial.exr");
-        let child = render()
-            .arg(repo().join("data/scenes/default.toml"))
-            .args(["--spp", "100000", "--width", "32", "--height", "32", "-q"])
-            .arg("-o")
-            .arg(&exr)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        std::thread::sleep(std::time::Duration::from_millis(1500));
-        let status = Command::new("kill")
-            .args([signal, &child.id().to_string()])
-            .status()
-            .unwrap();
-        assert!(status.success());
-        let out = child.wait_with_output().unwrap();
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        assert_eq!(
-            out.status.code(),
-            Some(130),
-            "{signal}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let mut cmd = render();
+        cmd.arg(repo().join("data/scenes/default.toml"))
+            .args(["--spp", "100000", "--width", "32", "--height", "32", "-q"]);
+        let stdout = interrupt_and_check(cmd, signal, &d.join("partial.exr"), "render");
         assert!(stdout.contains("interrupted after"), "{signal}: {stdout}");
-        let px = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
-        assert!(px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0));
     }
+}
+
+/// Starts `cmd` (writing its image to `exr`), sends `signal` after 1.5 s, and checks the run
+/// kept its work: exit status 130 and a finite, not all-black image. Returns what it printed.
+fn interrupt_and_check(mut cmd: Command, signal: &str, exr: &Path, what: &str) -> String {
+    let child = cmd
+        .arg("-o")
+        .arg(exr)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let status = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "{what} {signal}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let px = hdr_image::RgbImage::read_exr(exr).unwrap().into_pixels();
+    assert!(
+        px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0),
+        "{what} {signal}"
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 #[test]
@@ -762,36 +771,9 @@ fn an_interrupted_splat_render_or_trace_writes_what_it_has() {
     ] {
         for signal in ["-INT", "-TERM"] {
             let d = scratch(&format!("splat-{what}{signal}"));
-            let exr = d.join("partial.exr");
-            let child = gscache()
-                .arg("splat")
-                .args(args)
-                .arg(&asset)
-                .args(view)
-                .arg("-o")
-                .arg(&exr)
-                .stdout(Stdio::piped())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap();
-            std::thread::sleep(std::time::Duration::from_millis(1500));
-            let status = Command::new("kill")
-                .args([signal, &child.id().to_string()])
-                .status()
-                .unwrap();
-            assert!(status.success());
-            let out = child.wait_with_output().unwrap();
-            assert_eq!(
-                out.status.code(),
-                Some(130),
-                "{what} {signal}: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            let px = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
-            assert!(
-                px.iter().all(|p| p.is_finite()) && px.iter().any(|p| p.max_element() > 0.0),
-                "{what} {signal}"
-            );
+            let mut cmd = gscache();
+            cmd.arg("splat").args(args).arg(&asset).args(view);
+            interrupt_and_check(cmd, signal, &d.join("partial.exr"), what);
         }
     }
 }

@@ -120,6 +120,10 @@ struct Header {
     spp: u32,
     ranges: Vec<[u32; 2]>,
     nonfinite_samples: u64,
+    /// How the scene asks its PNG to be made (exposure in stops, tone map), so that a merge
+    /// tone-maps as a one-process render would; absent for partials that carry none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    output: Option<(f32, hdr_image::ToneMap)>,
     /// FNV-1a of the header (with this field empty) and the pixel bytes, 16 hex digits.
     #[serde(default)]
     checksum: String,
@@ -169,11 +173,23 @@ impl PartialRender {
                     vec![[samples.start, samples.end]]
                 },
                 nonfinite_samples: film.nonfinite_samples,
+                output: None,
                 checksum: String::new(),
             },
             sums,
             counts,
         }
+    }
+
+    /// The same partial carrying the scene's PNG settings (exposure in stops, tone map).
+    pub fn with_output(mut self, exposure: f32, tonemap: hdr_image::ToneMap) -> Self {
+        self.header.output = Some((exposure, tonemap));
+        self
+    }
+
+    /// The PNG settings the render's scene asks for, when the partial carries them.
+    pub fn output(&self) -> Option<(f32, hdr_image::ToneMap)> {
+        self.header.output
     }
 
     pub fn key(&self) -> &str {
@@ -266,6 +282,8 @@ impl PartialRender {
             .header
             .nonfinite_samples
             .saturating_add(b.nonfinite_samples);
+        // Parts of one render carry one scene's PNG settings, or none (a Python partial).
+        self.header.output = self.header.output.or(b.output);
         Ok(())
     }
 

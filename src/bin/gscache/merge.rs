@@ -20,12 +20,12 @@ pub struct MergeArgs {
     /// Tone-mapped PNG output (default: next to the EXR).
     #[arg(long)]
     png: Option<PathBuf>,
-    /// PNG exposure in stops.
-    #[arg(long, default_value_t = 0.0, value_parser = finite_f32)]
-    exposure: f32,
-    /// PNG tone map.
-    #[arg(long, value_enum, default_value_t = ToneMap::Clip)]
-    tonemap: ToneMap,
+    /// PNG exposure in stops (default: the scene's, which the parts carry; else 0).
+    #[arg(long, value_parser = finite_f32)]
+    exposure: Option<f32>,
+    /// PNG tone map (default: the scene's, which the parts carry; else clip).
+    #[arg(long, value_enum)]
+    tonemap: Option<ToneMap>,
     /// Write the merged partial film instead of (or beside) the image: merges can form a tree.
     #[arg(long)]
     partial: Option<PathBuf>,
@@ -74,7 +74,14 @@ pub fn run(a: MergeArgs) -> Result<i32> {
         }
         let image = merged.image();
         image.write_exr(exr)?;
-        image.write_png(png, a.exposure, a.tonemap)?;
+        // As the scene asks, like a one-process render: it once tone-mapped with clip where the
+        // scene said aces.
+        let (exposure, tonemap) = merged.output().unwrap_or((0.0, ToneMap::Clip));
+        image.write_png(
+            png,
+            a.exposure.unwrap_or(exposure),
+            a.tonemap.unwrap_or(tonemap),
+        )?;
     }
     if merged.nonfinite_samples() > 0 {
         eprintln!(

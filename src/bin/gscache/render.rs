@@ -396,7 +396,9 @@ fn render_shard(
         );
         return Ok(INTERRUPTED);
     }
-    PartialRender::from_film(&film, &key, spp, samples.clone()).write(partial)?;
+    PartialRender::from_film(&film, &key, spp, samples.clone())
+        .with_output(scene.output.exposure, scene.output.tonemap)
+        .write(partial)?;
     println!(
         "rendered shard {shard} (samples {}..{} of {spp}) of {}x{} in {:.2} s: {:.3} M samples/s; wrote {} (render {key})",
         samples.start,

@@ -386,3 +386,23 @@ fn a_backwards_vti_piece_extent_is_refused() {
     let s = write_scene(&d, "[volume]\nfile = \"v.vti\"", TF, CAMERA);
     expect_error(&s, &["v.vti", "0 3 0 -1 0 3", "runs backwards"]);
 }
+
+/// A scene that reads the shared data, on a machine without it, says where to get it.
+#[test]
+fn a_missing_shared_volume_says_where_to_get_it() {
+    let d = scratch("shared-missing");
+    let s = write_scene(
+        &d,
+        "[volume]\nfile = \"nowhere/shared/data/volumes/embryo_256x256x256_uint8.raw\"",
+        TF,
+        CAMERA,
+    );
+    expect_error(
+        &s,
+        &[
+            "embryo_256x256x256_uint8.raw",
+            "no such file",
+            "data/SOURCES.md",
+        ],
+    );
+}

@@ -178,6 +178,14 @@ pub fn check_volume_size(path: &Path, dims: [i64; 3], dtype: DType) -> Result<Vo
 /// as `/dev/zero`, a directory): those have no size to check and may never end.
 pub fn open_regular(path: &Path) -> Result<(std::fs::File, u64)> {
     let meta = std::fs::metadata(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound if path.to_string_lossy().contains("shared/data") => {
+            Error::format(
+                path,
+                "no such file: this volume is in the project's shared data (../shared/data beside \
+                 a clone), which this machine does not have; data/SOURCES.md says where to get \
+                 it and how to place it",
+            )
+        }
         std::io::ErrorKind::NotFound => Error::format(path, "no such file"),
         _ => Error::io(path, e),
     })?;

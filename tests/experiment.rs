@@ -460,8 +460,8 @@ fn tampered_shard_files_are_refused() {
 }
 
 /// Ctrl-C stops an experiment between units and keeps what it measured; `--resume` goes on
-/// from there, and the result has the one-process run's bits (spp budgets and fly-throughs, as
-/// a shard merge has). Here the stop comes after the first method's three seeds.
+/// from there, and the result has the one-process run's relMSE bits at every spp budget (as a
+/// shard merge has). Here the stop comes after the first method's three seeds.
 #[test]
 fn an_interrupted_experiment_keeps_its_units_and_resumes() {
     use gscache_cli::experiment::measure::Budget;

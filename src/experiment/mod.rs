@@ -78,24 +78,7 @@ pub fn run_experiment_resumable(
             let scene = run::experiment_scene(&exp)?;
             let pixels = scene.camera.width as usize * scene.camera.height as usize;
             // The checks of a shard merge, without requiring every unit.
-            let mut units = std::collections::BTreeMap::new();
-            if f.key != key || f.unit_count != specs.len() {
-                anyhow::bail!(
-                    "{}: measured for another version of the experiment: run it afresh",
-                    file.display()
-                );
-            }
-            for (k, r) in f.units {
-                if k >= specs.len() || units.contains_key(&k) {
-                    anyhow::bail!(
-                        "{}: unit {k} is given twice or does not exist",
-                        file.display()
-                    );
-                }
-                shard::check_unit(&specs[k], &r, pixels)
-                    .map_err(|e| anyhow::anyhow!("{}: unit {k}: {e}", file.display()))?;
-                units.insert(k, r);
-            }
+            let units = shard::checked_units(&[(file.to_path_buf(), f)], &key, &specs, pixels)?;
             progress(&format!(
                 "resuming: {} of {} units read from {}",
                 units.len(),

@@ -232,6 +232,30 @@ pub fn gather_units(
     pixels: usize,
 ) -> Result<BTreeMap<usize, UnitResult>> {
     let unit_count = specs.len();
+    let out = checked_units(files, key, specs, pixels)?;
+    let missing: Vec<String> = (0..unit_count)
+        .filter(|k| !out.contains_key(k))
+        .map(|k| k.to_string())
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "units {} of {unit_count} are missing: merge every shard's file",
+            missing.join(", ")
+        );
+    }
+    Ok(out)
+}
+
+/// The units of `files` (some or all of the experiment's), each checked: the experiment's key
+/// and unit count, no unit twice, and every unit as [`check_unit`] checks it. What a merge and
+/// a resumed run share.
+pub fn checked_units(
+    files: &[(std::path::PathBuf, ShardFile)],
+    key: &str,
+    specs: &[UnitSpec<'_>],
+    pixels: usize,
+) -> Result<BTreeMap<usize, UnitResult>> {
+    let unit_count = specs.len();
     let mut out = BTreeMap::new();
     for (path, f) in files {
         if f.key != key || f.unit_count != unit_count {
@@ -252,16 +276,6 @@ pub fn gather_units(
             check_unit(&specs[*k], r, pixels)
                 .map_err(|e| anyhow::anyhow!("{}: unit {k}: {e}", path.display()))?;
         }
-    }
-    let missing: Vec<String> = (0..unit_count)
-        .filter(|k| !out.contains_key(k))
-        .map(|k| k.to_string())
-        .collect();
-    if !missing.is_empty() {
-        bail!(
-            "units {} of {unit_count} are missing: merge every shard's file",
-            missing.join(", ")
-        );
     }
     Ok(out)
 }

@@ -145,7 +145,7 @@ pub fn render_frame_with<C: FrameCache>(
                 control,
             );
             nonfinite.fetch_add(bad, Ordering::Relaxed);
-            control.progress((tile.width * tile.height * settings.spp) as u64);
+            control.progress(tile.width as u64 * tile.height as u64 * settings.spp as u64);
             Some((tile.rect(), record))
         })
         .collect();

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -150,4 +150,24 @@ pub fn finite_vec3(s: &str) -> std::result::Result<glam::Vec3, String> {
         [x, y, z] => Ok(glam::Vec3::new(x, y, z)),
         _ => Err(format!("`{s}`: expected three numbers `x,y,z`")),
     }
+}
+
+/// The EXR and PNG a render writes: `-o` and `--png` when given, else `default` and its PNG.
+/// `-o NAME.png` names the PNG (the EXR goes beside it as NAME.exr): it once wrote the PNG over
+/// the EXR ("wrote out/x.png and out/x.png").
+pub fn output_paths(
+    output: Option<&std::path::Path>,
+    png: Option<&std::path::Path>,
+    default: &std::path::Path,
+) -> (PathBuf, PathBuf) {
+    let exr = output.unwrap_or(default).to_path_buf();
+    let named_png = exr
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let (exr, implied_png) = if named_png {
+        (exr.with_extension("exr"), exr)
+    } else {
+        (exr.clone(), exr.with_extension("png"))
+    };
+    (exr, png.map_or(implied_png, |p| p.to_path_buf()))
 }

@@ -172,7 +172,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     } else {
         ""
     };
-    let (exr_path, png_path) = output_paths(
+    let (exr_path, png_path) = crate::common::output_paths(
         args.output.as_deref(),
         args.png.as_deref(),
         &PathBuf::from("out").join(format!("{stem}{method}.exr")),
@@ -489,24 +489,4 @@ fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
         sum(|r| r.lookup_seconds),
         sum(|r| r.train_seconds)
     );
-}
-
-/// The EXR and PNG a render writes: `-o` and `--png` when given, else `default` and its PNG.
-/// `-o NAME.png` names the PNG (the EXR goes beside it as NAME.exr): it once wrote the PNG over
-/// the EXR ("wrote out/x.png and out/x.png").
-pub fn output_paths(
-    output: Option<&std::path::Path>,
-    png: Option<&std::path::Path>,
-    default: &std::path::Path,
-) -> (PathBuf, PathBuf) {
-    let exr = output.unwrap_or(default).to_path_buf();
-    let named_png = exr
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    let (exr, implied_png) = if named_png {
-        (exr.with_extension("exr"), exr)
-    } else {
-        (exr.clone(), exr.with_extension("png"))
-    };
-    (exr, png.map_or(implied_png, |p| p.to_path_buf()))
 }

@@ -234,7 +234,7 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
     let mut interrupted = false;
     match command {
         SplatCommand::Render(a) => {
-            let (exr_path, png_path) = crate::render::output_paths(
+            let (exr_path, png_path) = crate::common::output_paths(
                 a.output.as_deref(),
                 a.png.as_deref(),
                 &default_output(&a.asset, ""),
@@ -370,7 +370,7 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
             );
         }
         SplatCommand::Trace(a) => {
-            let (exr_path, png_path) = crate::render::output_paths(
+            let (exr_path, png_path) = crate::common::output_paths(
                 a.output.as_deref(),
                 a.png.as_deref(),
                 &default_output(&a.asset, ".trace"),

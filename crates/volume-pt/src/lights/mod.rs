@@ -278,11 +278,7 @@ impl Lights {
     /// first one; one at infinity (the environment, a distant light) must meet none.
     #[inline]
     pub fn unblocked(&self, s: &LightSample, blocker: Option<(usize, f32)>) -> bool {
-        match (
-            s.light
-                .filter(|&i| !s.delta && self.lights[i].is_reachable()),
-            blocker,
-        ) {
+        match (s.light.filter(|&i| self.lights[i].is_reachable()), blocker) {
             (Some(i), Some((j, _))) => i == j,
             (Some(_), None) => false,
             (None, blocker) => blocker.is_none(),

@@ -5,6 +5,9 @@
 //! - EXR ([`RgbImage::write_exr`], [`RgbImage::read_exr`]): lossless 32-bit float. Blocks are
 //!   written in increasing order, so a file is a pure function of its pixels (a seed gives the
 //!   same bytes, not only the same pixels).
+//! - Feature buffers ([`FeatureImages`]: albedo, normal, depth, coverage) travel beside an
+//!   image and are written as extra channels of its EXR ([`RgbImage::write_exr_with_features`]),
+//!   under the names compositing tools read.
 //! - PNG ([`RgbImage::write_png`]): exposure, a [`ToneMap`], sRGB encoding, 8 bits.
 //! - Every write goes through [`render_base::write_atomically`]: an interrupted write never
 //!   leaves a truncated image where a good one was, and nothing planted in a shared output
@@ -115,6 +118,54 @@ impl RgbImage {
         .map_err(ImageError::from)
     }
 
+    /// Writes a 32-bit float EXR whose channels are this image (`R`, `G`, `B`) and its
+    /// feature buffers: `albedo.R/G/B`, `N.X/N.Y/N.Z` (world-space normal), `Z` (depth; `inf`
+    /// where nothing was hit, as OpenEXR's depth convention has it) and `coverage.A`. Nuke,
+    /// Blender and OpenImageIO list these as layers `albedo`, `N` and `coverage`. Written
+    /// atomically, blocks in order, like [`RgbImage::write_exr`].
+    pub fn write_exr_with_features(&self, path: &Path, features: &FeatureImages) -> Result<()> {
+        use exr::prelude::*;
+        if (features.width, features.height) != (self.width, self.height) {
+            return Err(ImageError::Write {
+                path: path.into(),
+                message: format!(
+                    "feature buffers are {}x{} but the image is {}x{}: expected the same size",
+                    features.width, features.height, self.width, self.height
+                ),
+            });
+        }
+        let channel =
+            |name: &str, values: Vec<f32>| AnyChannel::new(name, FlatSamples::F32(values));
+        let component = |px: &[Vec3], k: usize| px.iter().map(|p| p[k]).collect::<Vec<f32>>();
+        let list = vec![
+            channel("R", component(&self.pixels, 0)),
+            channel("G", component(&self.pixels, 1)),
+            channel("B", component(&self.pixels, 2)),
+            channel("albedo.R", component(&features.albedo, 0)),
+            channel("albedo.G", component(&features.albedo, 1)),
+            channel("albedo.B", component(&features.albedo, 2)),
+            channel("N.X", component(&features.normal, 0)),
+            channel("N.Y", component(&features.normal, 1)),
+            channel("N.Z", component(&features.normal, 2)),
+            channel("Z", features.depth.clone()),
+            channel("coverage.A", features.coverage.clone()),
+        ];
+        let mut layer = Layer::new(
+            (self.width as usize, self.height as usize),
+            LayerAttributes::default(),
+            Encoding::SMALL_LOSSLESS,
+            AnyChannels::sort(SmallVec::from_vec(list)),
+        );
+        layer.encoding.line_order = LineOrder::Increasing;
+        write_atomically(path, |file| {
+            Image::from_layer(layer)
+                .write()
+                .to_buffered(file)
+                .map_err(|e| e.to_string())
+        })
+        .map_err(ImageError::from)
+    }
+
     /// Reads the first RGB(A) layer of an EXR as linear RGB (alpha is dropped).
     pub fn read_exr(path: &Path) -> Result<Self> {
         use exr::prelude::read_first_rgba_layer_from_file;
@@ -172,6 +223,56 @@ impl RgbImage {
             .map_err(|e| e.to_string())
         })
         .map_err(ImageError::from)
+    }
+}
+
+/// Per-pixel features of a render (AOVs), row-major like [`RgbImage`]: what a denoiser reads
+/// beside the colour. The renderer documents how each is estimated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FeatureImages {
+    width: u32,
+    height: u32,
+    /// Albedo in [0, 1] (1 where rays escaped).
+    pub albedo: Vec<Vec3>,
+    /// World-space normal, components in [-1, 1], not renormalised (0 where rays escaped).
+    pub normal: Vec<Vec3>,
+    /// Distance to the first scattering event (infinite where nothing was hit).
+    pub depth: Vec<f32>,
+    /// Fraction of samples that hit anything, in [0, 1].
+    pub coverage: Vec<f32>,
+}
+
+impl FeatureImages {
+    /// Features of a `width` x `height` image; every buffer must hold `width * height` values.
+    pub fn new(
+        width: u32,
+        height: u32,
+        albedo: Vec<Vec3>,
+        normal: Vec<Vec3>,
+        depth: Vec<f32>,
+        coverage: Vec<f32>,
+    ) -> Result<Self> {
+        let n = width as u64 * height as u64;
+        for len in [albedo.len(), normal.len(), depth.len(), coverage.len()] {
+            if len as u64 != n {
+                return Err(ImageError::Size { width, height, len });
+            }
+        }
+        Ok(Self {
+            width,
+            height,
+            albedo,
+            normal,
+            depth,
+            coverage,
+        })
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+    pub fn height(&self) -> u32 {
+        self.height
     }
 }
 

@@ -6,6 +6,11 @@
 //! sample ranges rendered on different machines therefore merge, in any order, into the film
 //! one process would have made, bit for bit (see [`crate::shard`]). An f64 sum would not: its
 //! rounding depends on the order of the additions.
+//!
+//! A film may also carry feature buffers (AOVs: [`ExactFeatures`]), summed exactly over the
+//! same samples as the colour, so that they merge across shards bit for bit too. They are what
+//! a denoiser reads beside the colour, and what a compositor reads as albedo, normal, depth
+//! and coverage layers.
 
 use glam::Vec3;
 
@@ -70,6 +75,166 @@ impl std::ops::AddAssign for ExactRgb {
     }
 }
 
+/// Fixed-point steps per unit of albedo or normal component: 2^30. Each sample adds at most
+/// 2^30 in magnitude, so 2^32 samples (the count's limit) stay inside an i64 (2^62 < 2^63).
+const FEATURE_SCALE: f64 = (1u64 << 30) as f64;
+/// Fixed-point steps per world unit of depth: 2^32. A depth is at most [`MAX_SAMPLE_RADIANCE`]
+/// (2^39, far beyond any scene: coordinates are limited to 1e6), so 2^32 samples stay far
+/// inside an i128 (2^103).
+const DEPTH_SCALE: f64 = (1u64 << 32) as f64;
+
+/// One sample's features: what the camera ray met at its first real scattering event.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeatureSample {
+    /// Transfer-function colour times single-scattering albedo there, in [0, 1].
+    pub albedo: Vec3,
+    /// Unit normal: minus the extinction gradient there, normalised (see
+    /// [`crate::Medium::extinction_normal`]).
+    pub normal: Vec3,
+    /// World distance from the camera to the event.
+    pub depth: f32,
+}
+
+/// One pixel's feature sums in fixed point ([`FEATURE_SCALE`] and [`DEPTH_SCALE`] steps):
+/// exact, so any grouping of the samples gives the same bits, like [`ExactRgb`].
+///
+/// A sample whose ray escapes (no real scattering event) adds albedo 1, normal 0 and no depth:
+/// Open Image Denoise's conventions for a fully transparent surface and for "no surface here".
+/// `hits` counts the samples that met the medium, so coverage is `hits / count` (an unbiased
+/// estimate of one minus the transmittance to the background: delta tracking collides with
+/// exactly that probability) and depth is averaged over the hits alone.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExactFeatures {
+    pub albedo: [i64; 3],
+    pub normal: [i64; 3],
+    pub depth: i128,
+    pub hits: u32,
+}
+
+/// The largest magnitude one sample adds to an albedo or normal sum.
+pub const MAX_FEATURE_STEPS: i64 = 1 << 30;
+/// The largest depth sum one sample adds.
+pub const MAX_DEPTH_STEPS: i128 = 1 << 71;
+
+impl ExactFeatures {
+    pub const ZERO: Self = Self {
+        albedo: [0; 3],
+        normal: [0; 3],
+        depth: 0,
+        hits: 0,
+    };
+
+    /// Adds one sample: `None` for a ray that escaped. A hit with a non-finite or out-of-range
+    /// value (which a valid scene cannot make) is counted as an escape, written so NaN fails.
+    #[inline]
+    pub fn add(&mut self, sample: Option<FeatureSample>) {
+        let valid = sample.filter(|f| {
+            f.albedo.cmpge(Vec3::ZERO).all()
+                && f.albedo.cmple(Vec3::ONE).all()
+                && f.normal.abs().cmple(Vec3::ONE).all()
+                && (0.0..=MAX_SAMPLE_RADIANCE).contains(&f.depth)
+        });
+        let Some(f) = valid else {
+            for a in &mut self.albedo {
+                *a += MAX_FEATURE_STEPS;
+            }
+            return;
+        };
+        for k in 0..3 {
+            self.albedo[k] += (f.albedo[k] as f64 * FEATURE_SCALE) as i64;
+            self.normal[k] += (f.normal[k] as f64 * FEATURE_SCALE) as i64;
+        }
+        self.depth += (f.depth as f64 * DEPTH_SCALE) as i128;
+        self.hits += 1;
+    }
+
+    /// Checked sum of two pixels' features (`None` on overflow).
+    pub fn checked_add(&self, o: &Self) -> Option<Self> {
+        let mut out = *self;
+        for k in 0..3 {
+            out.albedo[k] = out.albedo[k].checked_add(o.albedo[k])?;
+            out.normal[k] = out.normal[k].checked_add(o.normal[k])?;
+        }
+        out.depth = out.depth.checked_add(o.depth)?;
+        out.hits = out.hits.checked_add(o.hits)?;
+        Some(out)
+    }
+
+    /// Whether these sums can come from `count` samples: no more hits than samples, albedo
+    /// sums in `[0, count]`, normal sums within `±count`, depth within `[0, hits x 2^39]`
+    /// (in their fixed-point steps).
+    pub fn is_possible(&self, count: u32) -> bool {
+        let most = count as i64 * MAX_FEATURE_STEPS;
+        self.hits <= count
+            && self.albedo.iter().all(|a| (0..=most).contains(a))
+            && self.normal.iter().all(|n| (-most..=most).contains(n))
+            && (0..=self.hits as i128 * MAX_DEPTH_STEPS).contains(&self.depth)
+    }
+
+    /// The pixel's mean features over its `count` samples: albedo, normal (not renormalised:
+    /// shorter where the samples disagree, as Open Image Denoise expects), depth over the hits
+    /// (infinite where none hit) and coverage.
+    pub fn mean(&self, count: u32) -> PixelFeatures {
+        if count == 0 {
+            return PixelFeatures::EMPTY;
+        }
+        let n = count as f64 * FEATURE_SCALE;
+        let v = |s: [i64; 3]| {
+            Vec3::new(
+                (s[0] as f64 / n) as f32,
+                (s[1] as f64 / n) as f32,
+                (s[2] as f64 / n) as f32,
+            )
+        };
+        PixelFeatures {
+            albedo: v(self.albedo),
+            normal: v(self.normal),
+            depth: if self.hits == 0 {
+                f32::INFINITY
+            } else {
+                (self.depth as f64 / (self.hits as f64 * DEPTH_SCALE)) as f32
+            },
+            coverage: (self.hits as f64 / count as f64) as f32,
+        }
+    }
+}
+
+/// One pixel's mean features (see [`ExactFeatures::mean`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelFeatures {
+    pub albedo: Vec3,
+    pub normal: Vec3,
+    pub depth: f32,
+    pub coverage: f32,
+}
+
+/// Per-pixel features as the images a denoiser and an EXR take.
+pub fn feature_images(
+    width: u32,
+    height: u32,
+    pixels: &[PixelFeatures],
+) -> hdr_image::FeatureImages {
+    hdr_image::FeatureImages::new(
+        width,
+        height,
+        pixels.iter().map(|p| p.albedo).collect(),
+        pixels.iter().map(|p| p.normal).collect(),
+        pixels.iter().map(|p| p.depth).collect(),
+        pixels.iter().map(|p| p.coverage).collect(),
+    )
+    .expect("one feature per pixel")
+}
+
+impl PixelFeatures {
+    /// A pixel without samples: no albedo, no normal, nothing hit.
+    pub const EMPTY: Self = Self {
+        albedo: Vec3::ZERO,
+        normal: Vec3::ZERO,
+        depth: f32::INFINITY,
+        coverage: 0.0,
+    };
+}
+
 /// One tile of the film and its accumulators.
 #[derive(Debug, Clone)]
 pub struct Tile {
@@ -79,6 +244,8 @@ pub struct Tile {
     pub height: u32,
     pub sum: Vec<ExactRgb>,
     pub count: Vec<u32>,
+    /// Feature sums, one per pixel; empty when the film keeps no features.
+    pub features: Vec<ExactFeatures>,
 }
 
 impl Tile {
@@ -104,7 +271,18 @@ pub struct Film {
 }
 
 impl Film {
+    /// A film of colour alone.
     pub fn new(width: u32, height: u32) -> Self {
+        Self::build(width, height, false)
+    }
+
+    /// A film that also keeps feature buffers ([`ExactFeatures`]): 68 more bytes a pixel, and
+    /// a normal computed at each sample's first scattering event.
+    pub fn with_features(width: u32, height: u32) -> Self {
+        Self::build(width, height, true)
+    }
+
+    fn build(width: u32, height: u32, features: bool) -> Self {
         let mut tiles = Vec::new();
         for y0 in (0..height).step_by(TILE_SIZE as usize) {
             for x0 in (0..width).step_by(TILE_SIZE as usize) {
@@ -118,6 +296,11 @@ impl Film {
                     height: h,
                     sum: vec![ExactRgb::ZERO; n],
                     count: vec![0; n],
+                    features: if features {
+                        vec![ExactFeatures::ZERO; n]
+                    } else {
+                        Vec::new()
+                    },
                 });
             }
         }
@@ -134,6 +317,52 @@ impl Film {
     }
     pub fn height(&self) -> u32 {
         self.height
+    }
+
+    /// Whether this film keeps feature buffers.
+    pub fn has_features(&self) -> bool {
+        self.tiles.first().is_some_and(|t| !t.features.is_empty())
+    }
+
+    /// Each pixel's mean features, row-major; `None` when the film keeps none.
+    pub fn features(&self) -> Option<Vec<PixelFeatures>> {
+        let sums = self.exact_features()?;
+        Some(
+            sums.iter()
+                .zip(self.counts())
+                .map(|(f, c)| f.mean(c))
+                .collect(),
+        )
+    }
+
+    /// [`Film::features`] as images; `None` when the film keeps none.
+    pub fn feature_images(&self) -> Option<hdr_image::FeatureImages> {
+        Some(feature_images(self.width, self.height, &self.features()?))
+    }
+
+    /// The exact feature sums, row-major; `None` when the film keeps none.
+    pub fn exact_features(&self) -> Option<Vec<ExactFeatures>> {
+        if !self.has_features() {
+            return None;
+        }
+        let mut out = vec![ExactFeatures::ZERO; (self.width * self.height) as usize];
+        self.for_each_pixel(|t, k, px| out[px] = t.features[k]);
+        Some(out)
+    }
+
+    /// Calls `f(tile, index in tile, row-major pixel index)` for every pixel.
+    fn for_each_pixel(&self, mut f: impl FnMut(&Tile, usize, usize)) {
+        for t in &self.tiles {
+            for j in 0..t.height {
+                for i in 0..t.width {
+                    f(
+                        t,
+                        (j * t.width + i) as usize,
+                        ((t.y0 + j) * self.width + t.x0 + i) as usize,
+                    );
+                }
+            }
+        }
     }
 
     /// Total number of samples taken over all pixels.
@@ -166,17 +395,11 @@ impl Film {
     /// Mean radiance per pixel, row-major with row 0 at the top; pixels without samples are 0.
     pub fn mean(&self) -> Vec<Vec3> {
         let mut out = vec![Vec3::ZERO; (self.width * self.height) as usize];
-        for t in &self.tiles {
-            for j in 0..t.height {
-                for i in 0..t.width {
-                    let k = (j * t.width + i) as usize;
-                    let px = ((t.y0 + j) * self.width + t.x0 + i) as usize;
-                    if t.count[k] > 0 {
-                        out[px] = t.sum[k].mean(t.count[k]);
-                    }
-                }
+        self.for_each_pixel(|t, k, px| {
+            if t.count[k] > 0 {
+                out[px] = t.sum[k].mean(t.count[k]);
             }
-        }
+        });
         out
     }
 
@@ -190,30 +413,17 @@ impl Film {
     pub fn exact_sums(&self) -> (Vec<ExactRgb>, Vec<u32>) {
         let n = (self.width * self.height) as usize;
         let (mut sums, mut counts) = (vec![ExactRgb::ZERO; n], vec![0; n]);
-        for t in &self.tiles {
-            for j in 0..t.height {
-                for i in 0..t.width {
-                    let k = (j * t.width + i) as usize;
-                    let px = ((t.y0 + j) * self.width + t.x0 + i) as usize;
-                    sums[px] = t.sum[k];
-                    counts[px] = t.count[k];
-                }
-            }
-        }
+        self.for_each_pixel(|t, k, px| {
+            sums[px] = t.sum[k];
+            counts[px] = t.count[k];
+        });
         (sums, counts)
     }
 
     /// Samples per pixel, row-major.
     pub fn counts(&self) -> Vec<u32> {
         let mut out = vec![0; (self.width * self.height) as usize];
-        for t in &self.tiles {
-            for j in 0..t.height {
-                for i in 0..t.width {
-                    out[((t.y0 + j) * self.width + t.x0 + i) as usize] =
-                        t.count[(j * t.width + i) as usize];
-                }
-            }
-        }
+        self.for_each_pixel(|t, k, px| out[px] = t.count[k]);
         out
     }
 }

@@ -66,6 +66,26 @@ pub struct SceneMedia {
     pub lights: Lights,
 }
 
+/// Where a camera path first scattered: what the feature buffers record (see
+/// [`crate::film::ExactFeatures`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FirstEvent {
+    /// World distance along the camera ray.
+    pub distance: f32,
+    /// World position.
+    pub position: Vec3,
+    /// Transfer-function colour times single-scattering albedo there.
+    pub albedo: Vec3,
+}
+
+/// One path's estimate and its first real scattering event (`None` when the camera ray left
+/// the volume, or reached an emitter, without one).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathSample {
+    pub radiance: Vec3,
+    pub first_event: Option<FirstEvent>,
+}
+
 /// Radiance arriving at `origin` from direction `-dir` (`dir` is the unit direction of the ray
 /// leaving the camera), one path.
 pub fn radiance(
@@ -75,13 +95,14 @@ pub fn radiance(
     dir: Vec3,
     rng: &mut SampleStream,
 ) -> Vec3 {
-    radiance_with(scene, settings, origin, dir, rng, &mut ())
+    radiance_with(scene, settings, origin, dir, rng, &mut ()).radiance
 }
 
 /// [`radiance`] with a radiance cache's hooks: the path tells `hooks` every vertex, re-weighting
 /// and radiance it adds, stops into the cache where it is told to, and reads it when it leaves
 /// the volume (the GSCache estimator is written out in the gs-cache crate docs). With the no-op
-/// hooks `()` this is exactly [`radiance`], random numbers included.
+/// hooks `()` this is exactly [`radiance`], random numbers included. The first scattering
+/// event is reported for the feature buffers; recording it draws no random numbers.
 pub fn radiance_with<H: PathHooks>(
     scene: &SceneMedia,
     settings: &PathSettings,
@@ -89,7 +110,7 @@ pub fn radiance_with<H: PathHooks>(
     dir: Vec3,
     rng: &mut SampleStream,
     hooks: &mut H,
-) -> Vec3 {
+) -> PathSample {
     let SceneMedia {
         medium,
         phase,
@@ -102,6 +123,7 @@ pub fn radiance_with<H: PathHooks>(
     let mut depth = 0u32;
     let (mut o, mut d) = (origin, dir);
     let mut phase_pdf = 0.0f32;
+    let mut first_event = None;
     loop {
         let hit = lights.nearest(o, d, 0.0);
         let t_end = hit.map_or(f32::INFINITY, |h| h.1);
@@ -123,6 +145,13 @@ pub fn radiance_with<H: PathHooks>(
             }
             break;
         };
+        if depth == 0 {
+            first_event = Some(FirstEvent {
+                distance: t,
+                position: o + d * t,
+                albedo: medium.transfer_function().albedo(value),
+            });
+        }
         if depth >= max_depth {
             break;
         }
@@ -181,5 +210,8 @@ pub fn radiance_with<H: PathHooks>(
         d = d_new;
         phase_pdf = pdf;
     }
-    l
+    PathSample {
+        radiance: l,
+        first_event,
+    }
 }

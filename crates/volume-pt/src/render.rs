@@ -3,8 +3,8 @@
 //! so the image is bit-identical for a seed whatever the thread count or pass split.
 
 use crate::cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect};
-use crate::film::{ExactRgb, Film, Tile};
-use crate::integrator::{PathSettings, SceneMedia, radiance_with};
+use crate::film::{ExactFeatures, ExactRgb, FeatureSample, Film, Tile};
+use crate::integrator::{FirstEvent, PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
 use rayon::prelude::*;
 use render_base::Camera;
@@ -57,6 +57,7 @@ fn render_tile<C: FrameCache>(
     control: &Control,
 ) -> u64 {
     let mut nonfinite = 0;
+    let keep_features = !tile.features.is_empty();
     for j in 0..tile.height {
         for i in 0..tile.width {
             let (x, y) = (tile.x0 + i, tile.y0 + j);
@@ -65,6 +66,7 @@ fn render_tile<C: FrameCache>(
                 in_tile: (j * tile.width + i) as usize,
             };
             let mut sum = ExactRgb::ZERO;
+            let mut features = ExactFeatures::ZERO;
             let mut taken = 0u32;
             for s in samples.clone() {
                 if control.cancelled() {
@@ -75,7 +77,7 @@ fn render_tile<C: FrameCache>(
                 let (jx, jy) = rng.next_2d();
                 let dir = camera.ray_direction(x as f32 + jx, y as f32 + jy);
                 let mut path = cache.path(pixel);
-                let l = radiance_with(
+                let sample = radiance_with(
                     scene,
                     &settings.path,
                     camera.position,
@@ -83,7 +85,10 @@ fn render_tile<C: FrameCache>(
                     &mut rng,
                     &mut path,
                 );
-                let l = path.image_radiance(l);
+                if keep_features {
+                    features.add(sample.first_event.map(|e| feature_sample(scene, e, dir)));
+                }
+                let l = path.image_radiance(sample.radiance);
                 cache.path_ended(path, pixel, record);
                 // A bad sample (NaN, negative, infinite, absurdly bright) counts as black and
                 // never reaches the film.
@@ -94,9 +99,29 @@ fn render_tile<C: FrameCache>(
             }
             tile.sum[pixel.in_tile] += sum;
             tile.count[pixel.in_tile] += taken;
+            if keep_features {
+                let f = &mut tile.features[pixel.in_tile];
+                *f = f
+                    .checked_add(&features)
+                    .expect("a pixel's feature sums are bounded by its u32 sample count");
+            }
         }
     }
     nonfinite
+}
+
+/// The features of a sample whose camera ray (direction `dir`) first scattered at `event`:
+/// albedo clamped to [0, 1] as Open Image Denoise requires, the extinction normal (facing the
+/// camera where the field is flat) and the distance.
+fn feature_sample(scene: &SceneMedia, event: FirstEvent, dir: glam::Vec3) -> FeatureSample {
+    FeatureSample {
+        albedo: event.albedo.clamp(glam::Vec3::ZERO, glam::Vec3::ONE),
+        normal: scene
+            .medium
+            .extinction_normal(event.position, -dir)
+            .clamp(-glam::Vec3::ONE, glam::Vec3::ONE),
+        depth: event.distance,
+    }
 }
 
 /// What one frame read through a cache left: each tile's record, and how long it took.

@@ -13,14 +13,16 @@
 //! given twice, so a stale or repeated shard cannot slip into an image.
 //!
 //! The file is `GSPARTIAL 2\n`, one line of JSON (the header), then per pixel, row-major,
-//! three little-endian i128 sums and a u32 count (52 bytes). The header carries a checksum of
+//! three little-endian i128 sums and a u32 count (52 bytes); when the header says `features`,
+//! each pixel is followed by its feature sums ([`ExactFeatures`]: six i64, one i128 and a u32,
+//! 68 bytes). The header carries a checksum of
 //! itself and the pixels, and a file is read as a fresh render would be checked: no pixel holds
 //! more samples than its ranges, no sum more than its samples can carry, and a merge's
 //! arithmetic is checked, so a damaged or edited file is refused rather than merged into wrong
 //! pixels.
 
 use crate::error::{Error, Result};
-use crate::film::{ExactRgb, Film};
+use crate::film::{ExactFeatures, ExactRgb, Film, PixelFeatures};
 use serde::{Deserialize, Serialize};
 use std::io::Read;
 use std::ops::Range;
@@ -124,6 +126,9 @@ struct Header {
     /// tone-maps as a one-process render would; absent for partials that carry none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     output: Option<(f32, hdr_image::ToneMap)>,
+    /// Whether each pixel carries feature sums (absent, and so false, in files without).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    features: bool,
     /// FNV-1a of the header (with this field empty) and the pixel bytes, 16 hex digits.
     #[serde(default)]
     checksum: String,
@@ -145,6 +150,8 @@ fn checksum(header: &Header, pixels: &[u8]) -> String {
     RenderKey::new().part(text.as_bytes()).part(pixels).hex()
 }
 const BYTES_PER_PIXEL: u64 = 3 * 16 + 4;
+/// The feature sums' bytes a pixel: six i64, an i128 and a u32.
+const FEATURE_BYTES_PER_PIXEL: u64 = 6 * 8 + 16 + 4;
 /// The header line's longest allowed length: a header is a few hundred bytes.
 const MAX_HEADER: usize = 1 << 20;
 
@@ -155,12 +162,15 @@ pub struct PartialRender {
     /// Row-major, one per pixel.
     sums: Vec<ExactRgb>,
     counts: Vec<u32>,
+    /// Row-major feature sums; empty when the header says there are none.
+    features: Vec<ExactFeatures>,
 }
 
 impl PartialRender {
     /// The partial of `film`, which holds samples `samples` of a `spp`-sample render `key`.
     pub fn from_film(film: &Film, key: &str, spp: u32, samples: Range<u32>) -> Self {
         let (sums, counts) = film.exact_sums();
+        let features = film.exact_features().unwrap_or_default();
         Self {
             header: Header {
                 key: key.to_string(),
@@ -174,10 +184,12 @@ impl PartialRender {
                 },
                 nonfinite_samples: film.nonfinite_samples,
                 output: None,
+                features: !features.is_empty(),
                 checksum: String::new(),
             },
             sums,
             counts,
+            features,
         }
     }
 
@@ -234,6 +246,14 @@ impl PartialRender {
     /// Adds `other` in: refused when it belongs to another render or repeats a sample range.
     pub fn merge(&mut self, other: &PartialRender) -> Result<()> {
         let (a, b) = (&self.header, &other.header);
+        if a.features != b.features {
+            return Err(Error::Invalid(format!(
+                "a partial {} feature buffers cannot merge with one {}: render every shard with \
+                 the same --features setting",
+                if b.features { "with" } else { "without" },
+                if a.features { "with" } else { "without" },
+            )));
+        }
         if a.key != b.key || a.width != b.width || a.height != b.height || a.spp != b.spp {
             return Err(Error::Invalid(format!(
                 "partial of render {} ({}x{}, {} spp) cannot merge with one of render {} ({}x{}, {} spp): they are different renders",
@@ -266,8 +286,13 @@ impl PartialRender {
         for (c, o) in counts.iter_mut().zip(&other.counts) {
             *c = c.checked_add(*o).ok_or_else(|| overflow("sample count"))?;
         }
+        let mut features = self.features.clone();
+        for (f, o) in features.iter_mut().zip(&other.features) {
+            *f = f.checked_add(o).ok_or_else(|| overflow("feature sums"))?;
+        }
         self.sums = sums;
         self.counts = counts;
+        self.features = features;
         // Kept sorted and coalesced, so a complete merge holds the one range `0..spp`.
         let mut ranges = std::mem::take(&mut self.header.ranges);
         ranges.extend(b.ranges.iter().copied());
@@ -311,14 +336,49 @@ impl PartialRender {
             .expect("a partial holds one sum per pixel")
     }
 
+    /// Each pixel's mean features, as [`Film::features`] computes them; `None` when the
+    /// partial carries none.
+    pub fn features(&self) -> Option<Vec<PixelFeatures>> {
+        self.header.features.then(|| {
+            self.features
+                .iter()
+                .zip(&self.counts)
+                .map(|(f, &c)| f.mean(c))
+                .collect()
+        })
+    }
+
+    /// [`PartialRender::features`] as images.
+    pub fn feature_images(&self) -> Option<hdr_image::FeatureImages> {
+        let f = self.features()?;
+        Some(crate::film::feature_images(self.width(), self.height(), &f))
+    }
+
+    /// The bytes one pixel takes in the file.
+    fn bytes_per_pixel(&self) -> u64 {
+        BYTES_PER_PIXEL
+            + if self.header.features {
+                FEATURE_BYTES_PER_PIXEL
+            } else {
+                0
+            }
+    }
+
     /// The file's bytes.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut pixels = Vec::with_capacity(self.counts.len() * BYTES_PER_PIXEL as usize);
-        for (s, c) in self.sums.iter().zip(&self.counts) {
+        let mut pixels = Vec::with_capacity(self.counts.len() * self.bytes_per_pixel() as usize);
+        for (k, (s, c)) in self.sums.iter().zip(&self.counts).enumerate() {
             for v in s.0 {
                 pixels.extend_from_slice(&v.to_le_bytes());
             }
             pixels.extend_from_slice(&c.to_le_bytes());
+            if let Some(f) = self.features.get(k) {
+                for v in f.albedo.iter().chain(&f.normal) {
+                    pixels.extend_from_slice(&v.to_le_bytes());
+                }
+                pixels.extend_from_slice(&f.depth.to_le_bytes());
+                pixels.extend_from_slice(&f.hits.to_le_bytes());
+            }
         }
         let header = Header {
             checksum: checksum(&self.header, &pixels),
@@ -359,10 +419,16 @@ impl PartialRender {
         let pixels = header.width as u64 * header.height as u64;
         // Checked: a header can state sides whose bytes pass 2^64 (the fuzzer found the
         // overflow this once was).
-        let need = pixels.checked_mul(BYTES_PER_PIXEL);
+        let per_pixel = BYTES_PER_PIXEL
+            + if header.features {
+                FEATURE_BYTES_PER_PIXEL
+            } else {
+                0
+            };
+        let need = pixels.checked_mul(per_pixel);
         if pixels == 0 || need != Some(data.len() as u64) {
             return Err(bad(format!(
-                "{} bytes of pixels for {}x{}: expected {} (52 a pixel)",
+                "{} bytes of pixels for {}x{}: expected {} ({per_pixel} a pixel)",
                 data.len(),
                 header.width,
                 header.height,
@@ -394,7 +460,8 @@ impl PartialRender {
         let range_samples: u64 = sorted.iter().map(|r| (r[1] - r[0]) as u64).sum();
         let mut sums = Vec::with_capacity(pixels as usize);
         let mut counts = Vec::with_capacity(pixels as usize);
-        for (i, px) in data.chunks_exact(BYTES_PER_PIXEL as usize).enumerate() {
+        let mut features = Vec::new();
+        for (i, px) in data.chunks_exact(per_pixel as usize).enumerate() {
             let at = || {
                 let w = header.width as usize;
                 format!("pixel ({}, {})", i % w, i / w)
@@ -420,11 +487,22 @@ impl PartialRender {
             }
             sums.push(ExactRgb(s));
             counts.push(count);
+            if header.features {
+                let f = read_features(&px[BYTES_PER_PIXEL as usize..]);
+                if !f.is_possible(count) {
+                    return Err(bad(format!(
+                        "{} has feature sums its {count} samples cannot carry",
+                        at()
+                    )));
+                }
+                features.push(f);
+            }
         }
         Ok(Self {
             header,
             sums,
             counts,
+            features,
         })
     }
 
@@ -447,7 +525,9 @@ impl PartialRender {
                 "not a regular file: expected a partial render",
             ));
         }
-        let limit = MAGIC.len() as u64 + MAX_HEADER as u64 + BYTES_PER_PIXEL * (1u64 << 32);
+        let limit = MAGIC.len() as u64
+            + MAX_HEADER as u64
+            + (BYTES_PER_PIXEL + FEATURE_BYTES_PER_PIXEL) * (1u64 << 32);
         if meta.len() > limit {
             return Err(Error::format(
                 path,
@@ -459,6 +539,17 @@ impl PartialRender {
             .and_then(|f| f.take(limit).read_to_end(&mut bytes))
             .map_err(|e| Error::io(path, e))?;
         Self::from_bytes(&bytes, path)
+    }
+}
+
+/// One pixel's feature sums from their 68 bytes (see the module docs).
+fn read_features(b: &[u8]) -> ExactFeatures {
+    let i64_at = |k: usize| i64::from_le_bytes(b[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    ExactFeatures {
+        albedo: [i64_at(0), i64_at(1), i64_at(2)],
+        normal: [i64_at(3), i64_at(4), i64_at(5)],
+        depth: i128::from_le_bytes(b[48..64].try_into().expect("16 bytes")),
+        hits: u32::from_le_bytes(b[64..68].try_into().expect("4 bytes")),
     }
 }
 

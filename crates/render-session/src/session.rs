@@ -40,6 +40,8 @@ pub struct Session {
     /// Frames in the image.
     image_frames: u32,
     accumulation: Accumulation,
+    /// Whether the image keeps feature buffers (albedo, normal, depth, coverage).
+    features: bool,
 }
 
 impl Session {
@@ -60,7 +62,22 @@ impl Session {
             next_frame: 0,
             image_frames: 0,
             accumulation: Accumulation::Progressive,
+            features: false,
         })
+    }
+
+    /// The same session keeping feature buffers beside the image, or not (see
+    /// [`Session::feature_images`]). Empties the image.
+    pub fn with_features(mut self, features: bool) -> Self {
+        self.features = features;
+        self.clear_image();
+        self
+    }
+
+    /// The image's feature buffers (albedo, normal, depth, coverage over the same samples as
+    /// the image); `None` unless the session keeps them ([`Session::with_features`]).
+    pub fn feature_images(&self) -> Option<hdr_image::FeatureImages> {
+        self.film.feature_images()
     }
 
     /// The same session with frames accumulated as `accumulation` says.
@@ -109,7 +126,12 @@ impl Session {
 
     /// Empties the image; the next frame starts a new one. The cache is kept.
     pub fn clear_image(&mut self) {
-        self.film = Film::new(self.scene.camera.width, self.scene.camera.height);
+        let (w, h) = (self.scene.camera.width, self.scene.camera.height);
+        self.film = if self.features {
+            Film::with_features(w, h)
+        } else {
+            Film::new(w, h)
+        };
         self.image_frames = 0;
     }
 

@@ -29,6 +29,7 @@ macro_rules! eprintln {
 
 mod bench;
 mod common;
+mod denoising;
 mod experiment;
 mod merge;
 mod render;

@@ -2,6 +2,7 @@
 //! into its image, bit for bit the one a single process would have made.
 
 use crate::common::{finite_f32, prepare_output};
+use crate::denoising::{DenoiseArgs, write_denoised, write_image};
 use anyhow::{Result, bail};
 use hdr_image::ToneMap;
 use std::path::PathBuf;
@@ -32,6 +33,10 @@ pub struct MergeArgs {
     /// Write an image even when the parts do not hold every sample of the render.
     #[arg(long)]
     allow_incomplete: bool,
+    /// The image's denoised twin (the shards' feature buffers guide it where they carry them:
+    /// `render --shard ... --features`).
+    #[command(flatten)]
+    denoise: DenoiseArgs,
 }
 
 pub fn run(a: MergeArgs) -> Result<i32> {
@@ -45,6 +50,10 @@ pub fn run(a: MergeArgs) -> Result<i32> {
     for p in [&a.output, &png, &a.partial].into_iter().flatten() {
         prepare_output(p)?;
     }
+    if a.denoise.denoise && a.output.is_none() {
+        bail!("--denoise needs an image to denoise: give -o OUT.exr");
+    }
+    let mut denoiser = a.denoise.load()?;
     let mut merged: Option<PartialRender> = None;
     for path in &a.parts {
         let part = PartialRender::read(path)?;
@@ -73,15 +82,33 @@ pub fn run(a: MergeArgs) -> Result<i32> {
             );
         }
         let image = merged.image();
-        image.write_exr(exr)?;
+        let features = merged.feature_images();
         // As the scene asks, like a one-process render: it once tone-mapped with clip where the
         // scene said aces.
         let (exposure, tonemap) = merged.output().unwrap_or((0.0, ToneMap::Clip));
-        image.write_png(
-            png,
-            a.exposure.unwrap_or(exposure),
-            a.tonemap.unwrap_or(tonemap),
-        )?;
+        let (exposure, tonemap) = (a.exposure.unwrap_or(exposure), a.tonemap.unwrap_or(tonemap));
+        write_image(&image, features.as_ref(), exr, png, exposure, tonemap)?;
+        if let Some(denoiser) = &mut denoiser {
+            if features.is_none() && a.denoise.needs_features() {
+                eprintln!(
+                    "note: the parts carry no feature buffers (render the shards with --features): denoising the colour alone"
+                );
+            }
+            let (path, seconds) = write_denoised(
+                denoiser,
+                &a.denoise,
+                &image,
+                features.as_ref(),
+                exr,
+                exposure,
+                tonemap,
+            )?;
+            eprintln!(
+                "denoised in {:.0} ms: wrote {} and its PNG",
+                seconds * 1e3,
+                path.display()
+            );
+        }
     }
     if merged.nonfinite_samples() > 0 {
         eprintln!(

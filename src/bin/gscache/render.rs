@@ -4,6 +4,7 @@
 use crate::common::{
     Global, INTERRUPTED, cancellation, finite_f32, prepare_folder, prepare_output,
 };
+use crate::denoising::{DenoiseArgs, write_denoised, write_image};
 use anyhow::{Context, Result, bail};
 use gs_cache::CacheConfig;
 use hdr_image::ToneMap;
@@ -65,6 +66,13 @@ pub struct RenderArgs {
     /// Where a shard's partial film goes (written atomically).
     #[arg(long, requires = "shard")]
     partial: Option<PathBuf>,
+    /// Keep feature buffers (albedo, normal, depth, coverage at each path's first scattering
+    /// event, over the image's samples) and write them as layers of the EXR: albedo.R/G/B,
+    /// N.X/N.Y/N.Z, Z and coverage.A. With --shard, the partial carries them.
+    #[arg(long)]
+    features: bool,
+    #[command(flatten)]
+    denoise: DenoiseArgs,
     #[command(flatten)]
     cache: CacheRun,
 }
@@ -148,14 +156,23 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             .with_size(w, h)
             .map_err(|e| anyhow::anyhow!("--width/--height: {e}"))?;
     }
-    check_image_memory(scene.camera.width, scene.camera.height)?;
+    check_image_memory(
+        scene.camera.width,
+        scene.camera.height,
+        args.features || args.denoise.needs_features(),
+    )?;
     if let (Some(shard), Some(partial)) = (args.shard, &args.partial) {
         if args.cache.cache || args.cache.nrc {
             bail!(
                 "--shard with --cache or --nrc: a cached render's frames train the cache one after the other, so they cannot be split; shard an experiment's seeds instead"
             );
         }
-        return render_shard(&args.scene, &scene, shard, partial, global);
+        if args.denoise.denoise {
+            bail!(
+                "--shard with --denoise: a shard holds part of every pixel's samples; denoise the merged image (`gscache merge --denoise`, with the shards rendered with --features)"
+            );
+        }
+        return render_shard(&args.scene, &scene, shard, partial, args.features, global);
     }
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
@@ -179,6 +196,8 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     );
     prepare_output(&exr_path)?;
     prepare_output(&png_path)?;
+    // Loaded before any work: a missing library is said now, not after the render.
+    let mut denoiser = args.denoise.load()?;
     for dir in [&args.cache.save_cache, &args.cache.cache_images]
         .into_iter()
         .flatten()
@@ -233,7 +252,8 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     };
     let choice = args.cache.choice()?;
     let spp = scene.settings.spp;
-    let mut session = Session::new(scene, choice)?;
+    let mut session =
+        Session::new(scene, choice)?.with_features(args.features || args.denoise.needs_features());
     describe_cache(&session, args.cache.load_cache.is_some());
     // Frame counts from the user are checked before any work: they cannot wrap.
     let all_frames = args.cache.warmup.checked_add(frames).with_context(|| {
@@ -293,8 +313,27 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     // The image first: it is what the user waited for, and a cache that cannot be saved (a
     // full disk) must not cost it.
     let image = session.image();
-    image.write_exr(&exr_path)?;
-    image.write_png(&png_path, exposure, tonemap)?;
+    let features = session.feature_images();
+    let layers = features.as_ref().filter(|_| args.features);
+    write_image(&image, layers, &exr_path, &png_path, exposure, tonemap)?;
+    if let Some(denoiser) = &mut denoiser {
+        let (path, seconds) = write_denoised(
+            denoiser,
+            &args.denoise,
+            &image,
+            features.as_ref(),
+            &exr_path,
+            exposure,
+            tonemap,
+        )?;
+        eprintln!(
+            "denoised ({} quality, guided by {}) in {:.0} ms: wrote {} and its PNG",
+            args.denoise.denoise_quality,
+            args.denoise.denoise_aovs,
+            seconds * 1e3,
+            path.display()
+        );
+    }
     if let Some(dir) = &args.cache.cache_images
         && let Some(levels) = session.level_images()
     {
@@ -368,6 +407,7 @@ fn render_shard(
     scene: &Scene,
     shard: Shard,
     partial: &std::path::Path,
+    features: bool,
     global: &Global,
 ) -> Result<i32> {
     prepare_output(partial)?;
@@ -380,7 +420,11 @@ fn render_shard(
         samples.len() as u64 * cam.width as u64 * cam.height as u64,
         "samples",
     );
-    let mut film = Film::new(cam.width, cam.height);
+    let mut film = if features {
+        Film::with_features(cam.width, cam.height)
+    } else {
+        Film::new(cam.width, cam.height)
+    };
     let stats = render_samples(
         &scene.media,
         &cam,
@@ -415,10 +459,14 @@ fn render_shard(
 /// Bytes a rendered pixel takes: the film's exact sums and count (52), the f32 image (12) and
 /// the PNG's bytes (4), plus slack for the tiles' bookkeeping.
 const IMAGE_BYTES_PER_PIXEL: u64 = 80;
+/// Bytes the feature buffers add: the film's exact sums (68), the f32 images (32) and the
+/// denoiser's copies (36), with slack.
+const FEATURE_BYTES_PER_PIXEL: u64 = 150;
 
 /// Refuses an image whose buffers would not fit in the memory available, before any is made.
-fn check_image_memory(width: u32, height: u32) -> Result<()> {
-    let need = u64::from(width) * u64::from(height) * IMAGE_BYTES_PER_PIXEL;
+fn check_image_memory(width: u32, height: u32, features: bool) -> Result<()> {
+    let per_pixel = IMAGE_BYTES_PER_PIXEL + if features { FEATURE_BYTES_PER_PIXEL } else { 0 };
+    let need = u64::from(width) * u64::from(height) * per_pixel;
     let available = volume_pt::io::available_memory();
     if need > available {
         bail!(

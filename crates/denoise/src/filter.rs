@@ -1,0 +1,448 @@
+//! The denoiser: one OIDN CPU device and its `RT` filters (the colour's, and optionally the
+//! albedo's and the normal's prefilters), rebuilt only when the image size, the guides or the
+//! options change.
+//!
+//! Each filter reads and writes buffers it owns, so their addresses never change between
+//! calls and a filter is committed once per configuration; each call copies the images in and
+//! the result out (a few ms at 1280x720 against the filter's hundreds).
+
+use crate::library::{Api, DEVICE_TYPE_CPU, ERROR_NONE, FORMAT_FLOAT3, Handle};
+use crate::{DenoiseError, Result};
+use glam::Vec3;
+use hdr_image::RgbImage;
+use std::ffi::{CStr, CString};
+
+/// OIDN's quality modes (`OIDN_QUALITY_*`): `high` for final frames, `balanced` and `fast`
+/// for interactive work.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Quality {
+    Fast,
+    Balanced,
+    #[default]
+    High,
+}
+
+impl Quality {
+    fn code(self) -> i32 {
+        match self {
+            Quality::Fast => 4,
+            Quality::Balanced => 5,
+            Quality::High => 6,
+        }
+    }
+}
+
+impl std::fmt::Display for Quality {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Quality::Fast => "fast",
+            Quality::Balanced => "balanced",
+            Quality::High => "high",
+        })
+    }
+}
+
+/// Which feature buffers guide the filter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum Aux {
+    /// Colour alone.
+    None,
+    /// Colour and albedo.
+    Albedo,
+    /// Colour, albedo and normal (OIDN takes a normal only beside an albedo).
+    #[default]
+    #[cfg_attr(feature = "clap", value(name = "albedo,normal"))]
+    #[serde(rename = "albedo,normal")]
+    AlbedoNormal,
+}
+
+impl std::fmt::Display for Aux {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Aux::None => "none",
+            Aux::Albedo => "albedo",
+            Aux::AlbedoNormal => "albedo,normal",
+        })
+    }
+}
+
+/// The settings of one denoising call: quality, and whether noisy guides are denoised first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Options {
+    pub quality: Quality,
+    /// Denoise the albedo and normal on their own first, then tell the colour filter they are
+    /// clean (`cleanAux`): OIDN's advice for final frames. Guides taken over few samples are
+    /// noisy, and the colour filter keeps the noise it sees in them (measured on the default
+    /// scene at 1 spp: relMSE 0.079 with raw guides, against 0.019 with none; BENCHMARKS.md).
+    /// Costs two more filter passes.
+    pub prefilter: bool,
+}
+
+/// One `RT` filter and the buffers it reads and writes.
+struct Filter {
+    handle: Handle,
+    /// Input images: OIDN's name and the buffer.
+    inputs: Vec<(&'static str, Vec<f32>)>,
+    output: Vec<f32>,
+}
+
+impl Filter {
+    /// An `RT` filter over packed FLOAT3 images `inputs` of `w` x `h` pixels, committed.
+    fn build(
+        api: &Api,
+        device: Handle,
+        (w, h): (u32, u32),
+        inputs: &[&'static str],
+        hdr: bool,
+        clean_aux: bool,
+        quality: Quality,
+    ) -> Result<Self> {
+        let floats = w as usize * h as usize * 3;
+        // SAFETY: `device` is live; "RT" is a NUL-terminated filter type; null is handled.
+        let handle = unsafe { (api.new_filter)(device, c_name("RT").as_ptr()) };
+        if handle.is_null() {
+            return Err(DenoiseError::Oidn(
+                "the RT filter could not be created".into(),
+            ));
+        }
+        let mut filter = Filter {
+            handle,
+            inputs: inputs.iter().map(|&n| (n, vec![0.0; floats])).collect(),
+            output: vec![0.0; floats],
+        };
+        let set = |name: &str, buffer: &mut Vec<f32>| {
+            // SAFETY: `handle` is live; the pointer and the sizes describe `buffer`, which
+            // holds w*h packed FLOAT3 pixels (strides 0: packed, as OIDN documents) and stays
+            // at this address for the filter's life (the Vec moves with the filter, its heap
+            // allocation unchanged, and is never resized).
+            unsafe {
+                (api.set_shared_filter_image)(
+                    handle,
+                    c_name(name).as_ptr(),
+                    buffer.as_mut_ptr().cast(),
+                    FORMAT_FLOAT3,
+                    w as usize,
+                    h as usize,
+                    0,
+                    0,
+                    0,
+                )
+            }
+        };
+        for (name, buffer) in &mut filter.inputs {
+            set(name, buffer);
+        }
+        set("output", &mut filter.output);
+        // SAFETY: `handle` is live; names are NUL-terminated.
+        unsafe {
+            (api.set_filter_bool)(handle, c_name("hdr").as_ptr(), hdr);
+            (api.set_filter_bool)(handle, c_name("cleanAux").as_ptr(), clean_aux);
+            (api.set_filter_int)(handle, c_name("quality").as_ptr(), quality.code());
+            (api.commit_filter)(handle);
+        }
+        Ok(filter)
+    }
+
+    /// Copies `images` into the inputs (in the order they were named) and runs the filter.
+    fn run(&mut self, api: &Api, images: &[&[Vec3]]) {
+        for ((_, buffer), image) in self.inputs.iter_mut().zip(images) {
+            copy_in(buffer, image);
+        }
+        // SAFETY: the filter was committed by `build` with images pointing into this filter's
+        // own buffers, which have exactly w*h*3 floats and have not been reallocated since
+        // (they are only written through `copy_in`, which keeps their length).
+        unsafe { (api.execute_filter)(self.handle) };
+    }
+
+    /// The output as pixels.
+    fn output(&self) -> Vec<Vec3> {
+        self.output
+            .chunks_exact(3)
+            .map(|c| Vec3::new(c[0], c[1], c[2]))
+            .collect()
+    }
+
+    fn release(self, api: &Api) {
+        // SAFETY: the handle is live and released once (`self` is consumed).
+        unsafe { (api.release_filter)(self.handle) };
+    }
+}
+
+/// The filters for one size, set of guides and options: the colour filter, and the guides'
+/// prefilters where asked for.
+struct Pipeline {
+    key: (u32, u32, Aux, Options),
+    albedo: Option<Filter>,
+    normal: Option<Filter>,
+    color: Filter,
+}
+
+/// One OIDN CPU device and its filter. Not `Sync`: one thread drives it at a time (OIDN
+/// serialises calls on a device anyway); its own threads do the work.
+pub struct Denoiser {
+    api: Api,
+    device: Handle,
+    pipeline: Option<Pipeline>,
+}
+
+impl std::fmt::Debug for Denoiser {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Denoiser")
+            .field("library", &self.api.path)
+            .finish()
+    }
+}
+
+// SAFETY: the device and filter handles are owned by this struct alone, and OIDN's API is
+// thread-safe ("All API calls are thread-safe", oidn's API documentation), so moving the
+// struct to another thread is sound. It is not `Sync`: `denoise` takes `&mut self`.
+unsafe impl Send for Denoiser {}
+
+fn c_name(name: &str) -> CString {
+    CString::new(name).expect("parameter names have no NUL")
+}
+
+impl Denoiser {
+    /// Finds the library (see [`crate::library`]) and creates a CPU device running on
+    /// `threads` threads (0: OIDN's default, every core).
+    pub fn load(threads: usize) -> Result<Self> {
+        Self::with_api(Api::find()?, threads)
+    }
+
+    /// [`Denoiser::load`] from the library at `path`.
+    pub fn from_library(path: &std::path::Path, threads: usize) -> Result<Self> {
+        Self::with_api(Api::open(path)?, threads)
+    }
+
+    fn with_api(api: Api, threads: usize) -> Result<Self> {
+        // SAFETY: `new_device` has oidn.h's signature (see `Api::open`); a null result is
+        // handled below and never used as a device.
+        let device = unsafe { (api.new_device)(DEVICE_TYPE_CPU) };
+        if device.is_null() {
+            return Err(DenoiseError::Load {
+                path: api.path.clone(),
+                message: "it could not create a CPU device (an unsupported CPU?)".into(),
+            });
+        }
+        let denoiser = Self {
+            api,
+            device,
+            pipeline: None,
+        };
+        // SAFETY: `device` is a live device handle owned by `denoiser`; the names are
+        // NUL-terminated strings that outlive the calls.
+        unsafe {
+            if threads > 0 {
+                let n = i32::try_from(threads).unwrap_or(i32::MAX);
+                (denoiser.api.set_device_int)(device, c_name("numThreads").as_ptr(), n);
+            }
+            (denoiser.api.commit_device)(device);
+        }
+        denoiser.check()?;
+        // SAFETY: as above.
+        let version = unsafe { (denoiser.api.get_device_int)(device, c_name("version").as_ptr()) };
+        if !(20000..30000).contains(&version) {
+            return Err(DenoiseError::Load {
+                path: denoiser.api.path.clone(),
+                message: format!(
+                    "it is version {}.{}.{}: expected 2.x",
+                    version / 10000,
+                    version / 100 % 100,
+                    version % 100
+                ),
+            });
+        }
+        Ok(denoiser)
+    }
+
+    /// The library in use (its path as loaded).
+    pub fn library(&self) -> &str {
+        &self.api.path
+    }
+
+    /// The device's pending error, if any, as an error naming it.
+    fn check(&self) -> Result<()> {
+        let mut message: *const std::ffi::c_char = std::ptr::null();
+        // SAFETY: `device` is live; OIDN writes a pointer to a NUL-terminated string it owns
+        // (valid until the next call on the device) or leaves it null.
+        let code = unsafe { (self.api.get_device_error)(self.device, &mut message) };
+        if code == ERROR_NONE {
+            return Ok(());
+        }
+        let text = if message.is_null() {
+            String::new()
+        } else {
+            // SAFETY: non-null and NUL-terminated, per the comment above; copied at once.
+            unsafe { CStr::from_ptr(message) }
+                .to_string_lossy()
+                .into_owned()
+        };
+        Err(DenoiseError::Oidn(format!("error {code}: {text}")))
+    }
+
+    /// Denoises `color` (linear HDR radiance), guided by `albedo` and `normal` where given.
+    ///
+    /// `albedo` values must lie in [0, 1] and `normal` components in [-1, 1] (OIDN's ranges);
+    /// a normal needs an albedo. Colour must be finite and non-negative. Each is checked, and
+    /// an image or a buffer of the wrong size is refused, before anything is copied.
+    pub fn denoise(
+        &mut self,
+        color: &RgbImage,
+        albedo: Option<&[Vec3]>,
+        normal: Option<&[Vec3]>,
+        options: Options,
+    ) -> Result<RgbImage> {
+        let (w, h) = (color.width(), color.height());
+        let aux = check_inputs(color, albedo, normal)?;
+        self.prepare((w, h, aux, options))?;
+        let api = &self.api;
+        let pipeline = self.pipeline.as_mut().expect("prepared above");
+        let mut guides: Vec<Vec<Vec3>> = Vec::new();
+        for (filter, guide) in [
+            (&mut pipeline.albedo, albedo),
+            (&mut pipeline.normal, normal),
+        ] {
+            if let (Some(filter), Some(guide)) = (filter, guide) {
+                filter.run(api, &[guide]);
+                guides.push(filter.output());
+            } else if let Some(guide) = guide {
+                guides.push(guide.to_vec());
+            }
+        }
+        let mut images: Vec<&[Vec3]> = vec![color.pixels()];
+        images.extend(guides.iter().map(|g| g.as_slice()));
+        pipeline.color.run(api, &images);
+        self.check()?;
+        let out = self
+            .pipeline
+            .as_ref()
+            .expect("prepared above")
+            .color
+            .output();
+        RgbImage::from_pixels(w, h, out).map_err(|e| DenoiseError::Oidn(e.to_string()))
+    }
+
+    /// Makes the filters for `key` (size, guides, options), reusing the present ones if they
+    /// fit: building a filter costs far more than running it.
+    fn prepare(&mut self, key: (u32, u32, Aux, Options)) -> Result<()> {
+        if self.pipeline.as_ref().is_some_and(|p| p.key == key) {
+            return Ok(());
+        }
+        self.release_pipeline();
+        let (w, h, aux, options) = key;
+        let (api, device, q) = (&self.api, self.device, options.quality);
+        let prefilter = |name: &'static str| -> Result<Option<Filter>> {
+            let wanted = options.prefilter
+                && match name {
+                    "albedo" => aux != Aux::None,
+                    _ => aux == Aux::AlbedoNormal,
+                };
+            wanted
+                .then(|| Filter::build(api, device, (w, h), &[name], false, false, q))
+                .transpose()
+        };
+        let albedo = prefilter("albedo")?;
+        let normal = prefilter("normal")?;
+        let inputs: &[&'static str] = match aux {
+            Aux::None => &["color"],
+            Aux::Albedo => &["color", "albedo"],
+            Aux::AlbedoNormal => &["color", "albedo", "normal"],
+        };
+        let clean = options.prefilter && aux != Aux::None;
+        let color = Filter::build(api, device, (w, h), inputs, true, clean, q)?;
+        self.pipeline = Some(Pipeline {
+            key,
+            albedo,
+            normal,
+            color,
+        });
+        self.check()
+    }
+
+    fn release_pipeline(&mut self) {
+        if let Some(p) = self.pipeline.take() {
+            for f in [p.albedo, p.normal].into_iter().flatten() {
+                f.release(&self.api);
+            }
+            p.color.release(&self.api);
+        }
+    }
+}
+
+/// Checks the inputs of [`Denoiser::denoise`] and says which guides they are.
+fn check_inputs(color: &RgbImage, albedo: Option<&[Vec3]>, normal: Option<&[Vec3]>) -> Result<Aux> {
+    let (w, h) = (color.width(), color.height());
+    let n = w as usize * h as usize;
+    let input = |what: &str, message: String| DenoiseError::Input {
+        what: what.into(),
+        message,
+    };
+    let aux = match (albedo, normal) {
+        (None, None) => Aux::None,
+        (Some(_), None) => Aux::Albedo,
+        (Some(_), Some(_)) => Aux::AlbedoNormal,
+        (None, Some(_)) => {
+            return Err(input(
+                "normal",
+                "given without an albedo: Open Image Denoise takes a normal only beside an albedo"
+                    .into(),
+            ));
+        }
+    };
+    if let Some(bad) = color.pixels().iter().position(|p| {
+        // Written so that NaN is refused.
+        !(p.is_finite() && p.min_element() >= 0.0)
+    }) {
+        return Err(input(
+            "image",
+            format!(
+                "pixel ({}, {}) is {}: expected finite, non-negative radiance",
+                bad % w as usize,
+                bad / w as usize,
+                color.pixels()[bad]
+            ),
+        ));
+    }
+    for (what, buffer, lo) in [("albedo", albedo, 0.0f32), ("normal", normal, -1.0)] {
+        let Some(buffer) = buffer else { continue };
+        if buffer.len() != n {
+            return Err(input(
+                what,
+                format!("{} values for a {w}x{h} image: expected {n}", buffer.len()),
+            ));
+        }
+        if let Some(bad) = buffer
+            .iter()
+            .position(|v| !(v.cmpge(Vec3::splat(lo)).all() && v.cmple(Vec3::ONE).all()))
+        {
+            return Err(input(
+                what,
+                format!(
+                    "value {} at pixel ({}, {}): expected components in [{lo}, 1]",
+                    buffer[bad],
+                    bad % w as usize,
+                    bad / w as usize
+                ),
+            ));
+        }
+    }
+    Ok(aux)
+}
+
+impl Drop for Denoiser {
+    fn drop(&mut self) {
+        self.release_pipeline();
+        // SAFETY: the device is live, its filter released above, and it is released once.
+        unsafe { (self.api.release_device)(self.device) };
+    }
+}
+
+fn copy_in(buffer: &mut [f32], pixels: &[Vec3]) {
+    for (b, p) in buffer.chunks_exact_mut(3).zip(pixels) {
+        b.copy_from_slice(&p.to_array());
+    }
+}

@@ -12,7 +12,9 @@ The renderer of the ``gscache`` program, from Python:
   the one-process image bit for bit (``gscache.distributed`` runs them on Dask);
 - ``Cache``: the radiance cache, trained frame after frame;
 - ``Cloud``, ``splat_render``, ``splat_trace``: 3D Gaussian clouds;
-- ``read_exr``, ``write_exr``, ``write_png``.
+- ``read_exr``, ``write_exr``, ``write_png``;
+- ``denoise(image, albedo=..., normal=...)``: Intel Open Image Denoise (``pip install pyoidn``),
+  guided by the feature buffers ``render(..., features=True)`` returns.
 
 Errors the renderer refuses are ``GscacheError``, with the message the program prints.
 """
@@ -47,6 +49,7 @@ __all__ = [
     "Scene",
     "Volume",
     "__version__",
+    "denoise",
     "read_exr",
     "render",
     "render_partial",
@@ -186,19 +189,75 @@ def render(
     max_depth: Optional[int] = None,
     threads: Optional[int] = None,
     progress: Optional[Progress] = None,
-) -> np.ndarray:
+    features: bool = False,
+) -> Any:
     """Path-traces ``scene``: float32 (height, width, 3), linear radiance. ``spp``, ``seed``,
     ``integrator`` (``"uniform"`` or ``"nee"``) and ``max_depth`` (-1: unlimited) override the
     scene's. ``progress(samples_done)`` is called from this thread about every 50 ms; an
     exception it raises stops the render and propagates. The GIL is released while rendering.
     The image is bit-identical to ``gscache render``'s for the same scene and settings, and
-    does not depend on ``threads``."""
-    image, samples, interrupted, _ = _gscache._render(
-        scene._inner, spp, seed, integrator, max_depth, threads, progress
+    does not depend on ``threads``.
+
+    With ``features=True`` it returns ``(image, features)``: ``features`` is a dict of the
+    feature buffers over the same samples, each camera path's first scattering event:
+    ``albedo`` and ``normal`` (height, width, 3), ``depth`` and ``coverage`` (height, width).
+    Albedo and normal are 0 where rays escaped; depth is infinite where nothing was hit.
+    They are what ``denoise`` takes as guides."""
+    image, samples, interrupted, _, aovs = _gscache._render(
+        scene._inner, spp, seed, integrator, max_depth, threads, progress, features
     )
     if interrupted:
         raise Interrupted(image, samples)
-    return image
+    if not features:
+        return image
+    albedo, normal, depth, coverage = aovs
+    return image, {"albedo": albedo, "normal": normal, "depth": depth, "coverage": coverage}
+
+
+_denoisers: dict = {}
+
+
+def _pyoidn_library() -> Optional[str]:
+    """The folder of the library the ``pyoidn`` package ships, if this interpreter has it."""
+    import importlib.util
+    import os
+
+    spec = importlib.util.find_spec("pyoidn")
+    if spec is None or spec.origin is None:
+        return None
+    folder = os.path.join(os.path.dirname(spec.origin), "oidn", "lib")
+    return folder if os.path.isdir(folder) else None
+
+
+def denoise(
+    image: np.ndarray,
+    albedo: Optional[np.ndarray] = None,
+    normal: Optional[np.ndarray] = None,
+    *,
+    quality: str = "high",
+    prefilter: bool = False,
+    library: Optional[str] = None,
+    threads: int = 0,
+) -> np.ndarray:
+    """Denoises ``image`` (float32 (height, width, 3), linear HDR radiance) with Intel Open
+    Image Denoise, guided by ``albedo`` (values in [0, 1]) and ``normal`` (components in
+    [-1, 1]; only beside an albedo) where given: the arrays ``render(..., features=True)``
+    returns. ``quality`` is ``"fast"``, ``"balanced"`` or ``"high"``; ``prefilter`` denoises
+    the guides first (OIDN's advice for clean final frames). The library is ``library`` (a
+    file or folder), else the one ``GSCACHE_OIDN`` names, the system's, or the copy inside the
+    ``pyoidn`` package (``pip install pyoidn``); a missing one raises ``GscacheError`` saying
+    how to install it. The device is kept between calls (``threads`` 0: every core)."""
+    import os
+
+    if library is None and "GSCACHE_OIDN" not in os.environ:
+        library = _pyoidn_library()
+    key = (library, threads)
+    if key not in _denoisers:
+        _denoisers[key] = _gscache.Denoiser(library, threads)
+    as_f32 = lambda a: None if a is None else np.ascontiguousarray(a, dtype=np.float32)
+    return _denoisers[key].denoise(
+        as_f32(image), as_f32(albedo), as_f32(normal), quality, prefilter
+    )
 
 
 def splat_trace(cloud: Cloud, eye: Sequence[float], target: Sequence[float], **options: Any) -> np.ndarray:

@@ -51,10 +51,10 @@ impl std::fmt::Display for Quality {
 pub enum Aux {
     /// Colour alone.
     None,
-    /// Colour and albedo.
+    /// Colour and albedo: the default, measured best on volumes (BENCHMARKS.md).
+    #[default]
     Albedo,
     /// Colour, albedo and normal (OIDN takes a normal only beside an albedo).
-    #[default]
     #[cfg_attr(feature = "clap", value(name = "albedo,normal"))]
     #[serde(rename = "albedo,normal")]
     AlbedoNormal,
@@ -75,10 +75,9 @@ impl std::fmt::Display for Aux {
 pub struct Options {
     pub quality: Quality,
     /// Denoise the albedo and normal on their own first, then tell the colour filter they are
-    /// clean (`cleanAux`): OIDN's advice for final frames. Guides taken over few samples are
-    /// noisy, and the colour filter keeps the noise it sees in them (measured on the default
-    /// scene at 1 spp: relMSE 0.079 with raw guides, against 0.019 with none; BENCHMARKS.md).
-    /// Costs two more filter passes.
+    /// clean (`cleanAux`): OIDN's advice for final frames, since guides taken over few samples
+    /// are noisy and the colour filter keeps the noise it sees in them. Costs two more filter
+    /// passes; what it buys on volumes is in BENCHMARKS.md.
     pub prefilter: bool,
 }
 

@@ -7,7 +7,7 @@ use numpy::{PyArray3, PyReadonlyArray3};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 
-fn to_image(array: PyReadonlyArray3<'_, f32>) -> PyResult<RgbImage> {
+pub(crate) fn to_image(array: PyReadonlyArray3<'_, f32>) -> PyResult<RgbImage> {
     let v = array.as_array();
     let s = v.shape();
     if s[2] != 3 {

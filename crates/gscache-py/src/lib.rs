@@ -10,11 +10,13 @@
 //! - [`cache`]: `Cache`, the GSCache radiance cache driving the path tracer.
 //! - [`clouds`]: `Cloud`, `splat_render`, `splat_trace`.
 //! - [`images`]: EXR and PNG reading and writing.
+//! - [`denoise`]: `Denoiser`, Intel Open Image Denoise loaded at run time.
 //!
 //! Every error is a `GscacheError` carrying the message the program prints.
 
 mod cache;
 mod clouds;
+mod denoise;
 mod images;
 mod render;
 mod run;
@@ -46,6 +48,7 @@ fn _gscache(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<render::Partial>()?;
     m.add_class::<cache::Cache>()?;
     m.add_class::<clouds::Cloud>()?;
+    m.add_class::<denoise::Denoiser>()?;
     m.add_function(wrap_pyfunction!(render::render_image, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_partial, m)?)?;
     m.add_function(wrap_pyfunction!(clouds::splat_render, m)?)?;

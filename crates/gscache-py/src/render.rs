@@ -28,20 +28,48 @@ fn render_range(
     samples: std::ops::Range<u32>,
     threads: Option<usize>,
     progress: Option<&Bound<'_, PyAny>>,
+    features: bool,
 ) -> PyResult<(Film, bool)> {
     let s = &scene.scene;
-    let mut film = Film::new(s.camera.width, s.camera.height);
+    let mut film = if features {
+        Film::with_features(s.camera.width, s.camera.height)
+    } else {
+        Film::new(s.camera.width, s.camera.height)
+    };
     let outcome = run_polled(py, threads, progress, |control| {
         render_samples(&s.media, &s.camera, settings, samples, &mut film, control)
     })?;
     Ok((film, outcome.interrupted))
 }
 
-/// Renders `scene`; returns (image, samples taken, interrupted, non-finite samples). The
-/// Python layer (`gscache.render`) raises `Interrupted` with the partial image when
-/// interrupted.
+/// A film's feature buffers as numpy arrays: albedo and normal (height, width, 3), depth and
+/// coverage (height, width).
+type FeatureArrays<'py> = (
+    Bound<'py, PyArray3<f32>>,
+    Bound<'py, PyArray3<f32>>,
+    Bound<'py, PyArray2<f32>>,
+    Bound<'py, PyArray2<f32>>,
+);
+
+fn feature_arrays<'py>(py: Python<'py>, film: &Film) -> PyResult<Option<FeatureArrays<'py>>> {
+    let Some(f) = film.feature_images() else {
+        return Ok(None);
+    };
+    let (w, h) = (f.width(), f.height());
+    let plane = |v: &[f32]| PyArray1::from_vec(py, v.to_vec()).reshape([h as usize, w as usize]);
+    Ok(Some((
+        image_array(py, w, h, &f.albedo)?,
+        image_array(py, w, h, &f.normal)?,
+        plane(&f.depth)?,
+        plane(&f.coverage)?,
+    )))
+}
+
+/// Renders `scene`; returns (image, samples taken, interrupted, non-finite samples, feature
+/// arrays or None). The Python layer (`gscache.render`) raises `Interrupted` with the partial
+/// image when interrupted.
 #[pyfunction]
-#[pyo3(name = "_render", signature = (scene, spp=None, seed=None, integrator=None, max_depth=None, threads=None, progress=None))]
+#[pyo3(name = "_render", signature = (scene, spp=None, seed=None, integrator=None, max_depth=None, threads=None, progress=None, features=false))]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)] // Python keyword arguments
 pub(crate) fn render_image<'py>(
     py: Python<'py>,
@@ -52,7 +80,14 @@ pub(crate) fn render_image<'py>(
     max_depth: Option<i64>,
     threads: Option<usize>,
     progress: Option<Bound<'py, PyAny>>,
-) -> PyResult<(Bound<'py, PyArray3<f32>>, u64, bool, u64)> {
+    features: bool,
+) -> PyResult<(
+    Bound<'py, PyArray3<f32>>,
+    u64,
+    bool,
+    u64,
+    Option<FeatureArrays<'py>>,
+)> {
     let settings = settings_with(scene, spp, seed, integrator, max_depth)?;
     let (film, interrupted) = render_range(
         py,
@@ -61,6 +96,7 @@ pub(crate) fn render_image<'py>(
         0..settings.spp,
         threads,
         progress.as_ref(),
+        features,
     )?;
     let c = scene.scene.camera;
     Ok((
@@ -68,6 +104,7 @@ pub(crate) fn render_image<'py>(
         film.total_samples(),
         interrupted,
         film.nonfinite_samples,
+        feature_arrays(py, &film)?,
     ))
 }
 
@@ -97,6 +134,7 @@ pub(crate) fn render_partial(
         samples.clone(),
         threads,
         progress.as_ref(),
+        false,
     )?;
     Ok((!interrupted).then(|| Partial {
         inner: PartialRender::from_film(&film, &scene.key(&settings), settings.spp, samples),

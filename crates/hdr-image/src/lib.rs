@@ -232,7 +232,7 @@ impl RgbImage {
 pub struct FeatureImages {
     width: u32,
     height: u32,
-    /// Albedo in [0, 1] (1 where rays escaped).
+    /// Albedo in [0, 1] (0 where rays escaped).
     pub albedo: Vec<Vec3>,
     /// World-space normal, components in [-1, 1], not renormalised (0 where rays escaped).
     pub normal: Vec<Vec3>,

@@ -60,9 +60,9 @@ fn the_albedo_of_a_homogeneous_medium_is_its_albedo() {
             );
         }
     }
-    // A corner ray misses the cube: albedo 1 (a transparent surface), normal 0, nothing hit.
+    // A corner ray misses the cube: albedo 0, normal 0, nothing hit.
     let corner = f[0];
-    assert_eq!(corner.albedo, Vec3::ONE);
+    assert_eq!(corner.albedo, Vec3::ZERO);
     assert_eq!(corner.normal, Vec3::ZERO);
     assert_eq!(corner.coverage, 0.0);
     assert_eq!(corner.depth, f32::INFINITY);

@@ -16,8 +16,9 @@ pub struct DenoiseArgs {
     /// Open Image Denoise's quality: `high` for final frames, `balanced` or `fast` for previews.
     #[arg(long, value_enum, default_value_t = Quality::High, requires = "denoise")]
     pub denoise_quality: Quality,
-    /// Feature buffers that guide the denoiser.
-    #[arg(long, value_enum, default_value_t = Aux::AlbedoNormal, requires = "denoise")]
+    /// Feature buffers that guide the denoiser (the normal, from the extinction gradient,
+    /// measured worse than none on volumes at low sample counts: see BENCHMARKS.md).
+    #[arg(long, value_enum, default_value_t = Aux::Albedo, requires = "denoise")]
     pub denoise_aovs: Aux,
     /// Give the guides to the colour filter as they are, instead of denoising them first
     /// (faster: one filter pass instead of three; noisier at low sample counts).

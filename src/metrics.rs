@@ -13,8 +13,14 @@
 //!   `(mean - r)^2 - var / S` is an unbiased estimate of the squared bias (the variance of the
 //!   mean is removed), reported relative like relMSE; and the image's mean brightness against the
 //!   reference's, with its standard error over seeds.
-//! - FLIP (feature `flip`): NVIDIA's perceptual difference of two tone-mapped images, mean over
-//!   pixels, through the `nv-flip` bindings of its C++ reference code.
+//! - FLIP (feature `flip`, on by default): NVIDIA's perceptual difference of two tone-mapped
+//!   images (LDR-FLIP, Andersson et al. 2020), mean over pixels, through the `nv-flip` bindings
+//!   of its C++ reference code. Lower is better.
+//! - SSIM ([`ssim`]): Wang et al. (2004)'s structural similarity of the tone-mapped images'
+//!   luma, with their constants (11x11 Gaussian window, sigma 1.5, K1 = 0.01, K2 = 0.03,
+//!   L = 255), averaged over the window positions inside the image. Higher is better; 1 is
+//!   equal. relMSE and PSNR see every error alike; FLIP and SSIM see structure, which is where
+//!   a cache's error (blur, bias in patches) and a denoiser's differ from noise.
 
 use glam::Vec3;
 
@@ -110,6 +116,72 @@ pub fn psnr_8bit(image: &[u8], reference: &[u8]) -> f64 {
 /// `1 / (relMSE x seconds)`: higher is better.
 pub fn efficiency(rel_mse: f64, seconds: f64) -> f64 {
     1.0 / (rel_mse * seconds).max(1e-300)
+}
+
+/// SSIM's window: 11 taps of a Gaussian with sigma 1.5, normalised.
+fn ssim_window() -> [f64; 11] {
+    let mut w = [0.0; 11];
+    for (i, v) in w.iter_mut().enumerate() {
+        let x = i as f64 - 5.0;
+        *v = (-x * x / (2.0 * 1.5 * 1.5)).exp();
+    }
+    let sum: f64 = w.iter().sum();
+    w.map(|v| v / sum)
+}
+
+/// Separable filtering of a `width x height` plane with `w`, keeping only the positions where
+/// the window lies inside the image ("valid"): `(width - 10) x (height - 10)` values.
+fn filter_valid(plane: &[f64], width: usize, height: usize, w: &[f64; 11]) -> Vec<f64> {
+    let (ow, oh) = (width - 10, height - 10);
+    let mut rows = vec![0.0; ow * height];
+    for y in 0..height {
+        for x in 0..ow {
+            rows[y * ow + x] = (0..11).map(|k| w[k] * plane[y * width + x + k]).sum();
+        }
+    }
+    let mut out = vec![0.0; ow * oh];
+    for y in 0..oh {
+        for x in 0..ow {
+            out[y * ow + x] = (0..11).map(|k| w[k] * rows[(y + k) * ow + x]).sum();
+        }
+    }
+    out
+}
+
+/// Mean SSIM of two tone-mapped 8-bit sRGB images (`width x height x 3` bytes) on their luma
+/// (Rec. 601 weights), as in the module docs; `None` for an image under 11 pixels a side.
+pub fn ssim(image: &[u8], reference: &[u8], width: u32, height: u32) -> Option<f64> {
+    let (w, h) = (width as usize, height as usize);
+    assert_eq!(image.len(), w * h * 3, "image size");
+    assert_eq!(reference.len(), w * h * 3, "reference size");
+    if w < 11 || h < 11 {
+        return None;
+    }
+    let luma = |px: &[u8]| -> Vec<f64> {
+        px.chunks_exact(3)
+            .map(|c| 0.299 * c[0] as f64 + 0.587 * c[1] as f64 + 0.114 * c[2] as f64)
+            .collect()
+    };
+    let (a, b) = (luma(image), luma(reference));
+    let win = ssim_window();
+    let blur = |p: &[f64]| filter_valid(p, w, h, &win);
+    let product = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| p * q).collect::<Vec<_>>();
+    let (mu_a, mu_b) = (blur(&a), blur(&b));
+    let (aa, bb, ab) = (
+        blur(&product(&a, &a)),
+        blur(&product(&b, &b)),
+        blur(&product(&a, &b)),
+    );
+    let (c1, c2) = ((0.01f64 * 255.0).powi(2), (0.03f64 * 255.0).powi(2));
+    let n = mu_a.len();
+    let sum: f64 = (0..n)
+        .map(|i| {
+            let (ma, mb) = (mu_a[i], mu_b[i]);
+            let (va, vb, cov) = (aa[i] - ma * ma, bb[i] - mb * mb, ab[i] - ma * mb);
+            ((2.0 * ma * mb + c1) * (2.0 * cov + c2)) / ((ma * ma + mb * mb + c1) * (va + vb + c2))
+        })
+        .sum();
+    Some(sum / n as f64)
 }
 
 /// Mean FLIP error of two tone-mapped 8-bit sRGB images (`width x height x 3` bytes), at FLIP's
@@ -251,6 +323,45 @@ mod tests {
         assert_eq!(flip(&a, &b, 16, 16), Some(0.0));
         b.iter_mut().step_by(2).for_each(|v| *v = 255);
         assert!(flip(&b, &a, 16, 16).unwrap() > 0.1);
+    }
+
+    #[test]
+    fn ssim_of_flat_images_is_its_closed_form() {
+        // Flat images have no variance and no covariance: SSIM reduces to the luminance term
+        // (2 a b + C1) / (a^2 + b^2 + C1), and equals 1 for equal images.
+        let (w, h) = (24u32, 17u32);
+        let flat = |v: u8| vec![v; (w * h * 3) as usize];
+        assert!((ssim(&flat(90), &flat(90), w, h).unwrap() - 1.0).abs() < 1e-12);
+        let (a, b) = (90.0f64, 130.0f64);
+        let c1 = (0.01f64 * 255.0).powi(2);
+        let expected = (2.0 * a * b + c1) / (a * a + b * b + c1);
+        let got = ssim(&flat(90), &flat(130), w, h).unwrap();
+        assert!((got - expected).abs() < 1e-9, "{got} against {expected}");
+        // Too small for the window.
+        assert_eq!(
+            ssim(&flat(1)[..10 * 10 * 3], &flat(1)[..10 * 10 * 3], 10, 10),
+            None
+        );
+    }
+
+    #[test]
+    fn ssim_sees_structure_that_mse_ranks_alike() {
+        // A checkerboard's contrast reversed and a uniform shift by the same amount have equal
+        // MSE; SSIM, which weighs structure, scores the reversal far lower.
+        let (w, h) = (32u32, 32u32);
+        let board: Vec<u8> = (0..w * h)
+            .flat_map(|i| {
+                let v = if (i % w + i / w) % 2 == 0 { 100 } else { 140 };
+                [v; 3]
+            })
+            .collect();
+        let reversed: Vec<u8> = board.iter().map(|&v| 240 - v).collect();
+        let shifted: Vec<u8> = board.iter().map(|&v| v + 40).collect();
+        let (rev, shift) = (
+            ssim(&reversed, &board, w, h).unwrap(),
+            ssim(&shifted, &board, w, h).unwrap(),
+        );
+        assert!(rev < 0.0 && shift > 0.9, "reversed {rev}, shifted {shift}");
     }
 
     #[test]

@@ -87,6 +87,14 @@ pub fn render_args(
             ]);
         }
     }
+    // A twin is the method's image denoised, at the experiment's quality (default high).
+    if let Some(guides) = method.denoised {
+        args.extend([
+            "--denoise".into(),
+            "--denoise-aovs".into(),
+            guides.to_string(),
+        ]);
+    }
     args
 }
 

@@ -39,6 +39,22 @@ pub struct ExperimentFile {
     pub flythroughs: Vec<FlythroughDesc>,
     #[serde(default, rename = "ablation")]
     pub ablations: Vec<AblationDesc>,
+    /// Measure every method also after Intel Open Image Denoise: one twin per entry of
+    /// `denoise_guides`, its time counting the filter once per image.
+    #[serde(default)]
+    pub denoise: bool,
+    /// The denoiser's quality (default `high`).
+    pub denoise_quality: Option<denoise::Quality>,
+    /// The guides of each twin (default `["none", "albedo"]`: colour alone, and with the
+    /// albedo feature buffer).
+    pub denoise_guides: Option<Vec<denoise::Aux>>,
+}
+
+/// How the experiment's denoised twins are made.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DenoiseSpec {
+    pub quality: denoise::Quality,
+    pub guides: Vec<denoise::Aux>,
 }
 
 fn default_seeds() -> Vec<u64> {
@@ -310,9 +326,25 @@ pub struct Method {
     pub integrator: IntegratorKind,
     pub cache: Option<CacheDesc>,
     pub nrc: Option<NrcDesc>,
+    /// For a denoised twin: the guides its denoiser took (its image is the method's, denoised).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub denoised: Option<denoise::Aux>,
 }
 
 impl Method {
+    /// This method's twin measured after the denoiser with `guides`.
+    pub fn denoised_twin(&self, guides: denoise::Aux) -> Method {
+        let suffix = match guides {
+            denoise::Aux::None => String::new(),
+            g => format!(" ({g})"),
+        };
+        Method {
+            name: format!("{} + OIDN{suffix}", self.name),
+            denoised: Some(guides),
+            ..self.clone()
+        }
+    }
+
     /// Warm-up frames before the method is measured (0 without a cache).
     pub fn warmup(&self) -> u32 {
         match (&self.cache, &self.nrc) {
@@ -362,6 +394,8 @@ pub struct Experiment {
     pub methods: Vec<Method>,
     pub flythroughs: Vec<FlythroughDesc>,
     pub ablations: Vec<Ablation>,
+    /// The denoised twins, where the file asks for them (`denoise = true`).
+    pub denoise: Option<DenoiseSpec>,
 }
 
 /// An ablation with its variants built.
@@ -534,7 +568,44 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         (None, None) => None,
         _ => bail!("width and height: give both, each at least 1, or neither"),
     };
+    if !f.denoise && (f.denoise_quality.is_some() || f.denoise_guides.is_some()) {
+        bail!("denoise_quality and denoise_guides set the denoised twins: add `denoise = true`");
+    }
+    let denoise = if f.denoise {
+        let guides = f
+            .denoise_guides
+            .clone()
+            .unwrap_or_else(|| vec![denoise::Aux::None, denoise::Aux::Albedo]);
+        if guides.is_empty() {
+            bail!(
+                "denoise_guides = []: expected at least one of \"none\", \"albedo\", \"albedo,normal\""
+            );
+        }
+        for (i, g) in guides.iter().enumerate() {
+            if guides[..i].contains(g) {
+                bail!("denoise_guides lists \"{g}\" twice");
+            }
+        }
+        for m in &methods {
+            for &g in &guides {
+                let twin = m.denoised_twin(g).name;
+                if methods.iter().any(|x| x.name == twin) {
+                    bail!(
+                        "method `{twin}` clashes with the name of `{}`'s denoised twin: rename it",
+                        m.name
+                    );
+                }
+            }
+        }
+        Some(DenoiseSpec {
+            quality: f.denoise_quality.unwrap_or_default(),
+            guides,
+        })
+    } else {
+        None
+    };
     Ok(Experiment {
+        denoise,
         output: f
             .output
             .map(|o| base.join(o))
@@ -581,6 +652,7 @@ fn method(
             .with_context(|| format!("method `{name}`: cache"))?;
     }
     Ok(Method {
+        denoised: None,
         name,
         integrator,
         cache,

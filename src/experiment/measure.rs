@@ -3,7 +3,7 @@
 //! so a method's images at 1, 4 and 16 spp are the prefixes of one progressive render, as a
 //! user watching it would see them. Times are wall-clock around each pass.
 
-use super::config::Method;
+use super::config::{DenoiseSpec, Method};
 use anyhow::Result;
 use glam::Vec3;
 use render_session::{Control, FrameReport, Session};
@@ -37,6 +37,12 @@ pub struct Snapshot {
     pub seconds: f64,
     #[serde(with = "super::shard::image_bits")]
     pub image: Vec<Vec3>,
+    /// For a denoised twin's image: the guides its denoiser took (`None`: the method's own).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoised: Option<denoise::Aux>,
+    /// The feature buffers at this image, kept only until the twins are denoised.
+    #[serde(skip)]
+    pub features: Option<hdr_image::FeatureImages>,
 }
 
 /// What a cached run leaves besides its snapshots.
@@ -76,17 +82,17 @@ pub fn progressive(
             on_frame(&r);
             Ok(r.seconds)
         },
-        |s| s.mean(),
+        |s| (s.mean(), s.feature_images()),
     )
 }
 
 /// [`progressive`] over any state: `frame(state)` adds one frame (1 spp) to the image and
-/// returns its seconds, `image(state)` is the image so far.
+/// returns its seconds, `image(state)` is the image so far and its feature buffers, if kept.
 fn progressive_with<S>(
     budgets: &[Budget],
     state: &mut S,
     mut frame: impl FnMut(&mut S) -> Result<f64>,
-    image: impl Fn(&S) -> Vec<Vec3>,
+    image: impl Fn(&S) -> (Vec<Vec3>, Option<hdr_image::FeatureImages>),
 ) -> Result<Vec<Snapshot>> {
     let mut pending: Vec<Budget> = budgets.to_vec();
     let mut out = Vec::new();
@@ -106,13 +112,15 @@ fn progressive_with<S>(
             !reached
         });
         if !reached_now.is_empty() {
-            let pixels = image(state);
+            let (pixels, features) = image(state);
             for budget in reached_now {
                 out.push(Snapshot {
                     budget,
                     spp: k,
                     seconds,
                     image: pixels.clone(),
+                    denoised: None,
+                    features: features.clone(),
                 });
             }
         }
@@ -130,16 +138,49 @@ pub fn method_session(scene: &Scene, method: &Method, seed: u64) -> Result<Sessi
 }
 
 /// `method` at the scene camera with `seed`: its warm-up (a cache's), then frames of 1 spp
-/// snapshotted at every budget.
+/// snapshotted at every budget; with `denoise`, also its denoised twins' snapshots (see
+/// [`super::denoised`]).
 pub fn run_method(
     scene: &Scene,
     method: &Method,
     seed: u64,
     budgets: &[Budget],
+    denoise: Option<&DenoiseSpec>,
 ) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
-    let mut session = method_session(scene, method, seed)?;
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let plan = match denoise {
+        Some(spec) => super::denoised::plan(budgets, spec, w, h)?,
+        None => Vec::new(),
+    };
+    // The images the twins denoise are snapshots too; the features ride along with them.
+    let mut all_budgets = budgets.to_vec();
+    for &(_, _, render) in &plan {
+        if !all_budgets.contains(&render) {
+            all_budgets.push(render);
+        }
+    }
+    let session = method_session(scene, method, seed)?;
+    let wants_features = plan.iter().any(|p| p.0 != denoise::Aux::None);
+    let mut session = session.with_features(wants_features);
+    let finish = |raw: Vec<Snapshot>| -> Result<Vec<Snapshot>> {
+        let mut twins = match denoise {
+            Some(spec) => super::denoised::twins(&plan, &raw, spec, w, h)?,
+            None => Vec::new(),
+        };
+        let mut out: Vec<Snapshot> = raw
+            .into_iter()
+            .filter(|s| budgets.contains(&s.budget))
+            .map(|s| Snapshot {
+                features: None,
+                ..s
+            })
+            .collect();
+        out.append(&mut twins);
+        Ok(out)
+    };
     if !method.has_cache() {
-        return Ok((progressive(budgets, &mut session, |_| {})?, None));
+        let raw = progressive(&all_budgets, &mut session, |_| {})?;
+        return Ok((finish(raw)?, None));
     }
     let mut record = CacheRecord {
         init_seconds: session.cache_seconds(),
@@ -157,7 +198,7 @@ pub fn run_method(
         record.nonfinite_samples += r.nonfinite_samples;
         record.level_mse.push(r.loss);
     }
-    let snaps = progressive(budgets, &mut session, |r| {
+    let snaps = progressive(&all_budgets, &mut session, |r| {
         record.nonfinite_samples += r.nonfinite_samples;
         record.level_mse.push(r.loss.clone());
         if r.handed_off {
@@ -179,7 +220,7 @@ pub fn run_method(
             })
             .collect();
     }
-    Ok((snaps, Some(record)))
+    Ok((finish(snaps)?, Some(record)))
 }
 
 #[cfg(test)]
@@ -189,7 +230,7 @@ mod tests {
     #[test]
     fn progressive_snapshots_every_budget_once_in_order_reached() {
         let budgets = [Budget::Spp(3), Budget::Seconds(0.25), Budget::Spp(1)];
-        let snaps = progressive_with(&budgets, &mut (), |_| Ok(0.1), |_| vec![]).unwrap();
+        let snaps = progressive_with(&budgets, &mut (), |_| Ok(0.1), |_| (vec![], None)).unwrap();
         let got: Vec<(Budget, u32)> = snaps.iter().map(|s| (s.budget, s.spp)).collect();
         // 0.25 s is first reached by the third pass (0.3 s).
         assert_eq!(

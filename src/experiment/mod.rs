@@ -5,6 +5,8 @@
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
 //! - [`reference`]: high-spp references, made once and kept on disk by a hash of their inputs.
 //! - [`measure`]: one method rendered progressively, snapshotted at every budget.
+//! - [`denoised`]: a method's denoised twins (Intel Open Image Denoise), the filter's time
+//!   counted in time budgets.
 //! - [`command`]: the `gscache render` line that renders one frame of a method, bit for bit.
 //! - [`flythrough`]: camera paths with scene edits; per-frame times and error.
 //! - [`run`]: all of it, with the metrics and their spread over seeds.
@@ -13,6 +15,7 @@
 
 pub mod command;
 pub mod config;
+pub mod denoised;
 pub mod figures;
 pub mod flythrough;
 pub mod measure;

@@ -8,7 +8,7 @@ use super::measure::{Budget, CacheRecord, Snapshot};
 use super::reference::reference;
 use super::shard::{UnitResult, measure_unit, units};
 use crate::metrics::{
-    BiasEstimate, SeedSpread, efficiency, flip, hdr_peak, psnr, psnr_8bit, rel_mse, smape,
+    BiasEstimate, SeedSpread, efficiency, flip, hdr_peak, psnr, psnr_8bit, rel_mse, smape, ssim,
 };
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
@@ -32,17 +32,18 @@ pub struct RunRow {
     pub psnr_tonemapped: f64,
     pub smape: f64,
     pub flip: Option<f64>,
+    pub ssim: Option<f64>,
     pub efficiency: f64,
     pub nonfinite_samples: u64,
 }
 
 impl RunRow {
-    pub const CSV_HEADER: &'static str = "method,budget_kind,budget,seed,spp,seconds,warmup_seconds,rel_mse,psnr_hdr,psnr_tonemapped,smape,flip,efficiency,nonfinite_samples";
+    pub const CSV_HEADER: &'static str = "method,budget_kind,budget,seed,spp,seconds,warmup_seconds,rel_mse,psnr_hdr,psnr_tonemapped,smape,flip,ssim,efficiency,nonfinite_samples";
 
     pub fn csv(&self) -> String {
         let (kind, value) = budget_fields(self.budget);
         format!(
-            "{},{kind},{value},{},{},{:.6},{:.6},{:.6e},{:.4},{:.4},{:.6},{},{:.6e},{}",
+            "{},{kind},{value},{},{},{:.6},{:.6},{:.6e},{:.4},{:.4},{:.6},{},{},{:.6e},{}",
             csv_text(&self.method),
             self.seed,
             self.spp,
@@ -53,6 +54,7 @@ impl RunRow {
             self.psnr_tonemapped,
             self.smape,
             self.flip.map_or(String::new(), |f| format!("{f:.6}")),
+            self.ssim.map_or(String::new(), |f| format!("{f:.6}")),
             self.efficiency,
             self.nonfinite_samples
         )
@@ -90,6 +92,7 @@ pub struct SummaryRow {
     pub psnr_tonemapped: f64,
     pub smape: f64,
     pub flip: Option<f64>,
+    pub ssim: Option<f64>,
     /// `1 / (mean relMSE x mean seconds)`.
     pub efficiency: f64,
     /// This method's efficiency over the baseline's at the same budget.
@@ -241,15 +244,29 @@ impl Setup<'_, '_> {
     }
 }
 
-fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evaluation> {
+/// Measures `method` at `budgets` over the seeds: one evaluation for the method's own images
+/// and one for each of its denoised `twins` (the twin methods, in the order the units carry
+/// their snapshots).
+fn evaluate(
+    cx: &mut Setup,
+    method: &Method,
+    budgets: &[Budget],
+    twins: &[Method],
+) -> Result<Vec<Evaluation>> {
     let (w, h) = (cx.scene.camera.width, cx.scene.camera.height);
-    let mut runs = Vec::new();
-    let mut spreads: Vec<SeedSpread> = budgets
+    let variants: Vec<&Method> = std::iter::once(method).chain(twins).collect();
+    let mut runs: Vec<Vec<RunRow>> = variants.iter().map(|_| Vec::new()).collect();
+    let mut spreads: Vec<Vec<SeedSpread>> = variants
         .iter()
-        .map(|_| SeedSpread::new(cx.reference.len()))
+        .map(|_| {
+            budgets
+                .iter()
+                .map(|_| SeedSpread::new(cx.reference.len()))
+                .collect()
+        })
         .collect();
     let mut cache = None;
-    let mut first_snapshots = Vec::new();
+    let mut first_snapshots: Vec<Vec<Snapshot>> = variants.iter().map(|_| Vec::new()).collect();
     for (si, &seed) in cx.seeds.iter().enumerate() {
         let UnitResult::Method {
             snapshots: mut snaps,
@@ -268,60 +285,84 @@ fn evaluate(cx: &mut Setup, method: &Method, budgets: &[Budget]) -> Result<Evalu
         snaps.sort_by_key(|s| budgets.iter().position(|b| *b == s.budget));
         let warmup_seconds = record.as_ref().map_or(0.0, |r| r.warmup_seconds);
         let nonfinite = record.as_ref().map_or(0, |r| r.nonfinite_samples);
-        for snap in &snaps {
-            let img = &snap.image;
-            let e = rel_mse(img, cx.reference);
-            let tm = ldr(img, cx.scene);
-            let row = RunRow {
-                method: method.name.clone(),
-                budget: snap.budget,
-                seed,
-                spp: snap.spp,
-                seconds: snap.seconds,
-                warmup_seconds,
-                rel_mse: e,
-                psnr_hdr: psnr(img, cx.reference, cx.peak),
-                psnr_tonemapped: psnr_8bit(&tm, &cx.reference_ldr),
-                smape: smape(img, cx.reference),
-                flip: flip(&tm, &cx.reference_ldr, w, h),
-                efficiency: efficiency(e, snap.seconds),
-                nonfinite_samples: nonfinite,
-            };
-            cx.csv.push(&row.csv())?;
-            let i = budgets.iter().position(|b| *b == snap.budget).unwrap_or(0);
-            spreads[i].add(img);
-            runs.push(row);
-        }
-        if si == 0 {
-            if let (true, Some(r)) = (method.has_cache(), record) {
-                let n = r.frame_seconds.len().max(1) as f64;
-                let mean = |k: usize| r.frame_seconds.iter().map(|s| s[k]).sum::<f64>() / n * 1e3;
-                cache = Some(CacheSummary {
-                    method: method.name.clone(),
-                    init_seconds: r.init_seconds,
-                    warmup_seconds: r.warmup_seconds,
-                    warmup_frames: method.warmup(),
-                    parameter_bytes: r.parameter_bytes,
-                    trace_ms: mean(0),
-                    splat_ms: mean(1),
-                    train_ms: mean(2),
-                    record: r,
-                });
+        for (vi, variant) in variants.iter().enumerate() {
+            let mine: Vec<Snapshot> = snaps
+                .iter()
+                .filter(|s| s.denoised == variant.denoised)
+                .cloned()
+                .collect();
+            if mine.len() != budgets.len() {
+                bail!(
+                    "unit {} holds {} images of `{}` for {} budgets: the shards do not match the \
+                     experiment",
+                    cx.next_unit - 1,
+                    mine.len(),
+                    variant.name,
+                    budgets.len()
+                );
             }
-            first_snapshots = snaps;
+            for snap in &mine {
+                let img = &snap.image;
+                let e = rel_mse(img, cx.reference);
+                let tm = ldr(img, cx.scene);
+                let row = RunRow {
+                    method: variant.name.clone(),
+                    budget: snap.budget,
+                    seed,
+                    spp: snap.spp,
+                    seconds: snap.seconds,
+                    warmup_seconds,
+                    rel_mse: e,
+                    psnr_hdr: psnr(img, cx.reference, cx.peak),
+                    psnr_tonemapped: psnr_8bit(&tm, &cx.reference_ldr),
+                    smape: smape(img, cx.reference),
+                    flip: flip(&tm, &cx.reference_ldr, w, h),
+                    ssim: ssim(&tm, &cx.reference_ldr, w, h),
+                    efficiency: efficiency(e, snap.seconds),
+                    nonfinite_samples: nonfinite,
+                };
+                cx.csv.push(&row.csv())?;
+                let i = budgets.iter().position(|b| *b == snap.budget).unwrap_or(0);
+                spreads[vi][i].add(img);
+                runs[vi].push(row);
+            }
+            if si == 0 {
+                first_snapshots[vi] = mine;
+            }
+        }
+        if si == 0
+            && let (true, Some(r)) = (method.has_cache(), record)
+        {
+            let n = r.frame_seconds.len().max(1) as f64;
+            let mean = |k: usize| r.frame_seconds.iter().map(|s| s[k]).sum::<f64>() / n * 1e3;
+            cache = Some(CacheSummary {
+                method: method.name.clone(),
+                init_seconds: r.init_seconds,
+                warmup_seconds: r.warmup_seconds,
+                warmup_frames: method.warmup(),
+                parameter_bytes: r.parameter_bytes,
+                trace_ms: mean(0),
+                splat_ms: mean(1),
+                train_ms: mean(2),
+                record: r,
+            });
         }
     }
-    let summary = budgets
-        .iter()
-        .zip(&spreads)
-        .map(|(b, spread)| summarise(&method.name, *b, &runs, spread, cx.reference))
-        .collect();
-    Ok(Evaluation {
-        runs,
-        summary,
-        cache,
-        snapshots: first_snapshots,
-    })
+    let mut out = Vec::new();
+    for (vi, variant) in variants.iter().enumerate() {
+        let summary = budgets
+            .iter()
+            .zip(&spreads[vi])
+            .map(|(b, spread)| summarise(&variant.name, *b, &runs[vi], spread, cx.reference))
+            .collect();
+        out.push(Evaluation {
+            runs: std::mem::take(&mut runs[vi]),
+            summary,
+            cache: if vi == 0 { cache.take() } else { None },
+            snapshots: std::mem::take(&mut first_snapshots[vi]),
+        });
+    }
+    Ok(out)
 }
 
 fn summarise(
@@ -338,7 +379,10 @@ fn summarise(
     let sd =
         (rows.iter().map(|r| (r.rel_mse - e).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
     let seconds = mean(&|r| r.seconds);
-    let flips: Vec<f64> = rows.iter().filter_map(|r| r.flip).collect();
+    let mean_of = |f: &dyn Fn(&RunRow) -> Option<f64>| {
+        let v: Vec<f64> = rows.iter().filter_map(|r| f(r)).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
     SummaryRow {
         method: method.to_string(),
         budget,
@@ -350,7 +394,8 @@ fn summarise(
         psnr_hdr: mean(&|r| r.psnr_hdr),
         psnr_tonemapped: mean(&|r| r.psnr_tonemapped),
         smape: mean(&|r| r.smape),
-        flip: (!flips.is_empty()).then(|| flips.iter().sum::<f64>() / flips.len() as f64),
+        flip: mean_of(&|r| r.flip),
+        ssim: mean_of(&|r| r.ssim),
         efficiency: efficiency(e, seconds),
         efficiency_vs_baseline: None,
         gain_vs_baseline: None,
@@ -514,28 +559,58 @@ fn assemble(
             snapshots: Vec::new(),
         },
     };
+    let mut methods = Vec::new();
     for m in &exp.methods {
-        let ev = evaluate(&mut cx, m, &budgets)?;
-        progress(&format!("{}: {} runs", m.name, ev.runs.len()));
-        results.runs.extend(ev.runs);
-        results.summary.extend(ev.summary);
-        results.caches.extend(ev.cache);
-        results.images.snapshots.extend(
-            ev.snapshots
-                .into_iter()
-                .map(|s| (m.name.clone(), s.budget, s.image)),
-        );
+        let twins: Vec<Method> = exp
+            .denoise
+            .iter()
+            .flat_map(|d| d.guides.iter().map(|&g| m.denoised_twin(g)))
+            .collect();
+        let evs = evaluate(&mut cx, m, &budgets, &twins)?;
+        for (variant, ev) in std::iter::once(m).chain(&twins).zip(evs) {
+            progress(&format!("{}: {} runs", variant.name, ev.runs.len()));
+            results.runs.extend(ev.runs);
+            results.summary.extend(ev.summary);
+            results.caches.extend(ev.cache);
+            results.images.snapshots.extend(
+                ev.snapshots
+                    .into_iter()
+                    .map(|s| (variant.name.clone(), s.budget, s.image)),
+            );
+            methods.push(variant.clone());
+        }
     }
-    let base_rows: Vec<SummaryRow> = match &exp.baseline {
-        Some(b) => results
+    results.methods = methods;
+    let rows_of = |name: &str| -> Vec<SummaryRow> {
+        results
             .summary
             .iter()
-            .filter(|r| &r.method == b)
+            .filter(|r| r.method == name)
             .cloned()
-            .collect(),
-        None => Vec::new(),
+            .collect()
     };
-    compare_with(&mut results.summary, &base_rows);
+    let base_rows: Vec<SummaryRow> = exp.baseline.as_deref().map(rows_of).unwrap_or_default();
+    // A twin is compared with the baseline's twin of the same guides (denoised against
+    // denoised); every other method with the baseline.
+    let mut comparisons = Vec::new();
+    if let Some(b) = exp
+        .methods
+        .iter()
+        .find(|m| Some(&m.name) == exp.baseline.as_ref())
+    {
+        for m in &results.methods {
+            let base = match m.denoised {
+                Some(g) => b.denoised_twin(g).name,
+                None => b.name.clone(),
+            };
+            comparisons.push((m.name.clone(), rows_of(&base)));
+        }
+    }
+    for (name, base) in comparisons {
+        for r in results.summary.iter_mut().filter(|r| r.method == name) {
+            compare_with(std::slice::from_mut(r), &base);
+        }
+    }
     for fl in &exp.flythroughs {
         for e in &fl.events {
             let (_, what) = super::flythrough::event_edit(scene, e)?;
@@ -556,7 +631,9 @@ fn assemble(
         let budgets = budgets_of(&a.budgets);
         let mut rows = Vec::new();
         for (value, m) in &a.variants {
-            let ev = evaluate(&mut cx, m, &budgets)?;
+            let ev = evaluate(&mut cx, m, &budgets, &[])?
+                .pop()
+                .expect("one evaluation: the method's own");
             progress(&format!("ablation `{}`: {}", a.name, m.name));
             let mut summary = ev.summary;
             compare_with(&mut summary, &base_rows);

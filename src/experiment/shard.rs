@@ -30,6 +30,8 @@ pub enum UnitSpec<'a> {
         method: &'a Method,
         seed: u64,
         budgets: &'a [Budget],
+        /// The denoised twins to measure beside it (main methods of a `denoise = true` file).
+        denoise: Option<&'a super::config::DenoiseSpec>,
     },
     /// Fly-through number `index` of the file.
     Fly { index: usize },
@@ -60,6 +62,7 @@ pub fn units<'a>(
                 method: m,
                 seed,
                 budgets: main_budgets,
+                denoise: exp.denoise.as_ref(),
             });
         }
     }
@@ -71,6 +74,7 @@ pub fn units<'a>(
                     method: m,
                     seed,
                     budgets,
+                    denoise: None,
                 });
             }
         }
@@ -90,8 +94,9 @@ pub fn measure_unit(
             method,
             seed,
             budgets,
+            denoise,
         } => {
-            let (snapshots, record) = run_method(scene, method, seed, budgets)?;
+            let (snapshots, record) = run_method(scene, method, seed, budgets, denoise)?;
             UnitResult::Method { snapshots, record }
         }
         UnitSpec::Fly { index } => {

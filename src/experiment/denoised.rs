@@ -1,0 +1,161 @@
+//! Denoised twins: a method's images put through Intel Open Image Denoise, measured as a method
+//! of their own (`nee + OIDN`, `nee + OIDN (albedo)`).
+//!
+//! Time counts the denoiser once per image: at a budget of `T` seconds the twin denoises the
+//! progressive render's image at `T - c` seconds, where `c` is the denoiser's cost at this image
+//! size measured before the run (the median of three calls after a first that builds the
+//! filter), and its time is the render's plus the denoiser's actual time on that image. Where
+//! `c >= T` the image is one frame and the twin is over its budget (its time says by how much):
+//! the denoiser does not fit. Spp budgets denoise the image at that spp.
+
+use super::config::DenoiseSpec;
+use super::measure::{Budget, Snapshot};
+use anyhow::{Context, Result};
+use denoise::{Aux, Denoiser, Options};
+use glam::Vec3;
+use hdr_image::RgbImage;
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// One denoiser per set of guides, kept for the process: a filter is built once per image
+/// size and guides, and switching guides on one device would rebuild it every call (and put
+/// the build in the timings).
+static DENOISERS: Mutex<Option<HashMap<Aux, Denoiser>>> = Mutex::new(None);
+
+/// Costs measured so far: (width, height, guides, quality) to seconds.
+static COSTS: Mutex<Option<HashMap<(u32, u32, Aux, denoise::Quality), f64>>> = Mutex::new(None);
+
+/// Runs `f` on the process's denoiser for `guides`, loading it on first use.
+fn with_denoiser<T>(guides: Aux, f: impl FnOnce(&mut Denoiser) -> Result<T>) -> Result<T> {
+    let mut all = DENOISERS.lock().unwrap_or_else(|e| e.into_inner());
+    let map = all.get_or_insert_with(HashMap::new);
+    if !map.contains_key(&guides) {
+        let d = Denoiser::load(rayon::current_num_threads())
+            .context("the experiment asks for denoised twins (denoise = true)")?;
+        map.insert(guides, d);
+    }
+    f(map.get_mut(&guides).expect("inserted above"))
+}
+
+/// Denoises `image` with `guides` from `features`; returns the image and the seconds taken.
+fn run(
+    image: &RgbImage,
+    features: Option<&hdr_image::FeatureImages>,
+    guides: Aux,
+    spec: &DenoiseSpec,
+) -> Result<(RgbImage, f64)> {
+    let albedo = features
+        .filter(|_| guides != Aux::None)
+        .map(|f| f.albedo.as_slice());
+    let normal = features
+        .filter(|_| guides == Aux::AlbedoNormal)
+        .map(|f| f.normal.as_slice());
+    with_denoiser(guides, |d| {
+        let start = Instant::now();
+        let out = d.denoise(
+            image,
+            albedo,
+            normal,
+            Options {
+                quality: spec.quality,
+                prefilter: false,
+            },
+        )?;
+        Ok((out, start.elapsed().as_secs_f64()))
+    })
+}
+
+/// The denoiser's cost per image at `width x height` with `guides`, measured once per process.
+pub fn cost(width: u32, height: u32, guides: Aux, spec: &DenoiseSpec) -> Result<f64> {
+    let key = (width, height, guides, spec.quality);
+    if let Some(c) = COSTS
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .get_or_insert_with(HashMap::new)
+        .get(&key)
+    {
+        return Ok(*c);
+    }
+    // A noisy image (the cost of the network does not depend on the pixels) and flat guides.
+    let n = width as usize * height as usize;
+    let pixels = (0..n)
+        .map(|i| {
+            let h = render_base::hash::hash32(&[i as u32, 0x5eed]);
+            Vec3::splat(render_base::hash::unit_f32(h))
+        })
+        .collect();
+    let image = RgbImage::from_pixels(width, height, pixels)?;
+    let features = hdr_image::FeatureImages::new(
+        width,
+        height,
+        vec![Vec3::splat(0.5); n],
+        vec![Vec3::Z; n],
+        vec![1.0; n],
+        vec![1.0; n],
+    )?;
+    run(&image, Some(&features), guides, spec)?;
+    let mut times: Vec<f64> = (0..3)
+        .map(|_| run(&image, Some(&features), guides, spec).map(|r| r.1))
+        .collect::<Result<_>>()?;
+    times.sort_by(f64::total_cmp);
+    let c = times[1];
+    COSTS
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .get_or_insert_with(HashMap::new)
+        .insert(key, c);
+    Ok(c)
+}
+
+/// Which render budget each (guides, budget) twin denoises: the budget itself in spp, `T - c`
+/// in seconds (one frame where the denoiser alone takes the budget).
+pub fn plan(
+    budgets: &[Budget],
+    spec: &DenoiseSpec,
+    width: u32,
+    height: u32,
+) -> Result<Vec<(Aux, Budget, Budget)>> {
+    let mut out = Vec::new();
+    for &guides in &spec.guides {
+        let c = cost(width, height, guides, spec)?;
+        for &b in budgets {
+            let render = match b {
+                Budget::Spp(_) => b,
+                Budget::Seconds(t) if t > c => Budget::Seconds(t - c),
+                Budget::Seconds(_) => Budget::Spp(1),
+            };
+            out.push((guides, b, render));
+        }
+    }
+    Ok(out)
+}
+
+/// The twins' snapshots: each planned image denoised, at its budget, with the render's time
+/// plus the denoiser's.
+pub fn twins(
+    plan: &[(Aux, Budget, Budget)],
+    raw: &[Snapshot],
+    spec: &DenoiseSpec,
+    width: u32,
+    height: u32,
+) -> Result<Vec<Snapshot>> {
+    let mut out = Vec::new();
+    for &(guides, budget, render) in plan {
+        let src = raw
+            .iter()
+            .find(|s| s.budget == render)
+            .with_context(|| format!("no image at {render} to denoise"))?;
+        let image = RgbImage::from_pixels(width, height, src.image.clone())?;
+        let (denoised, seconds) = run(&image, src.features.as_ref(), guides, spec)?;
+        out.push(Snapshot {
+            budget,
+            spp: src.spp,
+            seconds: src.seconds + seconds,
+            image: denoised.into_pixels(),
+            denoised: Some(guides),
+            features: None,
+        });
+    }
+    Ok(out)
+}

@@ -1,6 +1,6 @@
 //! The command-line programs' shared code.
 //!
-//! - [`metrics`]: image error against a reference (relMSE, SMAPE, PSNR, FLIP, bias across
+//! - [`metrics`]: image error against a reference (relMSE, SMAPE, PSNR, FLIP, SSIM, bias across
 //!   seeds, efficiency).
 //! - [`camera_path`]: the camera paths of fly-throughs (an orbit, or key frames).
 //! - [`plot`]: charts and image grids (SVG, PNG) for reports.

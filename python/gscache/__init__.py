@@ -201,7 +201,8 @@ def render(
     With ``features=True`` it returns ``(image, features)``: ``features`` is a dict of the
     feature buffers over the same samples, each camera path's first scattering event:
     ``albedo`` and ``normal`` (height, width, 3), ``depth`` and ``coverage`` (height, width).
-    Albedo and normal are 0 where rays escaped; depth is infinite where nothing was hit.
+    Where a ray met no medium the albedo is what it saw (a light, the environment) clamped to
+    [0, 1] and the normal 0; depth is infinite where nothing was hit.
     They are what ``denoise`` takes as guides."""
     image, samples, interrupted, _, aovs = _gscache._render(
         scene._inner, spp, seed, integrator, max_depth, threads, progress, features

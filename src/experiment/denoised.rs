@@ -23,19 +23,24 @@ use std::time::Instant;
 /// the build in the timings).
 static DENOISERS: Mutex<Option<HashMap<Aux, Denoiser>>> = Mutex::new(None);
 
-/// Costs measured so far: (width, height, guides, quality) to seconds.
-static COSTS: Mutex<Option<HashMap<(u32, u32, Aux, denoise::Quality), f64>>> = Mutex::new(None);
+/// What a denoising cost is measured for: image width and height, guides, quality.
+type CostKey = (u32, u32, Aux, denoise::Quality);
+
+/// Costs measured so far, in seconds.
+static COSTS: Mutex<Option<HashMap<CostKey, f64>>> = Mutex::new(None);
 
 /// Runs `f` on the process's denoiser for `guides`, loading it on first use.
 fn with_denoiser<T>(guides: Aux, f: impl FnOnce(&mut Denoiser) -> Result<T>) -> Result<T> {
     let mut all = DENOISERS.lock().unwrap_or_else(|e| e.into_inner());
     let map = all.get_or_insert_with(HashMap::new);
-    if !map.contains_key(&guides) {
-        let d = Denoiser::load(rayon::current_num_threads())
-            .context("the experiment asks for denoised twins (denoise = true)")?;
-        map.insert(guides, d);
-    }
-    f(map.get_mut(&guides).expect("inserted above"))
+    let denoiser = match map.entry(guides) {
+        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+        std::collections::hash_map::Entry::Vacant(e) => e.insert(
+            Denoiser::load(rayon::current_num_threads())
+                .context("the experiment asks for denoised twins (denoise = true)")?,
+        ),
+    };
+    f(denoiser)
 }
 
 /// Denoises `image` with `guides` from `features`; returns the image and the seconds taken.

@@ -53,10 +53,12 @@ impl std::fmt::Display for Quality {
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Aux {
-    /// Colour alone.
-    None,
-    /// Colour and albedo: the default, measured best on volumes (BENCHMARKS.md).
+    /// Colour alone: the default. Guided by the albedo, OIDN leaves a few background pixels
+    /// near a light's disc many times too bright (BENCHMARKS.md); its trimmed error is the same
+    /// at 1 spp and lower from 16 spp.
     #[default]
+    None,
+    /// Colour and albedo.
     Albedo,
     /// Colour, albedo and normal (OIDN takes a normal only beside an albedo).
     #[cfg_attr(feature = "clap", value(name = "albedo,normal"))]

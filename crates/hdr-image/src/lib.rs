@@ -232,9 +232,9 @@ impl RgbImage {
 pub struct FeatureImages {
     width: u32,
     height: u32,
-    /// Albedo in [0, 1] (0 where rays escaped).
+    /// Albedo in [0, 1] (where rays met no medium: the emitter they saw, clamped).
     pub albedo: Vec<Vec3>,
-    /// World-space normal, components in [-1, 1], not renormalised (0 where rays escaped).
+    /// World-space normal, components in [-1, 1], not renormalised (0 where rays met no medium).
     pub normal: Vec<Vec3>,
     /// Distance to the first scattering event (infinite where nothing was hit).
     pub depth: Vec<f32>,

@@ -83,28 +83,29 @@ const FEATURE_SCALE: f64 = (1u64 << 30) as f64;
 /// inside an i128 (2^103).
 const DEPTH_SCALE: f64 = (1u64 << 32) as f64;
 
-/// One sample's features: what the camera ray met at its first real scattering event.
+/// One sample's features: what the camera ray met first (see the renderer's `feature_sample`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FeatureSample {
-    /// Transfer-function colour times single-scattering albedo there, in [0, 1].
+    /// In [0, 1]: at a scattering event, transfer-function colour times single-scattering
+    /// albedo; at an emitter seen directly, its radiance clamped.
     pub albedo: Vec3,
-    /// Unit normal: minus the extinction gradient there, normalised (see
-    /// [`crate::Medium::extinction_normal`]).
+    /// Unit normal at a scattering event: minus the extinction gradient there, normalised (see
+    /// [`crate::Medium::extinction_normal`]); 0 at an emitter.
     pub normal: Vec3,
-    /// World distance from the camera to the event.
-    pub depth: f32,
+    /// World distance from the camera to the scattering event; `None` where the ray met none
+    /// (it counts as a miss for coverage and depth).
+    pub depth: Option<f32>,
 }
 
 /// One pixel's feature sums in fixed point ([`FEATURE_SCALE`] and [`DEPTH_SCALE`] steps):
 /// exact, so any grouping of the samples gives the same bits, like [`ExactRgb`].
 ///
-/// A sample whose ray escapes (no real scattering event) adds nothing: albedo 0, normal 0 (Open
-/// Image Denoise's "no surface here") and no depth. A pixel's mean albedo is so the medium's
-/// albedo weighted by coverage. OIDN's advice for a transparent surface, albedo 1, was
-/// measured and lost: on the default scene denoised at 1 and 4 spp, guided by the albedo,
-/// relMSE was 0.031 and 0.0070 with 1 against 0.014 and 0.0025 with 0 (seed 5; 0.060 against
-/// 0.017 at 1 spp with seed 1): in a semi-transparent volume, escapes and hits alternate from
-/// sample to sample, and 1 makes that alternation look like detail to the filter.
+/// A sample whose ray meets no scattering event adds the albedo of what it saw (an emitter's
+/// radiance clamped to [0, 1]: the light's disc, the environment) and normal 0 (Open Image
+/// Denoise's "no surface here"). OIDN's advice for a transparent surface, albedo 1, was
+/// measured and lost to this: on the default scene denoised at 1 spp, guided by the albedo,
+/// relMSE was 0.060 with 1 against 0.017 with 0 for every miss (seed 1), and an emitter's own
+/// radiance fixes the light's halo that 0 left (see the renderer's `feature_sample`).
 /// `hits` counts the samples that met the medium, so coverage is `hits / count` (an unbiased
 /// estimate of one minus the transmittance to the background: delta tracking collides with
 /// exactly that probability) and depth is averaged over the hits alone.
@@ -129,25 +130,26 @@ impl ExactFeatures {
         hits: 0,
     };
 
-    /// Adds one sample: `None` for a ray that escaped. A hit with a non-finite or out-of-range
-    /// value (which a valid scene cannot make) is counted as an escape, written so NaN fails.
+    /// Adds one sample. A value out of range or not finite (which a valid scene cannot make)
+    /// makes the sample count as a miss that saw black, written so NaN fails.
     #[inline]
-    pub fn add(&mut self, sample: Option<FeatureSample>) {
-        let valid = sample.filter(|f| {
-            f.albedo.cmpge(Vec3::ZERO).all()
-                && f.albedo.cmple(Vec3::ONE).all()
-                && f.normal.abs().cmple(Vec3::ONE).all()
-                && (0.0..=MAX_SAMPLE_RADIANCE).contains(&f.depth)
-        });
-        let Some(f) = valid else {
+    pub fn add(&mut self, f: FeatureSample) {
+        let valid = f.albedo.cmpge(Vec3::ZERO).all()
+            && f.albedo.cmple(Vec3::ONE).all()
+            && f.normal.abs().cmple(Vec3::ONE).all()
+            && f.depth
+                .is_none_or(|d| (0.0..=MAX_SAMPLE_RADIANCE).contains(&d));
+        if !valid {
             return;
-        };
+        }
         for k in 0..3 {
             self.albedo[k] += (f.albedo[k] as f64 * FEATURE_SCALE) as i64;
             self.normal[k] += (f.normal[k] as f64 * FEATURE_SCALE) as i64;
         }
-        self.depth += (f.depth as f64 * DEPTH_SCALE) as i128;
-        self.hits += 1;
+        if let Some(d) = f.depth {
+            self.depth += (d as f64 * DEPTH_SCALE) as i128;
+            self.hits += 1;
+        }
     }
 
     /// Checked sum of two pixels' features (`None` on overflow).

@@ -78,12 +78,21 @@ pub struct FirstEvent {
     pub albedo: Vec3,
 }
 
-/// One path's estimate and its first real scattering event (`None` when the camera ray left
-/// the volume, or reached an emitter, without one).
+/// What the camera ray met first: a real scattering event, or an emitter (a light or the
+/// environment) it reached without one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FirstHit {
+    Scattered(FirstEvent),
+    /// The radiance of the emitter the camera ray reached, seen through the volume unscattered.
+    Emitter(Vec3),
+}
+
+/// One path's estimate and what its camera ray met first (`None` only for a path ended by
+/// cancellation of the hooks before either, which the integrator never does today).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PathSample {
     pub radiance: Vec3,
-    pub first_event: Option<FirstEvent>,
+    pub first_hit: Option<FirstHit>,
 }
 
 /// Radiance arriving at `origin` from direction `-dir` (`dir` is the unit direction of the ray
@@ -123,7 +132,7 @@ pub fn radiance_with<H: PathHooks>(
     let mut depth = 0u32;
     let (mut o, mut d) = (origin, dir);
     let mut phase_pdf = 0.0f32;
-    let mut first_event = None;
+    let mut first_hit = None;
     loop {
         let hit = lights.nearest(o, d, 0.0);
         let t_end = hit.map_or(f32::INFINITY, |h| h.1);
@@ -131,6 +140,9 @@ pub fn radiance_with<H: PathHooks>(
         let Some(Collision { t, value }) = free_flight(medium, &ray, 0.0, t_end, rng) else {
             // The ray reached a light sphere or the environment.
             let em = lights.emission(o, hit.map(|h| h.0));
+            if depth == 0 {
+                first_hit = Some(FirstHit::Emitter(em.radiance));
+            }
             let w = if depth == 0 || !nee {
                 1.0
             } else {
@@ -146,11 +158,11 @@ pub fn radiance_with<H: PathHooks>(
             break;
         };
         if depth == 0 {
-            first_event = Some(FirstEvent {
+            first_hit = Some(FirstHit::Scattered(FirstEvent {
                 distance: t,
                 position: o + d * t,
                 albedo: medium.transfer_function().albedo(value),
-            });
+            }));
         }
         if depth >= max_depth {
             break;
@@ -212,6 +224,6 @@ pub fn radiance_with<H: PathHooks>(
     }
     PathSample {
         radiance: l,
-        first_event,
+        first_hit,
     }
 }

@@ -4,7 +4,7 @@
 
 use crate::cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect};
 use crate::film::{ExactFeatures, ExactRgb, FeatureSample, Film, Tile};
-use crate::integrator::{FirstEvent, PathSettings, SceneMedia, radiance_with};
+use crate::integrator::{FirstHit, PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
 use rayon::prelude::*;
 use render_base::Camera;
@@ -86,7 +86,7 @@ fn render_tile<C: FrameCache>(
                     &mut path,
                 );
                 if keep_features {
-                    features.add(sample.first_event.map(|e| feature_sample(scene, e, dir)));
+                    features.add(feature_sample(scene, sample.first_hit, dir));
                 }
                 let l = path.image_radiance(sample.radiance);
                 cache.path_ended(path, pixel, record);
@@ -110,17 +110,33 @@ fn render_tile<C: FrameCache>(
     nonfinite
 }
 
-/// The features of a sample whose camera ray (direction `dir`) first scattered at `event`:
-/// albedo clamped to [0, 1] as Open Image Denoise requires, the extinction normal (facing the
-/// camera where the field is flat) and the distance.
-fn feature_sample(scene: &SceneMedia, event: FirstEvent, dir: glam::Vec3) -> FeatureSample {
-    FeatureSample {
-        albedo: event.albedo.clamp(glam::Vec3::ZERO, glam::Vec3::ONE),
-        normal: scene
-            .medium
-            .extinction_normal(event.position, -dir)
-            .clamp(-glam::Vec3::ONE, glam::Vec3::ONE),
-        depth: event.distance,
+/// The features of a sample whose camera ray (direction `dir`) met `first` first. A scattering
+/// event gives its albedo (clamped to [0, 1], as Open Image Denoise requires), the extinction
+/// normal (facing the camera where the field is flat) and its distance. An emitter seen
+/// directly (a light, the environment) gives its radiance clamped to [0, 1] as the albedo, no
+/// normal and no depth: the convention for emissive surfaces, which tells a light's disc from
+/// the dark background around it (with albedo 0 for both, the filter spread the light's
+/// brightness into the background: a pixel beside neghip's light came out 60x too bright).
+fn feature_sample(scene: &SceneMedia, first: Option<FirstHit>, dir: glam::Vec3) -> FeatureSample {
+    match first {
+        Some(FirstHit::Scattered(event)) => FeatureSample {
+            albedo: event.albedo.clamp(glam::Vec3::ZERO, glam::Vec3::ONE),
+            normal: scene
+                .medium
+                .extinction_normal(event.position, -dir)
+                .clamp(-glam::Vec3::ONE, glam::Vec3::ONE),
+            depth: Some(event.distance),
+        },
+        Some(FirstHit::Emitter(radiance)) => FeatureSample {
+            albedo: radiance.clamp(glam::Vec3::ZERO, glam::Vec3::ONE),
+            normal: glam::Vec3::ZERO,
+            depth: None,
+        },
+        None => FeatureSample {
+            albedo: glam::Vec3::ZERO,
+            normal: glam::Vec3::ZERO,
+            depth: None,
+        },
     }
 }
 

@@ -16,9 +16,10 @@ pub struct DenoiseArgs {
     /// Open Image Denoise's quality: `high` for final frames, `balanced` or `fast` for previews.
     #[arg(long, value_enum, default_value_t = Quality::High, requires = "denoise")]
     pub denoise_quality: Quality,
-    /// Feature buffers that guide the denoiser (the normal, from the extinction gradient,
-    /// measured worse than none on volumes at low sample counts: see BENCHMARKS.md).
-    #[arg(long, value_enum, default_value_t = Aux::Albedo, requires = "denoise")]
+    /// Feature buffers that guide the denoiser. Colour alone by default: guided by the albedo,
+    /// the filter leaves a few background pixels near a light many times too bright, though
+    /// its error elsewhere is lower from 16 spp on (BENCHMARKS.md).
+    #[arg(long, value_enum, default_value_t = Aux::None, requires = "denoise")]
     pub denoise_aovs: Aux,
     /// Give the guides to the colour filter as they are, instead of denoising them first
     /// (faster: one filter pass instead of three; noisier at low sample counts).

@@ -90,6 +90,26 @@ fn save_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// JPEG quality of image grids: renders and error maps, where PNG took 1-14 MB a grid and the
+/// repository carries every re-run.
+const GRID_JPEG_QUALITY: u8 = 85;
+
+/// Writes an RGB image as JPEG (`.jpg`/`.jpeg`) or PNG (anything else), atomically.
+fn save_image(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
+    let jpeg = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"));
+    if !jpeg {
+        return save_png(path, w, h, rgb);
+    }
+    render_base::write_atomically(path, |file| {
+        image::codecs::jpeg::JpegEncoder::new_with_quality(file, GRID_JPEG_QUALITY)
+            .encode(rgb, w, h, image::ExtendedColorType::Rgb8)
+            .map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}
+
 /// An axis value as drawn: log10 on a log axis; `None` when it cannot be drawn.
 fn axis(v: f64, log: bool) -> Option<f64> {
     let t = if log {
@@ -281,6 +301,39 @@ pub struct Rgb8 {
     pub data: Vec<u8>,
 }
 
+impl Rgb8 {
+    /// The image shrunk by an integer `factor` (each output pixel the mean of a `factor` x
+    /// `factor` block; a partial block at the edge is dropped). `factor` 1 is a copy.
+    pub fn downscaled(&self, factor: u32) -> Rgb8 {
+        let f = factor.max(1);
+        let (w, h) = ((self.width / f).max(1), (self.height / f).max(1));
+        let mut data = Vec::with_capacity((w * h * 3) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..3 {
+                    let mut sum = 0u32;
+                    let mut n = 0u32;
+                    for dy in 0..f.min(self.height) {
+                        for dx in 0..f.min(self.width) {
+                            let (sx, sy) = (x * f + dx, y * f + dy);
+                            if sx < self.width && sy < self.height {
+                                sum += self.data[((sy * self.width + sx) * 3 + c) as usize] as u32;
+                                n += 1;
+                            }
+                        }
+                    }
+                    data.push((sum / n.max(1)) as u8);
+                }
+            }
+        }
+        Rgb8 {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+}
+
 /// Per-pixel values (e.g. relative squared error) in false colour (viridis) on a log scale
 /// from `10^lo` (dark) to `10^hi` (yellow).
 pub fn false_colour(values: &[f64], width: u32, height: u32, lo: f64, hi: f64) -> Rgb8 {
@@ -376,7 +429,7 @@ pub fn write_image_grid(
         }
         root.present().map_err(err)?;
     }
-    save_png(path, w, h, &buf)
+    save_image(path, w, h, &buf)
 }
 
 #[cfg(test)]
@@ -434,8 +487,32 @@ mod tests {
         let tile = false_colour(&[1e-4, 1.0], 2, 1, -4.0, 0.0);
         assert_ne!(tile.data[..3], tile.data[3..]);
         let grid = dir.join("g.png");
-        write_image_grid(&grid, "t", &["a".into()], &[("row".into(), vec![tile])]).unwrap();
+        write_image_grid(
+            &grid,
+            "t",
+            &["a".into()],
+            &[("row".into(), vec![tile.clone()])],
+        )
+        .unwrap();
         assert!(image::open(&grid).is_ok());
+        let jpg = dir.join("g.jpg");
+        write_image_grid(&jpg, "t", &["a".into()], &[("row".into(), vec![tile])]).unwrap();
+        assert_eq!(
+            image::ImageFormat::from_path(&jpg).unwrap(),
+            image::ImageFormat::Jpeg
+        );
+        assert!(image::open(&jpg).is_ok());
+        // A 4x2 image of two flat halves shrinks by 2 to their two colours.
+        let halves = Rgb8 {
+            width: 4,
+            height: 2,
+            data: (0..8)
+                .flat_map(|i| [if i % 4 < 2 { 10 } else { 200 }; 3])
+                .collect(),
+        };
+        let small = halves.downscaled(2);
+        assert_eq!((small.width, small.height), (2, 1));
+        assert_eq!(small.data, vec![10, 10, 10, 200, 200, 200]);
         std::fs::remove_dir_all(&dir).ok();
     }
 }

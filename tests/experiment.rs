@@ -88,8 +88,8 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         "report.md",
         "plots/error_vs_time.png",
         "plots/error_vs_time.svg",
-        "plots/images_0.png",
-        "plots/images_1.png",
+        "plots/images_0.jpg",
+        "plots/images_1.jpg",
         "plots/cache_levels.png",
         "plots/loss_0.png",
         "plots/flythrough_0_time.png",
@@ -523,5 +523,119 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
     )
     .unwrap_err();
     assert!(format!("{e:#}").contains("another version"), "{e:#}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Whether Open Image Denoise loads here; `false` (with a SKIPPED line) where it does not and is
+/// not required (`GSCACHE_REQUIRE_OIDN=1`, set by CI, makes its absence a failure).
+fn oidn_available() -> bool {
+    match denoise::Denoiser::load(1) {
+        Ok(_) => true,
+        Err(e) if std::env::var("GSCACHE_REQUIRE_OIDN").as_deref() != Ok("1") => {
+            eprintln!("SKIPPED: Open Image Denoise is not installed here ({e})");
+            false
+        }
+        Err(e) => panic!("GSCACHE_REQUIRE_OIDN=1 but the denoiser cannot load: {e}"),
+    }
+}
+
+#[test]
+fn denoised_twins_are_measured_against_the_baselines_twins() {
+    if !oidn_available() {
+        return;
+    }
+    let dir = scratch("denoised");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml");
+    let file = dir.join("twins.toml");
+    std::fs::write(
+        &file,
+        format!(
+            r#"
+scene = "{}"
+width = 64
+height = 36
+output = "out"
+denoise = true
+[reference]
+spp = 64
+dir = "{}"
+[budgets]
+spp = [1]
+seconds = [0.01, 0.3]
+[[method]]
+name = "nee"
+integrator = "nee"
+[[method]]
+name = "uniform"
+integrator = "uniform"
+"#,
+            scene.display(),
+            dir.join("refs").display()
+        ),
+    )
+    .unwrap();
+    let exp = gscache_cli::experiment::load_experiment(&file).unwrap();
+    let r = gscache_cli::experiment::run::run(&exp, &|_| {}).unwrap();
+    let names: Vec<&str> = r.methods.iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "nee",
+            "nee + OIDN",
+            "nee + OIDN (albedo)",
+            "uniform",
+            "uniform + OIDN",
+            "uniform + OIDN (albedo)"
+        ]
+    );
+    let row = |m: &str, b: gscache_cli::experiment::measure::Budget| {
+        r.summary
+            .iter()
+            .find(|s| s.method == m && s.budget == b)
+            .unwrap_or_else(|| panic!("no row for {m} at {b}"))
+            .clone()
+    };
+    use gscache_cli::experiment::measure::Budget;
+    // At 1 spp the twin denoises the same image: same spp, more time (the filter's), less error.
+    let (raw, twin) = (
+        row("nee", Budget::Spp(1)),
+        row("nee + OIDN", Budget::Spp(1)),
+    );
+    assert_eq!(raw.spp, twin.spp);
+    assert!(twin.seconds > raw.seconds);
+    assert!(
+        twin.rel_mse < raw.rel_mse,
+        "{} !< {}",
+        twin.rel_mse,
+        raw.rel_mse
+    );
+    // At 0.3 s the twin renders for 0.3 s less the filter's measured cost, so it has fewer
+    // frames than the raw run, and its time (render plus filter) comes to about the budget.
+    // At 0.01 s, less than the filter alone takes, it still denoises a whole frame.
+    let (raw, twin) = (
+        row("nee", Budget::Seconds(0.3)),
+        row("nee + OIDN", Budget::Seconds(0.3)),
+    );
+    assert!(
+        twin.spp < raw.spp,
+        "the twin's render must leave time for the filter"
+    );
+    assert!(twin.seconds >= 0.3 * 0.9);
+    let tiny = row("nee + OIDN", Budget::Seconds(0.01));
+    assert!(tiny.spp >= 1.0);
+    // Twins are compared with the baseline's twin with the same guides (a gain of exactly 1 for
+    // the baseline's own twin), plain methods with the plain baseline.
+    assert_eq!(
+        row("nee + OIDN (albedo)", Budget::Spp(1)).gain_vs_baseline,
+        Some(1.0)
+    );
+    let u = row("uniform + OIDN", Budget::Spp(1));
+    let expected = row("nee + OIDN", Budget::Spp(1)).rel_mse / u.rel_mse;
+    assert!((u.gain_vs_baseline.unwrap() - expected).abs() < 1e-12);
+    assert!(
+        r.summary
+            .iter()
+            .all(|s| s.flip.is_some() && s.ssim.is_some())
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

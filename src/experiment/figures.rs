@@ -92,10 +92,16 @@ fn time_series(name: &str, rows: &[&SummaryRow]) -> Series {
 }
 
 /// One grid per chosen budget: the reference, then each method's image and relMSE map.
+/// The widest panel of an image grid: larger images are shrunk by an integer factor (a
+/// 1280x720 run's grid of ten methods was 14 MB as PNG).
+const GRID_PANEL_WIDTH: u32 = 480;
+
 fn image_grids(dir: &Path, r: &Results, scene: &Scene) -> Result<Vec<Figure>> {
     let (w, h) = (r.width, r.height);
-    let tm =
-        |img: &[glam::Vec3]| tone_mapped(img, w, h, scene.output.exposure, scene.output.tonemap);
+    let shrink = w.div_ceil(GRID_PANEL_WIDTH);
+    let tm = |img: &[glam::Vec3]| {
+        tone_mapped(img, w, h, scene.output.exposure, scene.output.tonemap).downscaled(shrink)
+    };
     let mut chosen: Vec<Budget> = Vec::new();
     let budgets: Vec<Budget> = r.summary.iter().map(|s| s.budget).collect();
     if let Some(b) = budgets.iter().find(|b| matches!(b, Budget::Spp(_))) {
@@ -129,16 +135,22 @@ fn image_grids(dir: &Path, r: &Results, scene: &Scene) -> Result<Vec<Figure>> {
                 None => method.clone(),
             };
             let (lo, hi) = ERROR_MAP_LOG_RANGE;
-            rows.push((label, vec![tm(img), false_colour(&map, w, h, lo, hi)]));
+            rows.push((
+                label,
+                vec![tm(img), false_colour(&map, w, h, lo, hi).downscaled(shrink)],
+            ));
         }
         let name = format!("images_{i}");
         write_image_grid(
-            &dir.join(format!("{name}.png")),
+            &dir.join(format!("{name}.jpg")),
             &format!("{} at {budget} (first seed)", r.name),
             &["image".into(), "relMSE per pixel, log 1e-4..10".into()],
             &rows,
         )?;
-        figs.push((format!("Images and relMSE maps at {budget}"), file(&name)));
+        figs.push((
+            format!("Images and relMSE maps at {budget}"),
+            format!("plots/{name}.jpg"),
+        ));
     }
     Ok(figs)
 }

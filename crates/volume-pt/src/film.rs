@@ -102,10 +102,10 @@ pub struct FeatureSample {
 ///
 /// A sample whose ray meets no scattering event adds the albedo of what it saw (an emitter's
 /// radiance clamped to [0, 1]: the light's disc, the environment) and normal 0 (Open Image
-/// Denoise's "no surface here"). OIDN's advice for a transparent surface, albedo 1, was
-/// measured and lost to this: on the default scene denoised at 1 spp, guided by the albedo,
-/// relMSE was 0.060 with 1 against 0.017 with 0 for every miss (seed 1), and an emitter's own
-/// radiance fixes the light's halo that 0 left (see the renderer's `feature_sample`).
+/// Denoise's "no surface here"). Against 0 for every miss and OIDN's transparent-surface 1 it
+/// was measured (BENCHMARKS.md, issue 28): the trimmed errors of the three are within 10-20%,
+/// and it halved the error of the few pixels by a visible light that the guided filter makes
+/// too bright.
 /// `hits` counts the samples that met the medium, so coverage is `hits / count` (an unbiased
 /// estimate of one minus the transmittance to the background: delta tracking collides with
 /// exactly that probability) and depth is averaged over the hits alone.

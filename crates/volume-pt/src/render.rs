@@ -115,8 +115,7 @@ fn render_tile<C: FrameCache>(
 /// normal (facing the camera where the field is flat) and its distance. An emitter seen
 /// directly (a light, the environment) gives its radiance clamped to [0, 1] as the albedo, no
 /// normal and no depth: the convention for emissive surfaces, which tells a light's disc from
-/// the dark background around it (with albedo 0 for both, the filter spread the light's
-/// brightness into the background: a pixel beside neghip's light came out 60x too bright).
+/// the dark background around it (measured against 0 and 1 for misses: BENCHMARKS.md).
 fn feature_sample(scene: &SceneMedia, first: Option<FirstHit>, dir: glam::Vec3) -> FeatureSample {
     match first {
         Some(FirstHit::Scattered(event)) => FeatureSample {

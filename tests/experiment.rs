@@ -526,22 +526,13 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// Whether Open Image Denoise loads here; `false` (with a SKIPPED line) where it does not and is
-/// not required (`GSCACHE_REQUIRE_OIDN=1`, set by CI, makes its absence a failure).
-fn oidn_available() -> bool {
-    match denoise::Denoiser::load(1) {
-        Ok(_) => true,
-        Err(e) if std::env::var("GSCACHE_REQUIRE_OIDN").as_deref() != Ok("1") => {
-            eprintln!("SKIPPED: Open Image Denoise is not installed here ({e})");
-            false
-        }
-        Err(e) => panic!("GSCACHE_REQUIRE_OIDN=1 but the denoiser cannot load: {e}"),
-    }
-}
-
 #[test]
 fn denoised_twins_are_measured_against_the_baselines_twins() {
-    if !oidn_available() {
+    // Skipped where OIDN is missing, unless GSCACHE_REQUIRE_OIDN=1 makes that a failure.
+    if denoise::load_or_skip(1)
+        .expect("GSCACHE_REQUIRE_OIDN=1")
+        .is_none()
+    {
         return;
     }
     let dir = scratch("denoised");

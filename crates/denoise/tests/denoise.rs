@@ -5,17 +5,9 @@ use denoise::{DenoiseError, Denoiser, Options, Quality};
 use glam::Vec3;
 use hdr_image::RgbImage;
 
-/// The denoiser, or `None` (with a line saying the test was skipped) where OIDN is missing and
-/// not required.
+/// The denoiser, or `None` where OIDN is missing and not required (see `load_or_skip`).
 fn denoiser() -> Option<Denoiser> {
-    match Denoiser::load(2) {
-        Ok(d) => Some(d),
-        Err(e) if std::env::var("GSCACHE_REQUIRE_OIDN").as_deref() != Ok("1") => {
-            eprintln!("SKIPPED: Open Image Denoise is not installed here ({e})");
-            None
-        }
-        Err(e) => panic!("GSCACHE_REQUIRE_OIDN=1 but the denoiser cannot load: {e}"),
-    }
+    denoise::load_or_skip(2).unwrap_or_else(|e| panic!("GSCACHE_REQUIRE_OIDN=1: {e}"))
 }
 
 /// A 64x64 image of a smooth ramp plus per-pixel noise from a hash (uniform, mean 0, sd

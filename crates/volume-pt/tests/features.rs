@@ -1,14 +1,14 @@
-//! Feature buffers (AOVs): what each buffer holds on media whose answer is known, and that they
-//! merge across shards bit for bit.
+//! Feature buffers (AOVs): what each buffer holds on media whose answer is known. (That they
+//! merge across shards bit for bit is tested with the shards, in shards.rs.)
 
 mod common;
 
-use common::{data_dir, homogeneous, scene};
+use common::{homogeneous, scene};
 use glam::{UVec3, Vec3};
 use volume_pt::integrator::SceneMedia;
 use volume_pt::{
-    Camera, Control, Film, Filter, Lights, Medium, PartialRender, Phase, RenderSettings,
-    ScalarGrid, Shard, TransferFunction, load_scene, render, render_samples,
+    Camera, Control, Film, Filter, Lights, Medium, Phase, RenderSettings, ScalarGrid,
+    TransferFunction, render,
 };
 
 /// No lights; a grey environment of 0.3, which a ray that misses the medium sees.
@@ -157,80 +157,6 @@ fn the_depth_of_a_slab_is_its_distance() {
             p.depth
         );
     }
-}
-
-#[test]
-fn features_merge_across_shards_bit_for_bit() {
-    let mut scene = load_scene(&data_dir().join("scenes/default.toml")).unwrap();
-    scene.camera = scene.camera.with_size(24, 18).unwrap();
-    let spp = 5;
-    let film = |samples: std::ops::Range<u32>, threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        let mut film = Film::with_features(scene.camera.width, scene.camera.height);
-        pool.install(|| {
-            render_samples(
-                &scene.media,
-                &scene.camera,
-                &scene.settings,
-                samples,
-                &mut film,
-                &Control::none(),
-            )
-        });
-        film
-    };
-    let whole = film(0..spp, 2);
-    let parts: Vec<PartialRender> = (0..3)
-        .map(|i| {
-            let range = Shard::new(i, 3).unwrap().samples(spp);
-            PartialRender::from_film(&film(range.clone(), 1 + i as usize), "k", spp, range)
-        })
-        .collect();
-    let merged = PartialRender::merge_all(parts.iter().rev().cloned()).unwrap();
-    let reference = PartialRender::from_film(&whole, "k", spp, 0..spp);
-    assert_eq!(merged, reference);
-    let bits = |f: &hdr_image::FeatureImages| {
-        let mut v: Vec<u32> = Vec::new();
-        for k in 0..f.albedo.len() {
-            v.extend(f.albedo[k].to_array().map(f32::to_bits));
-            v.extend(f.normal[k].to_array().map(f32::to_bits));
-            v.push(f.depth[k].to_bits());
-            v.push(f.coverage[k].to_bits());
-        }
-        v
-    };
-    let merged_features = merged.feature_images().unwrap();
-    assert_eq!(
-        bits(&merged_features),
-        bits(&whole.feature_images().unwrap())
-    );
-    // Some pixels hit the volume and some do not: the comparison is not of empty buffers.
-    let coverage = &merged_features.coverage;
-    assert!(coverage.contains(&1.0) && coverage.iter().any(|&c| c < 1.0));
-
-    // The file round trip keeps them; a partial without features will not merge with one with.
-    let dir = std::env::temp_dir().join(format!("vpt-features-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("part.gspartial");
-    parts[0].write(&path).unwrap();
-    assert_eq!(PartialRender::read(&path).unwrap(), parts[0]);
-    std::fs::remove_dir_all(&dir).ok();
-    let plain_range = Shard::new(1, 3).unwrap().samples(spp);
-    let mut plain = Film::new(scene.camera.width, scene.camera.height);
-    render_samples(
-        &scene.media,
-        &scene.camera,
-        &scene.settings,
-        plain_range.clone(),
-        &mut plain,
-        &Control::none(),
-    );
-    let plain = PartialRender::from_film(&plain, "k", spp, plain_range);
-    let e = parts[0].clone().merge(&plain).unwrap_err().to_string();
-    assert!(e.contains("feature buffers"), "{e}");
 }
 
 #[test]

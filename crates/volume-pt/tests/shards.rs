@@ -16,11 +16,21 @@ fn small_scene() -> Scene {
 }
 
 fn film_of(scene: &Scene, samples: std::ops::Range<u32>, threads: usize) -> Film {
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    render_into(scene, samples, threads, Film::new(w, h))
+}
+
+/// Renders `samples` of `scene` into `film` on `threads` threads.
+fn render_into(
+    scene: &Scene,
+    samples: std::ops::Range<u32>,
+    threads: usize,
+    mut film: Film,
+) -> Film {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .unwrap();
-    let mut film = Film::new(scene.camera.width, scene.camera.height);
     pool.install(|| {
         render_samples(
             &scene.media,
@@ -181,4 +191,55 @@ fn shard_ranges_cover_the_samples_once() {
     assert!(Shard::parse("1/0").is_err());
     assert!(Shard::parse("two/3").is_err());
     assert_eq!(Shard::parse("2/5").unwrap().to_string(), "2/5");
+}
+
+#[test]
+fn features_merge_across_shards_bit_for_bit() {
+    let scene = small_scene();
+    let spp = scene.settings.spp;
+    let film = |samples: std::ops::Range<u32>, threads: usize| {
+        let (w, h) = (scene.camera.width, scene.camera.height);
+        render_into(&scene, samples, threads, Film::with_features(w, h))
+    };
+    let whole = film(0..spp, 2);
+    let parts: Vec<PartialRender> = (0..3)
+        .map(|i| {
+            let range = Shard::new(i, 3).unwrap().samples(spp);
+            PartialRender::from_film(&film(range.clone(), 1 + i as usize), "k", spp, range)
+        })
+        .collect();
+    let merged = PartialRender::merge_all(parts.iter().rev().cloned()).unwrap();
+    let reference = PartialRender::from_film(&whole, "k", spp, 0..spp);
+    assert_eq!(merged, reference);
+    let bits = |f: &hdr_image::FeatureImages| {
+        let mut v: Vec<u32> = Vec::new();
+        for k in 0..f.albedo.len() {
+            v.extend(f.albedo[k].to_array().map(f32::to_bits));
+            v.extend(f.normal[k].to_array().map(f32::to_bits));
+            v.push(f.depth[k].to_bits());
+            v.push(f.coverage[k].to_bits());
+        }
+        v
+    };
+    let merged_features = merged.feature_images().unwrap();
+    assert_eq!(
+        bits(&merged_features),
+        bits(&whole.feature_images().unwrap())
+    );
+    // Some pixels hit the volume and some do not: the comparison is not of empty buffers.
+    let coverage = &merged_features.coverage;
+    assert!(coverage.contains(&1.0) && coverage.iter().any(|&c| c < 1.0));
+
+    // The file round trip keeps them; a partial without features will not merge with one with.
+    let dir = std::env::temp_dir().join(format!("vpt-features-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("part.gspartial");
+    parts[0].write(&path).unwrap();
+    assert_eq!(PartialRender::read(&path).unwrap(), parts[0]);
+    std::fs::remove_dir_all(&dir).ok();
+    let plain_range = Shard::new(1, 3).unwrap().samples(spp);
+    let plain = film_of(&scene, plain_range.clone(), 2);
+    let plain = PartialRender::from_film(&plain, "k", spp, plain_range);
+    let e = parts[0].clone().merge(&plain).unwrap_err().to_string();
+    assert!(e.contains("feature buffers"), "{e}");
 }

@@ -857,3 +857,25 @@ fn splat_outputs_are_named_after_the_asset() {
         assert!(d.join("out").join(name).exists(), "{sub}: no out/{name}");
     }
 }
+
+#[test]
+fn short_help_is_short_and_long_help_lists_the_cache_settings_grouped() {
+    let help = |flag: &str| {
+        let out = render().arg(flag).output().unwrap();
+        assert!(out.status.success());
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let (short, long) = (help("-h"), help("--help"));
+    // Measured: 45 lines against 166 before the cache settings left the short help.
+    assert!(short.lines().count() < 60, "{} lines", short.lines().count());
+    assert!(!short.contains("--cache-levels") && !short.contains("--nrc-grid-levels"));
+    assert!(short.contains("--cache") && short.contains("listed by --help"));
+    for heading in [
+        "Gaussian cache settings",
+        "Neural cache settings",
+        "Feature buffers and denoising",
+    ] {
+        assert!(long.contains(heading), "--help lacks `{heading}`");
+    }
+    assert!(long.contains("--cache-levels") && long.contains("--nrc-grid-levels"));
+}

@@ -2,8 +2,8 @@
 //! denoiser wired to the render (its error falls as measured), and the message where Open
 //! Image Denoise is missing.
 //!
-//! The tests that need the library skip with a line on stderr where it is not installed,
-//! unless `GSCACHE_REQUIRE_OIDN=1` (CI sets it), where its absence fails them.
+//! The test that needs the library is ignored by default (a user without it sees "ignored", not
+//! a pass); CI installs it and runs it with `--ignored`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -104,14 +104,8 @@ fn features_are_written_as_named_layers() {
 }
 
 #[test]
+#[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
 fn denoising_the_default_scene_cuts_its_error() {
-    // Skipped where OIDN is missing, unless GSCACHE_REQUIRE_OIDN=1 makes that a failure.
-    if denoise::load_or_skip(1)
-        .expect("GSCACHE_REQUIRE_OIDN=1")
-        .is_none()
-    {
-        return;
-    }
     let d = scratch("wired");
     let reference = d.join("ref.exr");
     assert!(

@@ -37,21 +37,3 @@ pub enum DenoiseError {
 }
 
 pub type Result<T, E = DenoiseError> = std::result::Result<T, E>;
-
-/// The variable that makes a missing library an error for [`load_or_skip`] (CI sets it to 1).
-pub const REQUIRE_VAR: &str = "GSCACHE_REQUIRE_OIDN";
-
-/// For steps that run only where the library is installed (the denoising tests): the denoiser
-/// on `threads` threads, or `None` with a line on stderr saying the step was skipped. Where
-/// `GSCACHE_REQUIRE_OIDN=1` a missing library is the error instead, so a run that must denoise
-/// cannot pass by skipping.
-pub fn load_or_skip(threads: usize) -> Result<Option<Denoiser>> {
-    match Denoiser::load(threads) {
-        Ok(d) => Ok(Some(d)),
-        Err(e) if std::env::var(REQUIRE_VAR).as_deref() != Ok("1") => {
-            eprintln!("SKIPPED: Open Image Denoise is not installed here ({e})");
-            Ok(None)
-        }
-        Err(e) => Err(e),
-    }
-}

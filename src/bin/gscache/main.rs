@@ -35,7 +35,7 @@ mod merge;
 mod render;
 mod splat;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -65,8 +65,38 @@ enum Command {
     Bench(bench::BenchArgs),
 }
 
+/// The command line, with `render`'s many cache settings grouped under their own headings and
+/// left out of the short help (`-h`: what a first render needs; `--help`: everything).
+fn command() -> clap::Command {
+    Cli::command().mut_subcommand("render", |render| {
+        render
+            .mut_args(|a| {
+                let long = a.get_long().unwrap_or_default().to_string();
+                let heading = if long.starts_with("cache-") {
+                    "Gaussian cache settings (--cache-KEY; the keys of an experiment's cache table)"
+                } else if long.starts_with("nrc-") {
+                    "Neural cache settings (--nrc-KEY; the keys of an experiment's nrc table)"
+                } else if long.starts_with("denoise") || long == "features" {
+                    "Feature buffers and denoising"
+                } else {
+                    return a;
+                };
+                let a = a.help_heading(heading);
+                if long.starts_with("cache-") || long.starts_with("nrc-") {
+                    a.hide_short_help(true)
+                } else {
+                    a
+                }
+            })
+            .after_help(
+                "The Gaussian and neural caches' settings (--cache-KEY, --nrc-KEY) are listed by \
+                 --help.",
+            )
+    })
+}
+
 fn main() {
-    let cli = Cli::parse();
+    let cli = Cli::from_arg_matches(&command().get_matches()).unwrap_or_else(|e| e.exit());
     let result = cli.global.start_threads().and_then(|()| match cli.command {
         Command::Render(a) => render::run(*a, &cli.global),
         Command::Merge(a) => merge::run(a),

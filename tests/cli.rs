@@ -867,7 +867,11 @@ fn short_help_is_short_and_long_help_lists_the_cache_settings_grouped() {
     };
     let (short, long) = (help("-h"), help("--help"));
     // Measured: 45 lines against 166 before the cache settings left the short help.
-    assert!(short.lines().count() < 60, "{} lines", short.lines().count());
+    assert!(
+        short.lines().count() < 60,
+        "{} lines",
+        short.lines().count()
+    );
     assert!(!short.contains("--cache-levels") && !short.contains("--nrc-grid-levels"));
     assert!(short.contains("--cache") && short.contains("listed by --help"));
     for heading in [

@@ -624,3 +624,52 @@ integrator = "uniform"
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// An experiment writes under `out/experiments/NAME` of the folder it runs in unless told
+/// otherwise, and the committed experiment files name no output, so running one never
+/// rewrites the committed results (`--results-dir docs/results` does, when asked).
+#[test]
+fn experiments_write_under_out_unless_told_to_write_elsewhere() {
+    let dir = scratch("default-output");
+    let file = tiny_experiment(&dir);
+    let text = std::fs::read_to_string(&file).unwrap();
+    let unnamed = dir.join("unnamed.toml");
+    std::fs::write(
+        &unnamed,
+        text.replace("output = \"out\"\n", "")
+            .replace("name = \"tiny\"", "name = \"mine\"")
+            .split("[[flythrough]]")
+            .next()
+            .unwrap(),
+    )
+    .unwrap();
+    let run = |extra: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+            .current_dir(&dir)
+            .args(["-q", "experiment"])
+            .arg(&unnamed)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    run(&[]);
+    assert!(dir.join("out/experiments/mine/report.md").is_file());
+    run(&["--results-dir", "committed"]);
+    assert!(dir.join("committed/mine/report.md").is_file());
+    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments");
+    for entry in std::fs::read_dir(&committed).unwrap() {
+        let path = entry.unwrap().path();
+        let table: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        assert!(
+            !table.contains_key("output"),
+            "{} names an output folder: running it would rewrite committed results",
+            path.display()
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

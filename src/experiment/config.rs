@@ -25,7 +25,8 @@ pub struct ExperimentFile {
     /// bias estimate. At least 3.
     #[serde(default = "default_seeds")]
     pub seeds: Vec<u64>,
-    /// Where results go; default `target/experiments/<name>` under the current folder.
+    /// Where results go; default `out/experiments/<name>` under the current folder (the
+    /// committed results are written only when asked: `--results-dir docs/results`).
     pub output: Option<PathBuf>,
     #[serde(default)]
     pub reference: ReferenceDesc,
@@ -56,6 +57,10 @@ pub struct DenoiseSpec {
     pub quality: denoise::Quality,
     pub guides: Vec<denoise::Aux>,
 }
+
+/// The folder experiments write into, one subfolder per experiment, when neither the file nor
+/// the command line names one: beside the renders' `out/`, never over committed results.
+pub const DEFAULT_OUTPUT: &str = "out/experiments";
 
 fn default_seeds() -> Vec<u64> {
     vec![1, 2, 3]
@@ -609,7 +614,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         output: f
             .output
             .map(|o| base.join(o))
-            .unwrap_or_else(|| PathBuf::from("target/experiments").join(&name)),
+            .unwrap_or_else(|| PathBuf::from(DEFAULT_OUTPUT).join(&name)),
         reference: f.reference,
         name,
         file: path.to_path_buf(),

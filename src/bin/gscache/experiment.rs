@@ -16,10 +16,15 @@ pub struct ExperimentArgs {
     /// Experiment files, run one after the other.
     #[arg(required = true)]
     experiments: Vec<PathBuf>,
-    /// Output folder (default: the file's `output`, else target/experiments/NAME); only with
-    /// one experiment file.
-    #[arg(long)]
+    /// Output folder (default: the file's `output`, else out/experiments/NAME); only with one
+    /// experiment file.
+    #[arg(long, conflicts_with = "results_dir")]
     output: Option<PathBuf>,
+    /// Write each experiment into DIR/NAME (NAME: the file's `name`). The committed results
+    /// are rewritten with `--results-dir docs/results`; without it nothing under docs/ is
+    /// touched.
+    #[arg(long, value_name = "DIR")]
+    results_dir: Option<PathBuf>,
     /// Measure only shard I/N of the experiment's units (each method or ablation variant with
     /// each seed, and each fly-through; unit k when k mod N = I) into `--shard-output`; then
     /// `gscache experiment merge FILE SHARDS...` writes the report. A SLURM job array runs
@@ -89,9 +94,13 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
     let cancel = crate::common::cancellation()?;
     let control = volume_pt::Control::cancellable(&cancel);
     for path in &cli.experiments {
+        let output = match &cli.results_dir {
+            Some(dir) => Some(dir.join(gscache_cli::experiment::load_experiment(path)?.name)),
+            None => cli.output.clone(),
+        };
         let run = gscache_cli::experiment::run_experiment_resumable(
             path,
-            cli.output.as_deref(),
+            output.as_deref(),
             &progress,
             &control,
             cli.resume.as_deref(),

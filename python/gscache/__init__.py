@@ -128,6 +128,27 @@ class Scene:
         self._inner = _gscache.Scene(volume, json.dumps(tables, default=_json_number))
 
     @classmethod
+    def from_volume(cls, volume: Any, colormap: str = "bone") -> "Scene":
+        """A scene chosen for ``volume`` (a ``Volume``, a numpy array of shape (nz, ny, nx), or
+        a volume file's path), as ``gscache render VOLUME`` chooses it: a transfer function
+        from the volume's histogram (window at its 0.5th-99.5th percentiles, opacity above
+        Otsu's threshold) with colour map ``colormap`` (``bone``, ``viridis``, ``inferno``,
+        ``cool-to-warm``, ``grayscale``), a camera framing it, a key light and a dim sky.
+        ``scene.toml`` holds the choice as scene-file text, to save and edit."""
+        import os
+
+        nifti = False
+        if isinstance(volume, (str, os.PathLike)):
+            name = os.fspath(volume).lower()
+            nifti = name.endswith(".nii") or name.endswith(".nii.gz")
+            volume = Volume.read(os.fspath(volume))
+        elif not isinstance(volume, Volume):
+            volume = Volume.from_array(volume)
+        self = cls.__new__(cls)
+        self._inner, self.toml = _gscache.Scene.from_volume(volume, colormap, nifti)
+        return self
+
+    @classmethod
     def load(cls, path: str) -> "Scene":
         """Reads a scene file (TOML), as ``gscache render`` does."""
         self = cls.__new__(cls)

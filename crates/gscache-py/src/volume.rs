@@ -302,6 +302,31 @@ impl Scene {
         })
     }
 
+    /// A scene chosen for `volume` (as `gscache render VOLUME` chooses it: a transfer function
+    /// from its histogram with colour map `colormap`, a framing camera, a key light) and its
+    /// TOML text.
+    #[staticmethod]
+    #[pyo3(signature = (volume, colormap="bone", nifti=false))]
+    fn from_volume(volume: &Volume, colormap: &str, nifti: bool) -> PyResult<(Self, String)> {
+        let colormap: volume_pt::Colormap = colormap.parse().map_err(crate::error)?;
+        let format = nifti.then_some(volume_pt::io::Format::Nifti);
+        let (scene, text) = volume_pt::auto_scene::scene_for_loaded(
+            volume.loaded.clone(),
+            &volume.name,
+            format,
+            colormap,
+        )
+        .map_err(crate::error)?;
+        let key = volume.identity.clone().part(text.as_bytes());
+        Ok((
+            Self {
+                scene,
+                origin: Origin::Tables(key),
+            },
+            text,
+        ))
+    }
+
     /// Reads a scene file (TOML), as `gscache render` does.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {

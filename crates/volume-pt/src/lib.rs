@@ -12,10 +12,14 @@
 //! - [`render`], [`film`]: tiles, passes, threads; exact accumulation.
 //! - [`shard`]: a render split into sample ranges whose partial films merge bit for bit.
 //! - [`cache`]: the seam a radiance cache plugs into (per-path hooks, per-frame cache, start points).
-//! - [`scene`]: the TOML scene file.
+//! - [`scene`]: the TOML scene file; [`auto_scene`]: a scene chosen for a bare volume file
+//!   (transfer function from its histogram, a framing camera, a key light), with
+//!   [`colormap`]'s presets.
 //! - [`sampling`]: counter-based random numbers and warps.
 
+pub mod auto_scene;
 pub mod cache;
+pub mod colormap;
 pub mod error;
 pub mod film;
 pub mod grid;
@@ -32,7 +36,9 @@ pub mod shard;
 pub mod tracking;
 pub mod transfer;
 
+pub use auto_scene::scene_for_volume;
 pub use cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, Vertex, sample_cache_points};
+pub use colormap::Colormap;
 pub use error::{Error, Result};
 pub use film::{ExactRgb, Film};
 pub use grid::{Filter, ScalarGrid};

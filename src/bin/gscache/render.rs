@@ -21,8 +21,15 @@ use volume_pt::{
 #[derive(clap::Args, Debug)]
 #[command(allow_negative_numbers = true)]
 pub struct RenderArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML), or a volume file (NIfTI, NRRD, VTK/VTI, raw) to render with a scene
+    /// chosen for it: a transfer function from its histogram, a framing camera, a key light.
     scene: PathBuf,
+    /// With a volume file: the colour map of the chosen transfer function.
+    #[arg(long, value_enum)]
+    colormap: Option<volume_pt::Colormap>,
+    /// With a volume file: write the scene chosen for it as TOML here, to edit and render.
+    #[arg(long)]
+    save_scene: Option<PathBuf>,
     /// Samples per pixel (overrides the scene); with the cache, per frame.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     spp: Option<u32>,
@@ -121,9 +128,54 @@ pub struct CacheRun {
     cache_images: Option<PathBuf>,
 }
 
+/// Whether `path` names a scene file (TOML) rather than a volume.
+fn is_scene_file(path: &std::path::Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+        || volume_pt::io::Format::from_path(path).is_none()
+}
+
 pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
-    let mut scene = load_scene(&args.scene)?;
+    let from_volume = !is_scene_file(&args.scene);
+    if !from_volume && (args.colormap.is_some() || args.save_scene.is_some()) {
+        bail!(
+            "--colormap and --save-scene are for a volume file: {} is a scene already (edit its [transfer] table)",
+            args.scene.display()
+        );
+    }
+    if from_volume && args.shard.is_some() {
+        bail!(
+            "--shard needs a scene file (its text keys the shards): write one with --save-scene and render that"
+        );
+    }
+    if let Some(path) = &args.save_scene {
+        prepare_output(path)?;
+    }
+    let mut scene = if from_volume {
+        let (scene, text) =
+            volume_pt::scene_for_volume(&args.scene, args.colormap.unwrap_or_default())?;
+        match &args.save_scene {
+            Some(path) => {
+                render_base::write_atomically(path, |f| {
+                    std::io::Write::write_all(f, text.as_bytes()).map_err(|e| e.to_string())
+                })?;
+                eprintln!(
+                    "the scene chosen for {} is in {}",
+                    args.scene.display(),
+                    path.display()
+                );
+            }
+            None if !global.quiet => eprintln!(
+                "the scene chosen for {} (--save-scene FILE writes it for editing):\n{text}",
+                args.scene.display()
+            ),
+            None => {}
+        }
+        scene
+    } else {
+        load_scene(&args.scene)?
+    };
     for n in &scene.notes {
         let (kind, text) = n
             .strip_prefix("warning: ")
@@ -176,10 +228,13 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     }
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
+    // The name up to its first dot: `neghip.nii.gz` renders to out/neghip.exr.
     let stem = args
         .scene
-        .file_stem()
+        .file_name()
         .map(|s| s.to_string_lossy().into_owned())
+        .and_then(|n| n.split('.').next().map(str::to_string))
+        .filter(|n| !n.is_empty())
         .unwrap_or_else(|| "render".into());
     // Cached renders are named apart from the plain one, so that neither overwrites the other.
     let method = if args.cache.cache {

@@ -1,0 +1,295 @@
+//! A scene for a bare volume file: `gscache render VOLUME` with no TOML.
+//!
+//! What it chooses, and why:
+//! - **Transfer function.** The window is the 0.5th to 99.5th percentile of the voxels (a
+//!   sample of at most about a million of them), so a few outliers do not squeeze the data into
+//!   a corner of it. What is made visible is what lies above Otsu's threshold on that window's
+//!   histogram: the split between the two classes of values that best separates them, which on
+//!   CT and MRI is air against the body and on simulations empty space against the structure.
+//!   Opacity ramps from 0 at the threshold to 1 at the window's top; colour follows a
+//!   [`Colormap`] over the same range.
+//! - **Density.** At opacity 1 a ray crossing the box's mean side meets an optical depth of
+//!   [`OPTICAL_DEPTH_ACROSS`], the order of the bundled scenes (neghip: 38).
+//! - **Camera.** A three-quarter view of the box's centre, at the distance where its bounding
+//!   sphere fills the vertical field of view; up is +z for NIfTI (the head-foot axis of
+//!   RAS-oriented scans), +y otherwise.
+//! - **Light.** A distant key light from above, behind the camera's left shoulder (a distant
+//!   light is never seen by the camera, so no light disc sits in the image) and a dim grey
+//!   environment as fill and background.
+//!
+//! The choice is a [`SceneFile`] written as TOML text, so it is printed, saved
+//! (`--save-scene`) and edited like any scene, and loaded by the same code.
+
+use crate::colormap::Colormap;
+use crate::error::{Error, Result};
+use crate::grid::ScalarGrid;
+use crate::io::{Format, LoadedVolume, ReadHints, read_volume};
+use crate::scene::{Scene, SceneFile, build_scene_with_volume};
+use glam::Vec3;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// Optical depth at opacity 1 across the box's mean side.
+pub const OPTICAL_DEPTH_ACROSS: f32 = 40.0;
+
+/// Voxels sampled for the histogram: at most about this many.
+const HISTOGRAM_SAMPLES: u64 = 1 << 20;
+
+/// Bins of the histogram Otsu's threshold is taken on.
+const BINS: usize = 256;
+
+/// What the automatic scene found in the volume.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VolumeStats {
+    /// The 0.5th and 99.5th percentiles of the sampled voxels.
+    pub window: (f32, f32),
+    /// Otsu's threshold on the window, as a fraction of it (0..1).
+    pub threshold: f32,
+}
+
+/// The percentiles and Otsu's threshold of `grid`'s values (see the module docs).
+pub fn volume_stats(grid: &ScalarGrid) -> VolumeStats {
+    let d = grid.dims();
+    let n = d.x as u64 * d.y as u64 * d.z as u64;
+    // A stride per axis so that about HISTOGRAM_SAMPLES voxels are read, spread over the box.
+    let stride = ((n as f64 / HISTOGRAM_SAMPLES as f64).cbrt().ceil() as u32).max(1);
+    let mut values = Vec::new();
+    for z in (0..d.z).step_by(stride as usize) {
+        for y in (0..d.y).step_by(stride as usize) {
+            for x in (0..d.x).step_by(stride as usize) {
+                let v = grid.voxel(x, y, z);
+                if v.is_finite() {
+                    values.push(v);
+                }
+            }
+        }
+    }
+    if values.is_empty() {
+        return VolumeStats {
+            window: (0.0, 1.0),
+            threshold: 0.5,
+        };
+    }
+    values.sort_by(f32::total_cmp);
+    let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+    let (lo, mut hi) = (at(0.005), at(0.995));
+    if !(hi > lo) {
+        // A (nearly) constant volume: widen the window so that it is not empty.
+        hi = values[values.len() - 1].max(lo + 1.0);
+    }
+    let mut histogram = [0u64; BINS];
+    for &v in &values {
+        let u = ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
+        histogram[((u * BINS as f32) as usize).min(BINS - 1)] += 1;
+    }
+    VolumeStats {
+        window: (lo, hi),
+        threshold: otsu(&histogram),
+    }
+}
+
+/// Otsu's threshold of a histogram, as a fraction of its range: the split that maximises the
+/// variance between the classes below and above it.
+pub fn otsu(histogram: &[u64]) -> f32 {
+    let total: f64 = histogram.iter().map(|&c| c as f64).sum();
+    let sum_all: f64 = histogram
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| i as f64 * c as f64)
+        .sum();
+    let (mut w0, mut sum0) = (0.0f64, 0.0f64);
+    let (mut best, mut best_split) = (-1.0f64, histogram.len() / 2);
+    for (i, &c) in histogram.iter().enumerate().take(histogram.len() - 1) {
+        w0 += c as f64;
+        sum0 += i as f64 * c as f64;
+        let w1 = total - w0;
+        if w0 == 0.0 || w1 == 0.0 {
+            continue;
+        }
+        let (m0, m1) = (sum0 / w0, (sum_all - sum0) / w1);
+        let between = w0 * w1 * (m0 - m1) * (m0 - m1);
+        if between > best {
+            best = between;
+            best_split = i + 1;
+        }
+    }
+    best_split as f32 / histogram.len() as f32
+}
+
+/// The automatic scene's description, as TOML text (see the module docs). `volume_file` is
+/// written as given; `size` is the box in world units.
+pub fn scene_text(
+    volume_file: &Path,
+    format: Option<Format>,
+    size: Vec3,
+    stats: VolumeStats,
+    colormap: Colormap,
+) -> String {
+    let mut t = String::new();
+    let (lo, hi) = stats.window;
+    let _ = writeln!(
+        t,
+        "# Made by `gscache render` for {} (colour map {colormap}): edit and render it as any \
+         scene (docs/scene-format.md).",
+        volume_file.display()
+    );
+    let _ = writeln!(
+        t,
+        "[volume]\nfile = {:?}",
+        volume_file.display().to_string()
+    );
+    let nifti = matches!(format, Some(Format::Nifti));
+    let _ = writeln!(t, "\n[transfer]\nwindow = [{lo}, {hi}]");
+    let mean_side = (size.x + size.y + size.z) / 3.0;
+    let _ = writeln!(
+        t,
+        "density_scale = {}   # optical depth {OPTICAL_DEPTH_ACROSS} across the box at opacity 1",
+        OPTICAL_DEPTH_ACROSS / mean_side.max(1e-6)
+    );
+    let _ = writeln!(
+        t,
+        "# Opacity 0 below Otsu's threshold ({:.3} of the window), rising to 1 at its top.",
+        stats.threshold
+    );
+    t.push_str("points = [\n");
+    let u0 = stats.threshold.clamp(0.0, 0.95);
+    let _ = writeln!(
+        t,
+        "  {{ value = 0.0, color = {}, opacity = 0.0 }},",
+        rgb(colormap.at(0.0))
+    );
+    const STEPS: usize = 8;
+    for k in 0..=STEPS {
+        let s = k as f32 / STEPS as f32;
+        let u = u0 + (1.0 - u0) * s;
+        if u <= 0.0 {
+            continue;
+        }
+        let _ = writeln!(
+            t,
+            "  {{ value = {u}, color = {}, opacity = {s} }},",
+            rgb(colormap.at(s))
+        );
+    }
+    t.push_str("]\n");
+    // A key light from above and behind the camera's left, travelling down into the volume.
+    let up = if nifti { Vec3::Z } else { Vec3::Y };
+    let view = view_direction(up);
+    let right = view.cross(up).normalize();
+    let toward_light = (up * 1.2 + view * 0.8 - right * 0.6).normalize();
+    let _ = writeln!(
+        t,
+        "\n[[light]]\ntype = \"distant\"\ndirection = {}\nirradiance = [4.0, 3.9, 3.7]",
+        vec(-toward_light)
+    );
+    let _ = writeln!(t, "\n[environment]\nradiance = [0.30, 0.31, 0.34]");
+    let _ = writeln!(t, "\n[phase]\nkind = \"hg\"\ng = 0.2");
+    let fov = 30.0f32;
+    let radius = 0.5 * size.length();
+    // The bounding sphere of a box is loose (its corners are seldom filled): 0.85 of the
+    // distance at which the sphere just fits frames the data, not the empty corners.
+    let distance = 0.85 * radius / (0.5 * fov.to_radians()).sin();
+    let _ = writeln!(
+        t,
+        "\n[camera]\neye = {}\ntarget = [0.0, 0.0, 0.0]\nup = {}\nfov_y = {fov}\nwidth = 512\nheight = 512",
+        vec(view * distance),
+        vec(up)
+    );
+    let _ = writeln!(
+        t,
+        "\n[render]\nspp = 64\nmax_depth = 64\nintegrator = \"nee\"\nseed = 1\n\n[output]\nexposure = 0.0\ntonemap = \"aces\""
+    );
+    t
+}
+
+/// From the volume's centre toward the camera: a three-quarter view, a little from above.
+fn view_direction(up: Vec3) -> Vec3 {
+    if up == Vec3::Z {
+        // RAS: +y is anterior. From the front right, a little above.
+        Vec3::new(0.55, 1.0, 0.35).normalize()
+    } else {
+        Vec3::new(0.6, 0.45, 1.0).normalize()
+    }
+}
+
+fn vec(v: Vec3) -> String {
+    format!("[{}, {}, {}]", v.x, v.y, v.z)
+}
+
+fn rgb(c: Vec3) -> String {
+    format!("[{:.3}, {:.3}, {:.3}]", c.x, c.y, c.z)
+}
+
+/// The automatic scene for the volume at `path`: the scene, and its TOML text (what
+/// `--save-scene` writes). The volume is read once.
+pub fn scene_for_volume(path: &Path, colormap: Colormap) -> Result<(Scene, String)> {
+    let loaded: LoadedVolume = read_volume(path, &ReadHints::default())?;
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    scene_for_loaded(loaded, &absolute, Format::from_path(path), colormap)
+}
+
+/// [`scene_for_volume`] for a volume already in memory (a Python array); `name` is written as
+/// the scene's `volume.file` and anchors its relative paths, `format` decides the up axis
+/// (NIfTI: +z).
+pub fn scene_for_loaded(
+    loaded: LoadedVolume,
+    name: &Path,
+    format: Option<Format>,
+    colormap: Colormap,
+) -> Result<(Scene, String)> {
+    let stats = volume_stats(&loaded.grid);
+    let spacing = loaded.spacing.unwrap_or(Vec3::ONE);
+    let size = loaded.grid.dims().as_vec3() * spacing;
+    let text = scene_text(name, format, size, stats, colormap);
+    let desc: SceneFile = toml::from_str(&text).map_err(|e| Error::Scene {
+        path: name.into(),
+        message: format!("the automatic scene does not parse (a bug): {e}"),
+    })?;
+    // Relative paths of the scene resolve against the volume's folder, where a saved scene
+    // would sit by default.
+    let anchor: PathBuf = name.with_extension("auto.toml");
+    let scene = build_scene_with_volume(&anchor, desc, loaded, name.to_path_buf())?;
+    Ok((scene, text))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn otsu_splits_two_separated_classes_between_them() {
+        let mut h = [0u64; 256];
+        for (i, c) in h.iter_mut().enumerate() {
+            // Two bumps, at 40 and 200.
+            let d0 = (i as f64 - 40.0) / 10.0;
+            let d1 = (i as f64 - 200.0) / 10.0;
+            *c = (1000.0 * (-d0 * d0).exp() + 300.0 * (-d1 * d1).exp()) as u64;
+        }
+        // Any split between the bumps' tails (about 60 and 180) separates them; the tails
+        // decide where exactly.
+        let t = otsu(&h) * 256.0;
+        assert!(t > 55.0 && t < 185.0, "threshold at bin {t}");
+    }
+
+    #[test]
+    fn a_sparse_volume_is_windowed_and_thresholded_above_its_empty_space() {
+        // 90% zeros (empty space), 10% a structure at values 150-250.
+        let dims = glam::UVec3::splat(20);
+        let values: Vec<f32> = (0..8000u32)
+            .map(|i| {
+                if i % 10 == 0 {
+                    150.0 + (i % 100) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let grid = ScalarGrid::new(dims, values).unwrap();
+        let s = volume_stats(&grid);
+        assert_eq!(s.window.0, 0.0);
+        assert!(s.window.1 >= 240.0, "{:?}", s.window);
+        // The threshold falls between the empty space (0) and the structure (150 and up).
+        let t = s.window.0 + s.threshold * (s.window.1 - s.window.0);
+        assert!(t > 0.0 && t < 150.0, "threshold {t}");
+    }
+}

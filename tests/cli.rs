@@ -953,6 +953,19 @@ fn a_volume_file_renders_with_a_chosen_scene_that_can_be_saved() {
             "{volume}"
         );
     }
+    // The saved scene may not replace the volume it describes.
+    let volume = d.join("copy.nii.gz");
+    std::fs::copy(repo().join("data/fixtures/neghip.nii.gz"), &volume).unwrap();
+    let before = std::fs::read(&volume).unwrap();
+    let out = render()
+        .arg(&volume)
+        .arg("--save-scene")
+        .arg(&volume)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("the volume being rendered"));
+    assert_eq!(std::fs::read(&volume).unwrap(), before);
     // The volume-only flags are refused with a scene, and a colour map must exist.
     let out = render()
         .arg(repo().join("data/scenes/default.toml"))

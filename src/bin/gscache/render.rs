@@ -150,6 +150,14 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         );
     }
     if let Some(path) = &args.save_scene {
+        // The scene must not replace the volume it describes (a slip of the tab key).
+        let target = path.canonicalize().ok();
+        if target.is_some() && target == args.scene.canonicalize().ok() {
+            bail!(
+                "--save-scene {}: that is the volume being rendered; name a new .toml file",
+                path.display()
+            );
+        }
         prepare_output(path)?;
     }
     let mut scene = if from_volume {

@@ -120,6 +120,9 @@ fn settings_written_as_flags_read_back_the_same() {
         warm_start_frames: 2,
         masked_targets: false,
         normalized_radiance: false,
+        unbiased: true,
+        min_continuation: 0.2,
+        continuation_scale: 0.75,
     };
     let args = cache_args(&changed);
     // Every field differs from its default, so every field is written.

@@ -13,7 +13,7 @@
 //! - [`nrc`] (feature `nrc`): the same for the neural radiance cache (nrc-cache), the baseline
 //!   the GSCache paper compares with.
 
-use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets, TrainingTargets};
+use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets};
 use splat_raster::Camera;
 use volume_pt::{
     Control, FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect,
@@ -45,6 +45,17 @@ impl PathHooks for GsPath<'_> {
     fn stop_into_cache(&mut self) -> glam::Vec3 {
         self.0.stop_into_cache()
     }
+    fn finished(&mut self, work: u64) {
+        self.0.finished(work as f32);
+    }
+    fn control_variate(&mut self, work: u64) -> Option<volume_pt::ControlVariate> {
+        Some(match self.0.control_variate(work as f32)? {
+            gs_cache::ControlVariate::Stop { cached } => volume_pt::ControlVariate::Stop { cached },
+            gs_cache::ControlVariate::GoOn { cached, q } => {
+                volume_pt::ControlVariate::GoOn { cached, q }
+            }
+        })
+    }
     fn escaped(&mut self, path_radiance: glam::Vec3) -> glam::Vec3 {
         self.0.escaped(path_radiance)
     }
@@ -66,16 +77,25 @@ impl FrameCache for GsFrame<'_> {
     type TileRecord = TileTargets;
 
     fn tile_record(&self, t: TileRect) -> TileTargets {
-        TileTargets::new(self.frame.levels(), t.x0, t.y0, t.width, t.height)
+        let record = TileTargets::new(self.frame.levels(), t.x0, t.y0, t.width, t.height);
+        if self.termination.unbiased {
+            record.with_statistics()
+        } else {
+            record
+        }
     }
     fn path(&self, pixel: TilePixel) -> GsPath<'_> {
         GsPath(CachedPath::new(
             self.frame,
             pixel.pixel as usize,
+            pixel.key,
             self.termination,
         ))
     }
     fn path_ended(&self, path: GsPath<'_>, pixel: TilePixel, record: &mut TileTargets) {
+        if let Some(statistics) = path.0.statistics() {
+            record.add_statistics(pixel.in_tile, &statistics);
+        }
         record.add_samples(pixel.in_tile, path.0.samples());
     }
 }
@@ -132,7 +152,8 @@ pub fn render_cached_frame(
         &gs_frame,
         control,
     );
-    let mut targets = TrainingTargets::new(levels, camera.width, camera.height);
+    let mut targets = frame.training_targets();
+    debug_assert_eq!(targets.levels(), levels);
     for (_, tile) in &traced.records {
         targets.add_tile(tile);
     }

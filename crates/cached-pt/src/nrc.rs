@@ -101,6 +101,8 @@ pub fn termination(config: &NrcConfig) -> TerminationConfig {
         early: true,
         natural: false,
         survivor_weights: false,
+        unbiased: false,
+        min_continuation: 1.0,
     }
 }
 

@@ -292,8 +292,10 @@ impl Denoiser {
     /// Denoises `color` (linear HDR radiance), guided by `albedo` and `normal` where given.
     ///
     /// `albedo` values must lie in [0, 1] and `normal` components in [-1, 1] (OIDN's ranges);
-    /// a normal needs an albedo. Colour must be finite and non-negative. Each is checked, and
-    /// an image or a buffer of the wrong size is refused, before anything is copied.
+    /// a normal needs an albedo. Colour must be finite. Each is checked, and an image or a
+    /// buffer of the wrong size is refused, before anything is copied. Negative colour channels
+    /// (an unbiased estimator with a control variate makes them at low sample counts: see
+    /// gs-cache's crate docs) are clamped to 0, as the filter takes only non-negative radiance.
     pub fn denoise(
         &mut self,
         color: &RgbImage,
@@ -318,7 +320,14 @@ impl Denoiser {
                 guides.push(guide.to_vec());
             }
         }
-        let mut images: Vec<&[Vec3]> = vec![color.pixels()];
+        let clamped: Vec<Vec3>;
+        let colour = if color.pixels().iter().any(|p| p.min_element() < 0.0) {
+            clamped = color.pixels().iter().map(|p| p.max(Vec3::ZERO)).collect();
+            clamped.as_slice()
+        } else {
+            color.pixels()
+        };
+        let mut images: Vec<&[Vec3]> = vec![colour];
         images.extend(guides.iter().map(|g| g.as_slice()));
         pipeline.color.run(api, &images);
         self.check()?;
@@ -400,12 +409,12 @@ fn check_inputs(color: &RgbImage, albedo: Option<&[Vec3]>, normal: Option<&[Vec3
     };
     if let Some(bad) = color.pixels().iter().position(|p| {
         // Written so that NaN is refused.
-        !(p.is_finite() && p.min_element() >= 0.0)
+        !p.is_finite()
     }) {
         return Err(input(
             "image",
             format!(
-                "pixel ({}, {}) is {}: expected finite, non-negative radiance",
+                "pixel ({}, {}) is {}: expected finite radiance",
                 bad % w as usize,
                 bad / w as usize,
                 color.pixels()[bad]

@@ -120,6 +120,55 @@ int main(int argc, char **argv) {
     }
     CHECK(gs_cache_load("/nonexistent/gs-cache", &config) == NULL, "loading a missing directory");
 
+    /* The unbiased estimator through the C ABI. A renderer's paths are simulated: each has
+     * throughput 1 at level 0's vertex and gathers R = 2u from there on (u uniform: mean 1).
+     * The cache holds 2 there (it was trained towards 2), far from R's mean, and the estimate
+     * C + (R - C) / q (going on) or C (stopping) must still average 1. First, statistics that
+     * make stopping pay (the tail is 90% of the work and nearly noiseless against the cache)
+     * so that q falls below 1. */
+    GsCacheConfig ub_config = config;
+    ub_config.unbiased = true;
+    GsCacheHandle *ub = gs_cache_load(out_dir, &ub_config);
+    CHECK(ub != NULL, "load the unbiased cache");
+    if (ub != NULL) {
+        float cached[3], q_used = 0.0f, w[3] = {1.0f, 1.0f, 1.0f};
+        CHECK(gs_cache_begin_frame(ub, &camera) == GS_CACHE_STATUS_OK, "unbiased begin_frame");
+        CHECK(gs_cache_control_variate(ub, 0, (uint32_t)centre, 7u, w, cached, &q_used) == -1 && q_used == 1.0f,
+              "before any statistics every path goes on (q %g)", q_used);
+        for (int frame = 0; frame < 4; frame++) {
+            if (frame > 0) CHECK(gs_cache_begin_frame(ub, &camera) == GS_CACHE_STATUS_OK, "begin_frame %d", frame);
+            for (uint32_t p = 0; p < SIZE * SIZE; p++) {
+                GsCacheLevelRead reads[2] = {{1.0f, true, 1.0f, 1e-4f, 9.0f}, {0.0f, false, 0.0f, 0.0f, 0.0f}};
+                float estimate = 0.5f + next_unit(&rng);
+                CHECK(gs_cache_add_path_statistics(ub, p, estimate, 10.0f, 2, reads) == GS_CACHE_STATUS_OK,
+                      "statistics at %u", p);
+            }
+            CHECK(gs_cache_train(ub, NULL) == GS_CACHE_STATUS_OK, "unbiased train %d", frame);
+        }
+        CHECK(gs_cache_add_path_statistics(ub, 0, 1.0f, 1.0f, 3, NULL) != GS_CACHE_STATUS_OK, "NULL reads");
+        CHECK(gs_cache_begin_frame(ub, &camera) == GS_CACHE_STATUS_OK, "unbiased begin_frame");
+        enum { PATHS = 200000 };
+        double sum = 0.0, sum2 = 0.0;
+        int stops = 0;
+        for (uint64_t key = 0; key < PATHS; key++) {
+            float r = 2.0f * next_unit(&rng), q = 1.0f;
+            int decision = gs_cache_control_variate(ub, 0, (uint32_t)centre, key, w, cached, &q);
+            double c = cached[0], e;
+            if (decision == 1) e = c + (r - c) / q;
+            else if (decision == 0) e = c, stops++;
+            else e = r;
+            if (key == 0) q_used = q;
+            sum += e;
+            sum2 += e * e;
+        }
+        double mean = sum / PATHS, se = sqrt((sum2 / PATHS - mean * mean) / PATHS);
+        printf("unbiased cache through C: cached %.3f, q %.3f, %d of %d paths stopped, mean %.4f (se %.4f), expected 1\n",
+               cached[0], q_used, stops, PATHS, mean, se);
+        CHECK(q_used < 1.0f && stops > PATHS / 10, "q %g, %d stops: the estimator was not exercised", q_used, stops);
+        CHECK(fabs(mean - 1.0) < 4.42 * se, "mean %g, expected 1 within 4.42 standard errors (%g)", mean, se);
+        gs_cache_free(ub);
+    }
+
     gs_cache_free(loaded);
     gs_cache_free(cache);
     gs_cache_free(NULL);

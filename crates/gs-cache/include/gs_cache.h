@@ -136,6 +136,13 @@ typedef struct GsCacheConfig {
   // Learning rates relative to each level's mean radiance (see the crate docs); false for
   // the GSCache paper's absolute colours.
   bool normalized_radiance;
+  // The unbiased estimator (the cache as a control variate): read it with
+  // `gs_cache_control_variate` instead of Algorithm 1 (see `CacheConfig`).
+  bool unbiased;
+  // With `unbiased`: the least probability of going on past a level.
+  float min_continuation;
+  // With `unbiased`: a fixed kappa (0: chosen by the rule).
+  float continuation_scale;
 } GsCacheConfig;
 
 // A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -149,6 +156,22 @@ typedef struct GsCacheCamera {
   uint32_t height;
 } GsCacheCamera;
 
+// What one path did at one level's decision, for `gs_cache_add_path_statistics`.
+typedef struct GsCacheLevelRead {
+  // The probability of going on there (`gs_cache_control_variate`'s `q`); 0 where the path
+  // did not reach the level's decision.
+  float q;
+  // The path went on past it.
+  bool went_on;
+  // The luminance of its throughput `W` there (before dividing by `q`).
+  float throughput_luminance;
+  // Where it went on: the squared luminance of `W (R - C)`, with `R` what it gathered from
+  // there on per unit of `W` and `C` the cached value.
+  float squared_error;
+  // Where it went on: its work from there on (the unit of `cost`).
+  float tail_cost;
+} GsCacheLevelRead;
+
 // What the last `gs_cache_train` did.
 typedef struct GsCacheReport {
   // Seconds drawing the levels in the last `gs_cache_begin_frame`.
@@ -161,7 +184,7 @@ typedef struct GsCacheReport {
   double first_level_mse;
   // Learning-rate factor of Eq. 5 used for the step.
   float lr_scale;
-  // Samples `gs_cache_add_sample` refused this frame (negative or not finite).
+  // Samples `gs_cache_add_sample` refused this frame (not finite, or too large).
   uint64_t dropped_samples;
 } GsCacheReport;
 
@@ -239,7 +262,7 @@ const float *gs_cache_level_image(const struct GsCacheHandle *cache, uint32_t le
 
 // Adds one training sample for `level` at row-major `pixel`: the radiance a path gathered
 // from its vertex of that length on, per unit of its throughput there (3 floats). Samples
-// that are not finite and non-negative are dropped.
+// that are not finite or too large are dropped (negative ones are kept: the unbiased estimator makes them).
 //
 // # Safety
 // `cache` must be a live handle and `rgb` point to 3 readable floats.
@@ -247,6 +270,41 @@ enum GsCacheStatus gs_cache_add_sample(struct GsCacheHandle *cache,
                                        uint32_t level,
                                        uint32_t pixel,
                                        const float *rgb);
+
+// The unbiased estimator at a path's vertex of length `level + 1` through row-major `pixel`
+// (see the crate docs): the path's throughput there is `throughput` (3 floats) and `key` is a
+// number of its own (a hash of the seed, the pixel and the sample: the decision is drawn from
+// it, never from the path's random stream). Writes the cached value to `cached` (3 floats) and
+// the probability of going on to `q`, and returns:
+// - 1: go on. Add `W * (cached - cached / q)` to the path's radiance and divide `W` by `q`;
+// - 0: stop. Add `W * cached` and end the path;
+// - -1: plain path tracing here (the estimator is off, the level does not exist or is not
+//   trusted here, or `q` is 1): go on unchanged.
+//
+// # Safety
+// `cache` must be a live handle after `gs_cache_begin_frame`, `throughput` point to 3
+// readable floats, `cached` to 3 writable floats and `q` to a writable float.
+int32_t gs_cache_control_variate(const struct GsCacheHandle *cache,
+                                 uint32_t level,
+                                 uint32_t pixel,
+                                 uint64_t key,
+                                 const float *throughput,
+                                 float *cached,
+                                 float *q);
+
+// Files one finished path's figures for the unbiased estimator's choice of `q` (see the
+// `control` module): the luminance of its estimate, its work (any deterministic unit: random
+// numbers drawn, tracking steps) and, per level, what it did there (`levels` entries). Without
+// any, every path goes on (`q` = 1).
+//
+// # Safety
+// `cache` must be a live handle; `reads` must point to `levels` readable `GsCacheLevelRead`s.
+enum GsCacheStatus gs_cache_add_path_statistics(struct GsCacheHandle *cache,
+                                                uint32_t pixel,
+                                                float estimate,
+                                                float cost,
+                                                uint32_t levels,
+                                                const struct GsCacheLevelRead *reads);
 
 // One optimisation step per level against the samples added since `gs_cache_begin_frame`,
 // then clears them. `report` may be NULL.

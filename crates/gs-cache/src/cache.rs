@@ -1,6 +1,7 @@
 //! The cache: its levels and their optimisers, the per-frame lookup images, and training.
 
 use crate::config::{CacheConfig, Lookup, Optimizer};
+use crate::control::Continuation;
 use crate::error::{CacheError, Result};
 use crate::fallback::Trust;
 use crate::init::{SH_C0, initial_levels};
@@ -81,6 +82,9 @@ pub struct CacheFrame {
     /// The still view has had its `handoff_frames`: paths do not read the cache and it does not
     /// train (see [`CacheConfig::handoff_frames`]).
     handed_off: bool,
+    /// With the unbiased estimator: per level and cache pixel, `kappa`, the factor of the
+    /// throughput's luminance that makes the probability of going on ([`crate::control`]).
+    kappa: Option<Vec<Vec<f32>>>,
 }
 
 impl CacheFrame {
@@ -126,6 +130,35 @@ impl CacheFrame {
     /// Whether this frame's paths run without the cache (the still view's handoff).
     pub fn handed_off(&self) -> bool {
         self.handed_off
+    }
+    /// The unbiased estimator's `kappa` for `level` at cache pixel `bin`: the probability of
+    /// going on past the level's vertex is `kappa` times the throughput's luminance, clamped
+    /// (see [`crate::control::probability`]). 1 where it has not been set.
+    #[inline]
+    pub fn continuation_scale(&self, level: usize, bin: usize) -> f32 {
+        self.kappa
+            .as_ref()
+            .and_then(|k| k.get(level)?.get(bin).copied())
+            .unwrap_or(1.0)
+    }
+    /// Sets every `kappa` (per level, per cache pixel); a frozen cache's tests and a renderer
+    /// with its own rule set them here.
+    pub fn set_continuation_scales(&mut self, kappa: Vec<Vec<f32>>) {
+        self.kappa = Some(kappa);
+    }
+    /// The map from frame pixels to cache pixels.
+    pub fn pixel_map(&self) -> PixelMap {
+        self.map
+    }
+    /// Empty training targets for this frame: its levels and size, and with the unbiased
+    /// estimator its statistics per cache pixel.
+    pub fn training_targets(&self) -> TrainingTargets {
+        let t = TrainingTargets::new(self.levels(), self.camera.width, self.camera.height);
+        if self.kappa.is_some() {
+            t.with_statistics(self.map)
+        } else {
+            t
+        }
     }
 }
 
@@ -179,6 +212,8 @@ pub struct GsCache {
     frame: Option<CacheFrame>,
     report: FrameReport,
     raster: RasterConfig,
+    /// With the unbiased estimator: the last frames' statistics per cache pixel.
+    continuation: Option<Continuation>,
 }
 
 fn adamw_config(config: &CacheConfig) -> AdamWConfig {
@@ -212,6 +247,31 @@ impl GsCache {
         }
         cache.fresh = true;
         Ok(cache)
+    }
+
+    /// A copy of this cache that no longer trains: its levels in absolute radiance, its
+    /// settings with `train = false`, and (with the unbiased estimator) its statistics, so it
+    /// reads as this one did. A frozen cache renders a still view from fixed values: what the
+    /// unbiasedness tests compare with plain path tracing.
+    pub fn frozen(&self) -> Result<Self> {
+        let clouds = self
+            .levels
+            .iter()
+            .map(|level| {
+                let mut cloud = level.cloud.clone();
+                scale_colors(&mut cloud, level.radiance_scale());
+                cloud
+            })
+            .collect();
+        let mut frozen = Self::from_levels(
+            clouds,
+            CacheConfig {
+                train: false,
+                ..self.config
+            },
+        )?;
+        frozen.continuation = self.continuation.clone();
+        Ok(frozen)
     }
 
     /// A cache from existing level clouds (loaded from disk, or made elsewhere). The clouds must
@@ -266,6 +326,7 @@ impl GsCache {
             frame: None,
             report: FrameReport::default(),
             raster: RasterConfig::default(),
+            continuation: None,
         })
     }
 
@@ -334,12 +395,17 @@ impl GsCache {
         if self.frame.is_some() && !same_camera {
             self.schedule.reset();
         }
+        if !same_camera && let Some(c) = self.continuation.as_mut() {
+            c.camera_moved();
+        }
         // A camera move after the image's first frame ends it (the first frame may move from a
         // warm-up's last view to the image's).
         if !same_camera && self.image_frames.is_some_and(|n| n > 0) {
             self.image_frames = None;
         }
+        // The unbiased estimator needs no handoff: its image converges to the right one.
         let handed_off = self.config.handoff_frames > 0
+            && !self.config.unbiased
             && self
                 .image_frames
                 .is_some_and(|n| n >= self.config.handoff_frames);
@@ -350,8 +416,10 @@ impl GsCache {
             && (handed_off || (!self.levels_changed && self.config.lookup == Lookup::Raster));
         if self.report.lookup_reused {
             self.report.lookup_seconds = start.elapsed().as_secs_f64();
+            let kappa = self.kappa();
             let frame = self.frame.as_mut().expect("same_camera implies a frame");
             frame.handed_off = handed_off;
+            frame.kappa = kappa;
             return frame;
         }
         self.levels_changed = false;
@@ -416,6 +484,15 @@ impl GsCache {
                 Some(images),
             )
         };
+        if self.config.unbiased
+            && self
+                .continuation
+                .as_ref()
+                .is_none_or(|c| !c.fits(self.levels.len(), &map))
+        {
+            self.continuation = Some(Continuation::new(self.levels.len(), map));
+        }
+        let kappa = self.kappa();
         self.report.lookup_seconds = start.elapsed().as_secs_f64();
         self.frame.insert(CacheFrame {
             camera: *camera,
@@ -426,7 +503,26 @@ impl GsCache {
             states,
             trust,
             handed_off,
+            kappa,
         })
+    }
+
+    /// The unbiased estimator's `kappa` per level and cache pixel from the last frames'
+    /// statistics (`None` without it). Where they say nothing yet (a moving camera, the first
+    /// frames of a view), every path goes on (`kappa` infinite: plain path tracing), the one
+    /// choice that cannot cost variance.
+    fn kappa(&self) -> Option<Vec<Vec<f32>>> {
+        let fixed = self.config.continuation_scale;
+        self.continuation
+            .as_ref()
+            .filter(|_| self.config.unbiased)
+            .map(|c| {
+                if fixed > 0.0 {
+                    vec![vec![fixed; c.cache_pixels()]; self.levels.len()]
+                } else {
+                    c.kappa(f32::INFINITY)
+                }
+            })
     }
 
     /// The images drawn by the last [`GsCache::begin_frame`].
@@ -451,6 +547,11 @@ impl GsCache {
         let camera = frame.cache_camera;
         let map = frame.map;
         let frame_camera = frame.camera;
+        if let (Some(c), Some((stats, moments))) =
+            (self.continuation.as_mut(), targets.statistics())
+        {
+            c.observe(stats, moments);
+        }
         if targets.levels() != self.levels.len()
             || targets.width() != frame_camera.width
             || targets.height() != frame_camera.height
@@ -593,6 +694,16 @@ impl GsCache {
         }
         self.report.train_seconds = start.elapsed().as_secs_f64();
         Ok(&self.report)
+    }
+
+    /// With the unbiased estimator: per level, the mean probability of going on and what the
+    /// running statistics say the estimator can gain at best (empty otherwise, or before the
+    /// statistics of a still view).
+    pub fn control_summary(&self) -> Vec<crate::control::LevelSummary> {
+        self.continuation
+            .as_ref()
+            .map(|c| c.summary())
+            .unwrap_or_default()
     }
 
     /// Timings and losses of the last frame.

@@ -139,6 +139,13 @@ pub struct GsCacheConfig {
     /// Learning rates relative to each level's mean radiance (see the crate docs); false for
     /// the GSCache paper's absolute colours.
     pub normalized_radiance: bool,
+    /// The unbiased estimator (the cache as a control variate): read it with
+    /// `gs_cache_control_variate` instead of Algorithm 1 (see `CacheConfig`).
+    pub unbiased: bool,
+    /// With `unbiased`: the least probability of going on past a level.
+    pub min_continuation: f32,
+    /// With `unbiased`: a fixed kappa (0: chosen by the rule).
+    pub continuation_scale: f32,
 }
 
 /// A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -168,7 +175,7 @@ pub struct GsCacheReport {
     pub first_level_mse: f64,
     /// Learning-rate factor of Eq. 5 used for the step.
     pub lr_scale: f32,
-    /// Samples `gs_cache_add_sample` refused this frame (negative or not finite).
+    /// Samples `gs_cache_add_sample` refused this frame (not finite, or too large).
     pub dropped_samples: u64,
 }
 
@@ -302,6 +309,9 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             warm_start_frames: c.warm_start_frames,
             masked_targets: c.masked_targets,
             normalized_radiance: c.normalized_radiance,
+            unbiased: c.unbiased,
+            min_continuation: c.min_continuation,
+            continuation_scale: c.continuation_scale,
         })
     }
 }
@@ -357,6 +367,9 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         warm_start_frames: d.warm_start_frames,
         masked_targets: d.masked_targets,
         normalized_radiance: d.normalized_radiance,
+        unbiased: d.unbiased,
+        min_continuation: d.min_continuation,
+        continuation_scale: d.continuation_scale,
     }
 }
 
@@ -380,9 +393,11 @@ pub unsafe extern "C" fn gs_cache_continue_probability(
     let t = TerminationConfig {
         coefficient: config.c,
         threshold: config.threshold,
-        early: config.early,
-        natural: config.natural,
-        survivor_weights: config.survivor_weights,
+        early: config.early && !config.unbiased,
+        natural: config.natural && !config.unbiased,
+        survivor_weights: config.survivor_weights && !config.unbiased,
+        unbiased: config.unbiased,
+        min_continuation: config.min_continuation,
     };
     termination::continue_probability(&t, Vec3::new(rgb[0], rgb[1], rgb[2]))
 }
@@ -529,11 +544,18 @@ pub unsafe extern "C" fn gs_cache_begin_frame(
         .map_err(|e| invalid(format!("camera: {e}")))?;
         let levels = h.cache.levels().len();
         reserve_frame(levels, c.width, c.height)?;
+        let unbiased = h.cache.config().unbiased;
+        let frame = h.cache.begin_frame(&camera);
         match &mut h.targets {
-            Some(t) if t.width() == c.width && t.height() == c.height => t.clear(),
-            t => *t = Some(TrainingTargets::new(levels, c.width, c.height)),
+            Some(t)
+                if t.width() == c.width
+                    && t.height() == c.height
+                    && t.statistics().is_some() == unbiased =>
+            {
+                t.clear()
+            }
+            t => *t = Some(frame.training_targets()),
         }
-        h.cache.begin_frame(&camera);
         Ok(())
     })
 }
@@ -560,7 +582,7 @@ pub unsafe extern "C" fn gs_cache_level_image(
 
 /// Adds one training sample for `level` at row-major `pixel`: the radiance a path gathered
 /// from its vertex of that length on, per unit of its throughput there (3 floats). Samples
-/// that are not finite and non-negative are dropped.
+/// that are not finite or too large are dropped (negative ones are kept: the unbiased estimator makes them).
 ///
 /// # Safety
 /// `cache` must be a live handle and `rgb` point to 3 readable floats.
@@ -590,6 +612,153 @@ pub unsafe extern "C" fn gs_cache_add_sample(
             )));
         }
         t.add(level as usize, pixel as usize, [rgb[0], rgb[1], rgb[2]]);
+        Ok(())
+    })
+}
+
+/// The unbiased estimator at a path's vertex of length `level + 1` through row-major `pixel`
+/// (see the crate docs): the path's throughput there is `throughput` (3 floats) and `key` is a
+/// number of its own (a hash of the seed, the pixel and the sample: the decision is drawn from
+/// it, never from the path's random stream). Writes the cached value to `cached` (3 floats) and
+/// the probability of going on to `q`, and returns:
+/// - 1: go on. Add `W * (cached - cached / q)` to the path's radiance and divide `W` by `q`;
+/// - 0: stop. Add `W * cached` and end the path;
+/// - -1: plain path tracing here (the estimator is off, the level does not exist or is not
+///   trusted here, or `q` is 1): go on unchanged.
+///
+/// # Safety
+/// `cache` must be a live handle after `gs_cache_begin_frame`, `throughput` point to 3
+/// readable floats, `cached` to 3 writable floats and `q` to a writable float.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn gs_cache_control_variate(
+    cache: *const GsCacheHandle,
+    level: u32,
+    pixel: u32,
+    key: u64,
+    throughput: *const f32,
+    cached: *mut f32,
+    q: *mut f32,
+) -> i32 {
+    // SAFETY: NULL or a live handle, by the caller's contract; the other pointers are checked
+    // for NULL and hold 3, 3 and 1 floats.
+    let Some(h) = (unsafe { cache.as_ref() }) else {
+        return -1;
+    };
+    if throughput.is_null() || cached.is_null() || q.is_null() {
+        return -1;
+    }
+    let Some(frame) = h.cache.frame() else {
+        return -1;
+    };
+    let w = unsafe { std::slice::from_raw_parts(throughput, 3) };
+    let w = Vec3::new(w[0], w[1], w[2]);
+    let (level, pixel) = (level as usize, pixel as usize);
+    let pixels = frame.camera().width as usize * frame.camera().height as usize;
+    if !h.cache.config().unbiased
+        || level >= frame.levels()
+        || pixel >= pixels
+        || !frame.trusted(level, frame.bin(pixel))
+    {
+        return -1;
+    }
+    let c = frame.value(level, pixel);
+    let p = crate::control::probability(
+        frame.continuation_scale(level, frame.bin(pixel)),
+        w,
+        h.cache.config().min_continuation,
+    );
+    // SAFETY: non-NULL, writable, by the caller's contract.
+    unsafe {
+        std::slice::from_raw_parts_mut(cached, 3).copy_from_slice(&c.to_array());
+        *q = p;
+    }
+    if !c.is_finite() || p >= 1.0 {
+        -1
+    } else if crate::control::uniform(key, level) < p {
+        1
+    } else {
+        0
+    }
+}
+
+/// What one path did at one level's decision, for `gs_cache_add_path_statistics`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default)]
+pub struct GsCacheLevelRead {
+    /// The probability of going on there (`gs_cache_control_variate`'s `q`); 0 where the path
+    /// did not reach the level's decision.
+    pub q: f32,
+    /// The path went on past it.
+    pub went_on: bool,
+    /// The luminance of its throughput `W` there (before dividing by `q`).
+    pub throughput_luminance: f32,
+    /// Where it went on: the squared luminance of `W (R - C)`, with `R` what it gathered from
+    /// there on per unit of `W` and `C` the cached value.
+    pub squared_error: f32,
+    /// Where it went on: its work from there on (the unit of `cost`).
+    pub tail_cost: f32,
+}
+
+/// Files one finished path's figures for the unbiased estimator's choice of `q` (see the
+/// `control` module): the luminance of its estimate, its work (any deterministic unit: random
+/// numbers drawn, tracking steps) and, per level, what it did there (`levels` entries). Without
+/// any, every path goes on (`q` = 1).
+///
+/// # Safety
+/// `cache` must be a live handle; `reads` must point to `levels` readable `GsCacheLevelRead`s.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn gs_cache_add_path_statistics(
+    cache: *mut GsCacheHandle,
+    pixel: u32,
+    estimate: f32,
+    cost: f32,
+    levels: u32,
+    reads: *const GsCacheLevelRead,
+) -> GsCacheStatus {
+    guarded(|| {
+        // SAFETY: the caller passes a live handle; `reads` is checked for NULL and holds
+        // `levels` entries.
+        let h = unsafe { handle(cache) }?;
+        if reads.is_null() {
+            return Err(null("reads"));
+        }
+        let n = levels as usize;
+        let frame = h.cache.frame().ok_or((
+            GsCacheStatus::NoFrame,
+            "gs_cache_add_path_statistics before gs_cache_begin_frame".to_string(),
+        ))?;
+        if n != frame.levels() {
+            return Err(invalid(format!(
+                "{n} levels of statistics: the cache has {}",
+                frame.levels()
+            )));
+        }
+        let pixels = frame.camera().width as usize * frame.camera().height as usize;
+        if pixel as usize >= pixels {
+            return Err(invalid(format!(
+                "statistics at pixel {pixel}: the frame has {pixels} pixels"
+            )));
+        }
+        let reads = unsafe { std::slice::from_raw_parts(reads, n) };
+        let mut tails = [crate::control::TailSample::default(); crate::config::MAX_LEVELS];
+        for (tail, read) in tails.iter_mut().zip(reads) {
+            *tail = crate::control::TailSample::from_read(
+                read.q,
+                read.went_on,
+                read.throughput_luminance,
+                read.squared_error,
+                read.tail_cost,
+            );
+        }
+        let stats = crate::control::PathStatistics {
+            estimate,
+            cost,
+            tails,
+            levels: n,
+        };
+        if let Some(t) = h.targets.as_mut() {
+            t.add_path_statistics(pixel as usize, &stats);
+        }
         Ok(())
     })
 }

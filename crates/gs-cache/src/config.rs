@@ -29,6 +29,12 @@ pub struct TerminationConfig {
     pub natural: bool,
     /// Training samples weighted by the inverse of the probability of going on.
     pub survivor_weights: bool,
+    /// The unbiased estimator: every path reaching a level reads the cache and goes on with
+    /// probability `q`, adding `(L - C) / q` (the crate docs). Algorithm 1's selection and
+    /// natural termination are off.
+    pub unbiased: bool,
+    /// The unbiased estimator's floor on `q`.
+    pub min_continuation: f32,
 }
 
 /// How the renderer reads the cache each frame.
@@ -191,6 +197,23 @@ pub struct CacheConfig {
     /// false gives the GSCache paper's absolute colours.
     #[cfg_attr(feature = "clap", arg(long = "cache-normalized-radiance", action = clap::ArgAction::Set, default_value_t = DEFAULT.normalized_radiance))]
     pub normalized_radiance: bool,
+    /// The cache as a control variate, so the image is unbiased whatever the cache holds: every
+    /// path that reaches a level adds the cached value C and goes on with probability q,
+    /// adding (L - C) / q, where L is what it then gathers. q is chosen per level and cache
+    /// pixel from the measured error of L - C and the cost of going on (see `control.rs`).
+    /// Replaces Algorithm 1's selection (`c`, `threshold`, `early`) and natural termination;
+    /// no handoff.
+    #[cfg_attr(feature = "clap", arg(long = "cache-unbiased", action = clap::ArgAction::Set, default_value_t = DEFAULT.unbiased))]
+    pub unbiased: bool,
+    /// With `unbiased`: the least probability of going on past a level, which bounds a tail's
+    /// weight 1 / q.
+    #[cfg_attr(feature = "clap", arg(long = "cache-min-continuation", default_value_t = DEFAULT.min_continuation))]
+    pub min_continuation: f32,
+    /// With `unbiased`: a fixed kappa (q = clamp(kappa luminance(W), min_continuation, 1)) for
+    /// every level and cache pixel, for ablations and tests; 0 lets the rule choose it from the
+    /// measured error and cost.
+    #[cfg_attr(feature = "clap", arg(long = "cache-continuation-scale", default_value_t = DEFAULT.continuation_scale))]
+    pub continuation_scale: f32,
 }
 
 /// The defaults, as a constant so the command line's defaults are these very values.
@@ -224,6 +247,9 @@ const DEFAULT: CacheConfig = CacheConfig {
     warm_start_frames: 32,
     masked_targets: true,
     normalized_radiance: true,
+    unbiased: false,
+    min_continuation: 0.05,
+    continuation_scale: 0.0,
 };
 
 impl Default for CacheConfig {
@@ -338,6 +364,18 @@ impl CacheConfig {
                 ));
             }
         }
+        if !(self.min_continuation > 0.0 && self.min_continuation <= 1.0) {
+            return bad(format!(
+                "min_continuation = {}: expected a probability in (0, 1]",
+                self.min_continuation
+            ));
+        }
+        if !(self.continuation_scale >= 0.0 && self.continuation_scale.is_finite()) {
+            return bad(format!(
+                "continuation_scale = {}: expected a finite value >= 0 (0: chosen by the rule)",
+                self.continuation_scale
+            ));
+        }
         if !(self.weight_decay >= 0.0 && self.weight_decay.is_finite()) {
             return bad(format!(
                 "weight_decay = {}: expected a finite value >= 0",
@@ -370,9 +408,11 @@ impl CacheConfig {
         TerminationConfig {
             coefficient: self.c,
             threshold: self.threshold,
-            early: self.early,
-            natural: self.natural,
-            survivor_weights: self.survivor_weights,
+            early: self.early && !self.unbiased,
+            natural: self.natural && !self.unbiased,
+            survivor_weights: self.survivor_weights && !self.unbiased,
+            unbiased: self.unbiased,
+            min_continuation: self.min_continuation,
         }
     }
 

@@ -9,6 +9,8 @@
 //! - [`cache`]: the levels, the per-frame lookup images, training (Eq. 4 loss, AdamW, Eq. 5).
 //! - [`path`]: one path's bookkeeping: what to add, when to stop, what to train on.
 //! - [`termination`]: Algorithm 1's continuation probability.
+//! - [`control`]: the unbiased estimator's continuation probabilities, from measured error and
+//!   cost.
 //! - [`targets`]: per-level training targets with masks.
 //! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
@@ -83,6 +85,79 @@
 //! needs the image's brightness to better than that sets `early = false` (the cache then reads
 //! only where paths end naturally, and its error gain falls: 1.0x on hydrogen) or a larger `C`.
 //!
+//! # The unbiased estimator (`unbiased = true`)
+//!
+//! The estimator above is biased wherever the cache is wrong, and a cache drawn at a quarter of
+//! the resolution is wrong across every pixel's footprint. With `unbiased` the cache becomes a
+//! control variate, and the image converges to plain path tracing's whatever the cache holds.
+//!
+//! **What a level holds.** The read comes *after* the vertex's next-event estimation, so level
+//! `n` stands for what the path gathers from the direction it samples at `x_n` on:
+//! `R'_n = R_n - D^NEE_n` per unit of `W_n` (the emission its phase-sampled ray meets, with its
+//! MIS weight, belongs to `R'_n`). Direct lighting, the term with the most structure across a
+//! pixel's footprint (shadows, the transfer function's edges), is never cached; measured, the
+//! squared error of a tail against the cache fell 3x on hydrogen when the read moved past the
+//! next-event estimation. A level trains on `R'_n` of the paths that went on past its
+//! decision.
+//!
+//! **The decision.** At vertex `n <= K`, where the level is trusted, the path reads `C`, the
+//! level's value at its pixel, and adds `W_n C`. With probability `q` it goes on, adding
+//! `-W_n C / q` and dividing its throughput by `q`; otherwise it ends. The uniform number is a
+//! hash of the path's key (seed, pixel, sample) and `n`, not a draw from its stream: a path that
+//! goes on draws exactly the numbers the plain path would, so the two stay paired. Conditional
+//! on everything before the decision, which fixes `W_n`, `C` and `q`, the added expectation is
+//!
+//! `W_n C + q (W_n E[R'_n | history] - W_n C) / q = W_n E[R'_n | history]`,
+//!
+//! the plain path's. By induction over the levels (each deeper decision is unbiased given its
+//! own history) the image's expectation is plain path tracing's. What this needs:
+//! - `C` must not depend on the path's own future: the levels are drawn before the frame's
+//!   paths, from a cache trained on earlier frames; the ray-traced lookup's stochastic value
+//!   is drawn once per frame, before the paths, and is as good a `C` as the rasterised one.
+//!   Training on the frame's own paths only changes later frames: each frame is unbiased given
+//!   the past, so their mean is too.
+//! - `q` must be fixed before the uniform number is drawn: it comes from the path's throughput
+//!   and a factor `kappa` measured on earlier frames ([`control`]).
+//! - The fallback, natural termination, Algorithm 1's selection and the handoff are not needed:
+//!   a distrusted level is plain path tracing there (unbiased too), and the others are off.
+//!
+//! `q = 1` is plain path tracing, bit for bit (the path adds nothing and draws nothing). A
+//! path's estimate can be negative (`C - C / q < 0`); the film keeps negative samples, as
+//! dropping them would bias the mean, and the denoiser is given them clamped at 0. Dropping the
+//! `1 / q` leaves `C` for a stopped path and the plain path's `R'_n` for one that went on:
+//! Algorithm 1's biased selection, which the unbiasedness test (`tests/unbiased.rs`) must see.
+//! The C ABI offers the same decision (`gs_cache_control_variate`) and statistics
+//! (`gs_cache_add_path_statistics`).
+//!
+//! **Its variance, and the choice of `q`.** With `w` the luminance of `W_n` and
+//! `e = lum(W_n (R'_n - C))^2`, the tail adds `E[e / q]` to the variance and costs `E[q t]`
+//! (`t`: its work). `q = kappa w` (clamped to `[min_continuation, 1]`) gives `A / kappa` and
+//! `kappa B` with `A = E[e / w]`, `B = E[w t]`: dividing by `w` spends continuations where the
+//! throughput is large, as the variance does. Minimising the image's relative variance per path
+//! times its work per path over every cache pixel's `kappa_b` (a Lagrange multiplier shared by
+//! the image) gives `kappa_b = sqrt(A_b / B_b * T / V)`, `A_b` relative to the pixel's squared
+//! mean and `T`, `V` the image's work and relative variance per path. The statistics are
+//! estimated from the paths that went on, weighted `1 / q`, over the last ~10 frames; `V` comes
+//! from each frame pixel's own paths on a still view (a cache pixel's paths spread over frame
+//! pixels whose differences are not noise); work is counted in random numbers drawn (one per
+//! tracking step), so the choice, and the image, are the same on any machine. Training a level
+//! unweighted on the paths that went on makes `C` their mean, which, since they go on with
+//! probability in proportion to `w`, is the `w`-weighted mean that minimises `E[e / q]`.
+//!
+//! **What it can gain.** Going on always costs the plain path's variance `V = V_0 + V_1` and
+//! work `T = T_0 + T_1` (`_1`: the tail past the decision, its variance measured against the
+//! cache). The best any `q` can do is the two-level multilevel Monte Carlo optimum,
+//! `(sqrt(V_0 T_0) + sqrt(V_1 T_1))^2`, a gain over `V T` of at most
+//! `1 / (sqrt((1 - v)(1 - t)) + sqrt(v t))^2` with `v = V_1 / V` and `t = T_1 / T`: nothing
+//! when the tail holds the same share of the variance as of the work. A pixel-space cache
+//! predicts the tail's mean over the pixel, not the tail itself: the phase-sampled direction
+//! and everything after it stay in `R'_n - C`. Measured on the six volumes (BENCHMARKS.md), `v`
+//! and `t` are within a few percent of each other (hydrogen: level 1 holds 28% of the
+//! variance and 51% of the work), and the bound is 1.00-1.06x; a dense white cloud measured
+//! 1.04x. Where the bound is under 1.05x the rule lets every path go on, so on these volumes
+//! the unbiased cache is plain path tracing plus the cache's own cost, and it stays off by
+//! default. `render --cache-unbiased true` prints the bound per level.
+//!
 //! **Where the GSCache paper leaves things open.** (1) Which levels a path trains: every level it
 //! reached and went on from, not only the one where it ended, so a path of length 3 trains levels
 //! 1-3 (a path that stops into level `n` trains the shorter levels with the cached value included:
@@ -116,6 +191,7 @@
 pub mod cache;
 pub mod capi;
 pub mod config;
+pub mod control;
 pub mod error;
 pub mod fallback;
 pub mod init;
@@ -132,5 +208,5 @@ pub use config::{
     CacheConfig, Decay, LearningRates, Lookup, MAX_LEVELS, Optimizer, TerminationConfig,
 };
 pub use error::{CacheError, Result};
-pub use path::CachedPath;
+pub use path::{CachedPath, ControlVariate};
 pub use targets::{TileTargets, TrainingTargets};

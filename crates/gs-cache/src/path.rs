@@ -5,12 +5,39 @@
 //! The renderer keeps its own throughput `W` and radiance sum `L`; it tells the path each change
 //! it makes: a new real scattering vertex ([`CachedPath::vertex`]), a re-weighting such as
 //! Russian roulette ([`CachedPath::scale`]), and radiance it adds as `W * x`
-//! ([`CachedPath::radiance`]). See the crate docs for the estimator.
+//! ([`CachedPath::radiance`]). At each vertex it asks either Algorithm 1
+//! ([`CachedPath::continue_probability`], then [`CachedPath::stop_into_cache`]) or, with the
+//! unbiased estimator, [`CachedPath::control_variate`], which makes the decision itself. See the
+//! crate docs for both estimators.
 
 use crate::cache::CacheFrame;
 use crate::config::{MAX_LEVELS, TerminationConfig};
-use crate::termination::continue_probability;
+use crate::control::{self, PathStatistics, TailSample};
+use crate::termination::{continue_probability, luminance};
 use glam::Vec3;
+
+/// What the unbiased estimator did at a vertex ([`CachedPath::control_variate`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ControlVariate {
+    /// The path stops: the renderer adds `W * cached` and ends it.
+    Stop { cached: Vec3 },
+    /// The path goes on with probability `q`: the renderer adds `W * (cached - cached / q)`
+    /// and divides its throughput by `q`.
+    GoOn { cached: Vec3, q: f32 },
+}
+
+/// What the unbiased estimator recorded at one level's vertex, for its statistics.
+#[derive(Debug, Clone, Copy, Default)]
+struct LevelRead {
+    /// The renderer's throughput there, before any `1 / q`.
+    throughput: Vec3,
+    cached: Vec3,
+    /// 0 where the level was not read (not reached, or not trusted).
+    q: f32,
+    went_on: bool,
+    /// The path's work at the decision (the vertex's next-event estimation included).
+    cost: f32,
+}
 
 /// One path's view of the cache.
 #[derive(Debug, Clone)]
@@ -33,11 +60,28 @@ pub struct CachedPath<'a> {
     /// Levels whose sample is complete and unbiased (the path went on past their vertex and
     /// ended without replacing its own future by the cache value of that same level).
     sampled: [bool; MAX_LEVELS],
+    /// The path's own key (seed, pixel, sample): the unbiased estimator's decisions hash it.
+    key: u64,
+    /// The renderer's throughput `W` and radiance `L` as it reported them (the unbiased
+    /// estimator's statistics need the path's estimate, not only its per-level sums).
+    throughput: Vec3,
+    total: Vec3,
+    /// The path's work when it ended, in the renderer's unit ([`CachedPath::finished`]).
+    cost: f32,
+    reads: [LevelRead; MAX_LEVELS],
 }
 
 impl<'a> CachedPath<'a> {
-    /// A path through row-major pixel `pixel` of the frame's camera.
-    pub fn new(frame: &'a CacheFrame, pixel: usize, termination: TerminationConfig) -> Self {
+    /// A path through row-major pixel `pixel` of the frame's camera. `key` must differ from
+    /// path to path (a hash of the seed, the pixel and the sample index): the unbiased
+    /// estimator's decisions are drawn from it, and would not be random across a pixel's
+    /// samples if it repeated.
+    pub fn new(
+        frame: &'a CacheFrame,
+        pixel: usize,
+        key: u64,
+        termination: TerminationConfig,
+    ) -> Self {
         Self {
             frame,
             pixel,
@@ -49,6 +93,11 @@ impl<'a> CachedPath<'a> {
             relative: [Vec3::ZERO; MAX_LEVELS],
             sums: [Vec3::ZERO; MAX_LEVELS],
             sampled: [false; MAX_LEVELS],
+            key,
+            throughput: Vec3::ONE,
+            total: Vec3::ZERO,
+            cost: 0.0,
+            reads: [LevelRead::default(); MAX_LEVELS],
         }
     }
 
@@ -67,6 +116,7 @@ impl<'a> CachedPath<'a> {
         for m in 0..self.active() {
             self.relative[m] *= albedo;
         }
+        self.throughput *= albedo;
         self.albedo_product *= albedo;
         self.length += 1;
         if self.length <= self.frame.levels() {
@@ -84,6 +134,7 @@ impl<'a> CachedPath<'a> {
         for m in 0..self.active() {
             self.relative[m] *= factor;
         }
+        self.throughput *= factor;
     }
 
     /// The renderer added `W * x` to its radiance.
@@ -91,10 +142,99 @@ impl<'a> CachedPath<'a> {
         for m in 0..self.active() {
             self.sums[m] += self.relative[m] * x;
         }
+        self.total += self.throughput * x;
+    }
+
+    /// The unbiased estimator at the current vertex (`unbiased` on; `None` otherwise, and where
+    /// no level holds this length, the fallback distrusts it here, its value is not finite or
+    /// `q` is 1: the path then goes on as plain path tracing). Reads the level's value `C`,
+    /// decides with probability `q` ([`control::probability`]) from the path's key, and keeps
+    /// the bookkeeping: the shorter levels' samples take `C - C / q` (going on) or `C`
+    /// (stopping), and this level's sample is the rest of the path, unweighted. `work` is the
+    /// path's work so far (see [`CachedPath::finished`]).
+    pub fn control_variate(&mut self, work: f32) -> Option<ControlVariate> {
+        if !self.termination.unbiased || self.length == 0 || self.length > self.frame.levels() {
+            return None;
+        }
+        let n = self.length - 1;
+        // The level's value stands for what the path gathers after this decision, which comes
+        // after the vertex's next-event estimation: its sample starts here, whatever is decided.
+        self.sums[n] = Vec3::ZERO;
+        let cached = self.frame.value(n, self.pixel);
+        if !self.frame.trusted(n, self.bin) || !cached.is_finite() {
+            return None;
+        }
+        let q = control::probability(
+            self.frame.continuation_scale(n, self.bin),
+            self.throughput,
+            self.termination.min_continuation,
+        );
+        let went_on = q >= 1.0 || control::uniform(self.key, n) < q;
+        self.reads[n] = LevelRead {
+            throughput: self.throughput,
+            cached,
+            q,
+            went_on,
+            cost: work,
+        };
+        if q >= 1.0 {
+            return None;
+        }
+        if went_on {
+            let added = cached - cached / q;
+            for m in 0..n {
+                self.sums[m] += self.relative[m] * added;
+                self.relative[m] /= q;
+            }
+            self.total += self.throughput * added;
+            self.throughput /= q;
+            Some(ControlVariate::GoOn { cached, q })
+        } else {
+            for m in 0..n {
+                self.sums[m] += self.relative[m] * cached;
+            }
+            self.total += self.throughput * cached;
+            self.sampled[n] = false;
+            Some(ControlVariate::Stop { cached })
+        }
+    }
+
+    /// The path has ended after `work`, in any deterministic unit of the renderer's (volume-pt
+    /// counts the random numbers drawn: one per tracking step): the statistics' cost.
+    pub fn finished(&mut self, work: f32) {
+        self.cost = work;
+    }
+
+    /// What the path gives the unbiased estimator's statistics (see [`control`]), once it has
+    /// ended ([`CachedPath::finished`]): `None` unless `unbiased` is on.
+    pub fn statistics(&self) -> Option<PathStatistics> {
+        if !self.termination.unbiased {
+            return None;
+        }
+        let cost = self.cost;
+        let mut tails = [TailSample::default(); MAX_LEVELS];
+        for n in 0..self.active() {
+            let read = &self.reads[n];
+            let error = luminance(read.throughput * (self.sums[n] - read.cached)).powi(2);
+            tails[n] = TailSample::from_read(
+                read.q,
+                read.went_on,
+                luminance(read.throughput),
+                error,
+                (cost - read.cost).max(0.0),
+            );
+        }
+        Some(PathStatistics {
+            estimate: luminance(self.total),
+            cost,
+            tails,
+            levels: self.frame.levels(),
+        })
     }
 
     /// Algorithm 1 at the current vertex: the probability of going on. 1 where no level holds
-    /// this length, early termination is off, or the fallback distrusts the level at this pixel.
+    /// this length, early termination is off (or the unbiased estimator is on), or the fallback
+    /// distrusts the level at this pixel.
     pub fn continue_probability(&self) -> f32 {
         if self.length == 0
             || self.length > self.frame.levels()

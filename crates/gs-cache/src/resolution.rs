@@ -62,6 +62,11 @@ impl PixelMap {
         }
     }
 
+    /// The frame's size.
+    pub fn frame_size(&self) -> (u32, u32) {
+        (self.frame_width, self.frame_height)
+    }
+
     /// Whether the cache image is the frame's own.
     pub fn is_identity(&self) -> bool {
         self.width == self.frame_width && self.height == self.frame_height

@@ -5,6 +5,7 @@
 //! every sample in it (a pixel's mean taken with weight 1 would undo them: one path per pixel
 //! has a weighted mean equal to its own sample).
 
+use crate::control::{PathStatistics, Statistics};
 use crate::resolution::PixelMap;
 use crate::termination::luminance;
 use glam::Vec3;
@@ -24,8 +25,11 @@ pub struct TrainingTargets {
     squares: Vec<Vec<f32>>,
     /// Per level, per pixel: how many samples were added.
     counts: Vec<Vec<u32>>,
-    /// Samples refused this frame for being negative or not finite.
+    /// Samples refused this frame for being not finite or too large in magnitude.
     dropped: u64,
+    /// The unbiased estimator's statistics per cache pixel (see [`crate::control`]), with the
+    /// map from frame pixels to cache pixels.
+    statistics: Option<(PixelMap, Statistics, Vec<[f32; 3]>)>,
 }
 
 impl TrainingTargets {
@@ -39,6 +43,42 @@ impl TrainingTargets {
             squares: vec![vec![0.0; n]; levels],
             counts: vec![vec![0; n]; levels],
             dropped: 0,
+            statistics: None,
+        }
+    }
+
+    /// These targets also gather the unbiased estimator's statistics per pixel of `map` (the
+    /// cache's pixels).
+    pub fn with_statistics(mut self, map: PixelMap) -> Self {
+        let pixels = map.width as usize * map.height as usize;
+        let frame_pixels = self.width as usize * self.height as usize;
+        self.statistics = Some((
+            map,
+            Statistics::new(self.levels(), pixels),
+            vec![[0.0; 3]; frame_pixels],
+        ));
+        self
+    }
+
+    /// The unbiased estimator's statistics per cache pixel, and per frame pixel the moments of
+    /// its paths' estimates (paths, sum, sum of squares), if gathered.
+    pub fn statistics(&self) -> Option<(&Statistics, &[[f32; 3]])> {
+        self.statistics.as_ref().map(|(_, s, m)| (s, m.as_slice()))
+    }
+
+    /// Files one path's statistics at row-major frame pixel `pixel` (a renderer without
+    /// tiles: the C ABI).
+    pub fn add_path_statistics(&mut self, pixel: usize, path: &PathStatistics) {
+        if let Some((map, s, moments)) = self.statistics.as_mut() {
+            let w = map.frame_size().0 as usize;
+            let mut one = Statistics::new(s.levels(), 1);
+            one.add(0, path);
+            s.add_tile(
+                &one,
+                ((pixel % w) as u32, (pixel / w) as u32, 1),
+                map,
+                moments,
+            );
         }
     }
 
@@ -52,15 +92,16 @@ impl TrainingTargets {
         self.height
     }
 
-    /// Samples refused since the last [`TrainingTargets::clear`] (negative or not finite): a
+    /// Samples refused since the last [`TrainingTargets::clear`] (not finite, or too large): a
     /// caller reports them, so a renderer feeding NaN finds out.
     pub fn dropped(&self) -> u64 {
         self.dropped
     }
 
-    /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite,
-    /// negative or above [`MAX_SAMPLE_RADIANCE`] are dropped (they would poison the loss, or
-    /// overflow it) and counted.
+    /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite or
+    /// above [`MAX_SAMPLE_RADIANCE`] in magnitude are dropped (they would poison the loss, or
+    /// overflow it) and counted. Negative samples are kept: the unbiased estimator's control
+    /// variate makes them, and their mean is still the level's target.
     pub fn add(&mut self, level: usize, pixel: usize, value: [f32; 3]) {
         self.add_weighted(level, pixel, value, 1.0);
     }
@@ -71,7 +112,7 @@ impl TrainingTargets {
         // Written so that NaN fails.
         if !(value
             .iter()
-            .all(|v| (0.0..=MAX_SAMPLE_RADIANCE).contains(v))
+            .all(|v| (-MAX_SAMPLE_RADIANCE..=MAX_SAMPLE_RADIANCE).contains(v))
             && weight > 0.0
             && weight.is_finite())
         {
@@ -97,6 +138,10 @@ impl TrainingTargets {
         }
         for c in &mut self.counts {
             c.fill(0);
+        }
+        if let Some((map, s, moments)) = self.statistics.as_mut() {
+            *s = Statistics::new(s.levels(), map.width as usize * map.height as usize);
+            moments.fill([0.0; 3]);
         }
         self.dropped = 0;
     }
@@ -204,8 +249,10 @@ pub struct TileTargets {
     sums: Vec<Vec3>,
     /// Summed sample weights (sample counts when every weight is 1).
     weights: Vec<f32>,
-    /// Samples refused for a negative or non-finite value or weight.
+    /// Samples refused for a non-finite or too large value, or a bad weight.
     dropped: u64,
+    /// The unbiased estimator's statistics per tile pixel, when gathered.
+    statistics: Option<Statistics>,
 }
 
 impl TileTargets {
@@ -221,6 +268,21 @@ impl TileTargets {
             sums: vec![Vec3::ZERO; n],
             weights: vec![0.0; n],
             dropped: 0,
+            statistics: None,
+        }
+    }
+
+    /// This tile also gathers the unbiased estimator's statistics.
+    pub fn with_statistics(mut self) -> Self {
+        let pixels = self.width as usize * self.height as usize;
+        self.statistics = Some(Statistics::new(self.levels, pixels));
+        self
+    }
+
+    /// Files one path's statistics ([`crate::CachedPath::statistics`]).
+    pub fn add_statistics(&mut self, in_tile: usize, path: &PathStatistics) {
+        if let Some(s) = self.statistics.as_mut() {
+            s.add(in_tile, path);
         }
     }
 
@@ -236,7 +298,7 @@ impl TileTargets {
             // One NaN would spoil the pixel's whole mean: refuse the sample, count it. Written
             // so that NaN fails.
             if !(value.is_finite()
-                && value.min_element() >= 0.0
+                && value.min_element() >= -MAX_SAMPLE_RADIANCE
                 && value.max_element() <= MAX_SAMPLE_RADIANCE
                 && weight >= 0.0
                 && weight.is_finite())
@@ -257,6 +319,11 @@ impl TrainingTargets {
     /// image and have at most this frame's levels.
     pub fn add_tile(&mut self, tile: &TileTargets) {
         self.dropped += tile.dropped;
+        if let (Some((map, stats, moments)), Some(t)) =
+            (self.statistics.as_mut(), tile.statistics.as_ref())
+        {
+            stats.add_tile(t, (tile.x0, tile.y0, tile.width), map, moments);
+        }
         let (w, h) = (tile.width, tile.height);
         let tile_pixels = w as usize * h as usize;
         for level in 0..tile.levels.min(self.levels()) {
@@ -293,8 +360,9 @@ mod tests {
 
     use super::*;
 
-    /// A NaN or negative sample is refused and counted; the pixel keeps the mean of the rest
-    /// (before, one NaN made the pixel's whole mean NaN and the pixel was lost).
+    /// A NaN or huge sample is refused and counted; the pixel keeps the mean of the rest
+    /// (before, one NaN made the pixel's whole mean NaN and the pixel was lost). A negative
+    /// sample (the unbiased estimator's) is kept.
     #[test]
     fn bad_samples_are_counted_and_do_not_spoil_a_pixel() {
         let mut tile = TileTargets::new(1, 0, 0, 2, 1);
@@ -302,15 +370,17 @@ mod tests {
         tile.add_samples(0, [(0, Vec3::new(f32::NAN, 0.0, 0.0), 1.0)]);
         tile.add_samples(
             0,
-            [(0, Vec3::splat(-1.0), 1.0), (0, Vec3::ONE, f32::INFINITY)],
+            [(0, Vec3::splat(-3e38), 1.0), (0, Vec3::ONE, f32::INFINITY)],
         );
+        tile.add_samples(1, [(0, Vec3::splat(-1.0), 1.0)]);
         let mut targets = TrainingTargets::new(1, 2, 1);
         targets.add_tile(&tile);
         targets.add(0, 1, [f32::NAN; 3]);
         assert_eq!(targets.dropped(), 4);
         assert_eq!(targets.sums[0][0], [4.0; 3]); // the mean of 1 and 3, weight 2
-        assert_eq!(targets.counts[0], vec![1, 0]);
-        assert_eq!(targets.weights[0], vec![2.0, 0.0]);
+        assert_eq!(targets.sums[0][1], [-1.0; 3]); // kept
+        assert_eq!(targets.counts[0], vec![1, 1]);
+        assert_eq!(targets.weights[0], vec![2.0, 1.0]);
         targets.clear();
         assert_eq!(targets.dropped(), 0);
     }

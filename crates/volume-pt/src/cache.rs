@@ -49,6 +49,16 @@ pub trait PathHooks {
     fn stop_into_cache(&mut self) -> Vec3 {
         Vec3::ZERO
     }
+    /// An unbiased cache at the current vertex, asked after its next-event estimation (so the
+    /// cache stands for what the path gathers from its next direction on): `None` (the
+    /// default) to go on as plain path tracing, or the cache's control variate, whose decision
+    /// the cache draws from its own key, never from the path's random stream. `work` is the
+    /// path's work so far ([`crate::SampleStream::draws`]).
+    fn control_variate(&mut self, _work: u64) -> Option<ControlVariate> {
+        None
+    }
+    /// The path has ended after `work` ([`crate::SampleStream::draws`]).
+    fn finished(&mut self, _work: u64) {}
     /// The path left the volume after its last vertex, having gathered `path_radiance` in all:
     /// radiance `x` the integrator adds as `W * x` (a cache's natural termination).
     fn escaped(&mut self, _path_radiance: Vec3) -> Vec3 {
@@ -63,16 +73,40 @@ pub trait PathHooks {
     }
 }
 
+/// What an unbiased cache decided at a vertex ([`PathHooks::control_variate`]). Either way
+/// the path adds `W * cached`; a path that goes on also adds `-W * cached / q` and divides its
+/// throughput by `q`, so its expectation is the path's radiance whatever the cache holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ControlVariate {
+    /// Add `W * cached` and end the path.
+    Stop { cached: Vec3 },
+    /// Add `W * (cached - cached / q)`, divide the throughput by `q` and go on.
+    GoOn { cached: Vec3, q: f32 },
+}
+
 /// The hooks of a path with no cache.
 impl PathHooks for () {}
 
-/// A pixel's place in its tile: what a cache needs to file a path's samples.
+/// A path's pixel and its place in its tile: what a cache needs to file the path's samples.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TilePixel {
     /// Row-major index of the pixel in the image.
     pub pixel: u64,
     /// Row-major index of the pixel in its tile.
     pub in_tile: usize,
+    /// A number of the path's own ([`path_key`] of the seed, the pixel and the sample index):
+    /// a cache draws its own random decisions from it, leaving the path's stream alone.
+    pub key: u64,
+}
+
+/// The key of sample `sample` of pixel `pixel` under `seed` ([`TilePixel::key`]): a splitmix64
+/// hash, independent of the path's own stream.
+#[inline]
+pub fn path_key(seed: u64, pixel: u64, sample: u64) -> u64 {
+    use render_base::hash::splitmix64;
+    splitmix64(
+        splitmix64(seed ^ 0x5851_f42d_4c95_7f2d) ^ splitmix64(pixel) ^ sample.rotate_left(32),
+    )
 }
 
 /// A rectangle of the image that one thread renders.

@@ -33,20 +33,22 @@ pub struct ExactRgb(pub [i128; 3]);
 impl ExactRgb {
     pub const ZERO: Self = Self([0; 3]);
 
-    /// A sample in fixed point, or `None` when a channel is NaN, negative, infinite or above
-    /// [`MAX_SAMPLE_RADIANCE`]. Each channel is checked on its own, written so NaN fails.
+    /// A sample in fixed point, or `None` when a channel is NaN, infinite or above
+    /// [`MAX_SAMPLE_RADIANCE`] in magnitude. Negative samples are kept: an unbiased cache (a
+    /// control variate, gs-cache's crate docs) makes them, and dropping them would bias the
+    /// pixel's mean upwards. Each channel is checked on its own, written so NaN fails.
     #[inline]
     pub fn from_sample(l: Vec3) -> Option<Self> {
         let mut out = [0i128; 3];
         for (o, c) in out.iter_mut().zip(l.to_array()) {
             // `contains` is false for NaN.
-            if !(0.0..=MAX_SAMPLE_RADIANCE).contains(&c) {
+            if !(-MAX_SAMPLE_RADIANCE..=MAX_SAMPLE_RADIANCE).contains(&c) {
                 return None;
             }
-            // c * 2^56 <= 2^95: too big for i64 only above 128, where the (slower) i128
+            // |c| * 2^56 <= 2^95: too big for i64 only above 128, where the (slower) i128
             // conversion is used. Both truncate towards zero; the product is exact in f64.
             let scaled = c as f64 * EXACT_SCALE;
-            *o = if scaled < 9.2e18 {
+            *o = if scaled.abs() < 9.2e18 {
                 scaled as i64 as i128
             } else {
                 scaled as i128
@@ -381,7 +383,7 @@ impl Film {
     /// Adds `l` to pixel `(x, y)`'s sum without counting a sample: the deferred part of
     /// samples already counted, such as a neural cache's value composed after the frame's
     /// paths are traced. Refused (false, and counted in `nonfinite_samples`) like a sample
-    /// that is NaN, negative, infinite or too bright, or a pixel outside the film.
+    /// that is NaN, infinite or too bright, or a pixel outside the film.
     pub fn add_deferred(&mut self, x: u32, y: u32, l: Vec3) -> bool {
         if x >= self.width || y >= self.height {
             return false;

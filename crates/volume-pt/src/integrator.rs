@@ -10,7 +10,7 @@
 //! Russian roulette at volume vertices from `rr_start_depth` on: continue with probability
 //! `max(throughput)`, dividing the throughput by it.
 
-use crate::cache::{PathHooks, Vertex};
+use crate::cache::{ControlVariate, PathHooks, Vertex};
 use crate::lights::Lights;
 use crate::medium::Medium;
 use crate::phase::Phase;
@@ -208,6 +208,22 @@ pub fn radiance_with<H: PathHooks>(
             }
         }
 
+        // An unbiased cache's control variate (the gs-cache crate docs), after the vertex's
+        // next-event estimation: the cache stands for what the path gathers from its next
+        // direction on. The cache has made the decision and kept its own books; the path only
+        // applies it.
+        match hooks.control_variate(rng.draws()) {
+            Some(ControlVariate::Stop { cached }) => {
+                l += beta * cached;
+                break;
+            }
+            Some(ControlVariate::GoOn { cached, q }) => {
+                l += beta * (cached - cached / q);
+                beta /= q;
+            }
+            None => {}
+        }
+
         if depth >= settings.rr_start_depth {
             let survive = beta.max_element().min(1.0);
             if rng.next_f32() >= survive {
@@ -222,6 +238,7 @@ pub fn radiance_with<H: PathHooks>(
         d = d_new;
         phase_pdf = pdf;
     }
+    hooks.finished(rng.draws());
     PathSample {
         radiance: l,
         first_hit,

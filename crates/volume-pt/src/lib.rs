@@ -37,7 +37,10 @@ pub mod tracking;
 pub mod transfer;
 
 pub use auto_scene::scene_for_volume;
-pub use cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, Vertex, sample_cache_points};
+pub use cache::{
+    ControlVariate, FrameCache, NoCache, PathHooks, TilePixel, TileRect, Vertex, path_key,
+    sample_cache_points,
+};
 pub use colormap::Colormap;
 pub use error::{Error, Result};
 pub use film::{ExactRgb, Film};

@@ -2,7 +2,7 @@
 //! counter-based streams. Pixel `(x, y)` with sample index `s` always draws the same numbers,
 //! so the image is bit-identical for a seed whatever the thread count or pass split.
 
-use crate::cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect};
+use crate::cache::{FrameCache, NoCache, PathHooks, TilePixel, TileRect, path_key};
 use crate::film::{ExactFeatures, ExactRgb, FeatureSample, Film, Tile};
 use crate::integrator::{FirstHit, PathSettings, SceneMedia, radiance_with};
 use crate::sampling::SampleStream;
@@ -61,10 +61,8 @@ fn render_tile<C: FrameCache>(
     for j in 0..tile.height {
         for i in 0..tile.width {
             let (x, y) = (tile.x0 + i, tile.y0 + j);
-            let pixel = TilePixel {
-                pixel: y as u64 * camera.width as u64 + x as u64,
-                in_tile: (j * tile.width + i) as usize,
-            };
+            let pixel_index = y as u64 * camera.width as u64 + x as u64;
+            let in_tile = (j * tile.width + i) as usize;
             let mut sum = ExactRgb::ZERO;
             let mut features = ExactFeatures::ZERO;
             let mut taken = 0u32;
@@ -73,6 +71,11 @@ fn render_tile<C: FrameCache>(
                     break;
                 }
                 taken += 1;
+                let pixel = TilePixel {
+                    pixel: pixel_index,
+                    in_tile,
+                    key: path_key(settings.seed, pixel_index, s as u64),
+                };
                 let mut rng = SampleStream::new(settings.seed, pixel.pixel, s as u64);
                 let (jx, jy) = rng.next_2d();
                 let dir = camera.ray_direction(x as f32 + jx, y as f32 + jy);
@@ -90,17 +93,17 @@ fn render_tile<C: FrameCache>(
                 }
                 let l = path.image_radiance(sample.radiance);
                 cache.path_ended(path, pixel, record);
-                // A bad sample (NaN, negative, infinite, absurdly bright) counts as black and
+                // A bad sample (NaN, infinite, absurdly bright) counts as black and
                 // never reaches the film.
                 match ExactRgb::from_sample(l) {
                     Some(v) => sum += v,
                     None => nonfinite += 1,
                 }
             }
-            tile.sum[pixel.in_tile] += sum;
-            tile.count[pixel.in_tile] += taken;
+            tile.sum[in_tile] += sum;
+            tile.count[in_tile] += taken;
             if keep_features {
-                let f = &mut tile.features[pixel.in_tile];
+                let f = &mut tile.features[in_tile];
                 *f = f
                     .checked_add(&features)
                     .expect("a pixel's feature sums are bounded by its u32 sample count");

@@ -34,6 +34,13 @@ impl SampleStream {
         (h >> 40) as f32 * (1.0 / 16_777_216.0)
     }
 
+    /// How many numbers have been drawn: a deterministic measure of a path's work (every
+    /// tracking step draws one), which a cache weighs its choices by.
+    #[inline]
+    pub fn draws(&self) -> u64 {
+        self.dim
+    }
+
     #[inline]
     pub fn next_2d(&mut self) -> (f32, f32) {
         (self.next_f32(), self.next_f32())

@@ -111,8 +111,9 @@ fn bad_samples_are_refused_per_channel() {
     for bad in [
         Vec3::new(0.5, f32::NAN, 0.5),
         Vec3::new(f32::NAN, 0.5, 0.5),
-        Vec3::new(0.5, 0.5, -1e-30),
+        Vec3::new(0.5, 0.5, -volume_pt::film::MAX_SAMPLE_RADIANCE * 2.0),
         Vec3::new(f32::INFINITY, 0.0, 0.0),
+        Vec3::new(0.0, f32::NEG_INFINITY, 0.0),
         Vec3::new(0.0, 0.0, volume_pt::film::MAX_SAMPLE_RADIANCE * 2.0),
     ] {
         assert!(ExactRgb::from_sample(bad).is_none(), "{bad:?}");
@@ -121,6 +122,12 @@ fn bad_samples_are_refused_per_channel() {
     let v = ExactRgb::from_sample(Vec3::new(1000.25, 129.0, 0.0)).unwrap();
     assert_eq!(v.0[0], (1000.25f64 * 2f64.powi(56)) as i128);
     assert_eq!(v.mean(1), Vec3::new(1000.25, 129.0, 0.0));
+    // Negative samples (a control variate's) are kept, exactly, and sum with positive ones.
+    let n = ExactRgb::from_sample(Vec3::new(-1000.25, -0.5, -1e-30)).unwrap();
+    assert_eq!(n.0[0], -(1000.25f64 * 2f64.powi(56)) as i128);
+    let mut sum = v;
+    sum += n;
+    assert_eq!(sum.mean(1), Vec3::new(0.0, 128.5, 0.0));
 }
 
 #[test]

@@ -600,4 +600,16 @@ fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
         sum(|r| r.lookup_seconds),
         sum(|r| r.train_seconds)
     );
+    if let Cache::Gaussian(c) = session.cache() {
+        for (l, s) in c.control_summary().iter().enumerate() {
+            eprintln!(
+                "unbiased cache, level {}: mean q {:.2}; the tail holds {:.0}% of the variance and {:.0}% of the work: no q can gain more than {:.2}x over plain path tracing",
+                l + 1,
+                s.mean_q,
+                100.0 * s.variance_share,
+                100.0 * s.cost_share,
+                s.best_gain
+            );
+        }
+    }
 }

@@ -1105,3 +1105,48 @@ fn denoising_the_default_scene_cuts_its_error() {
     eprintln!("relMSE at 1 spp: {before:.4} raw, {after:.4} denoised");
     assert!(after * 10.0 < before, "relMSE {before} -> {after}");
 }
+
+/// `render --cache --cache-unbiased true` renders the unbiased cache and prints, per level, the
+/// most any q could gain there (gs-cache's crate docs); its bad settings are named.
+#[test]
+fn the_unbiased_cache_renders_and_reports_its_bound() {
+    let d = scratch("unbiased");
+    let exr = d.join("u.exr");
+    let scene = repo().join("data/scenes/hydrogen.toml");
+    let out = gscache()
+        .arg("render")
+        .arg(&scene)
+        .args(["--width", "48", "--height", "32", "--spp", "1", "--cache"])
+        .args(["--cache-unbiased", "true", "--warmup", "4", "--frames", "8", "-q", "-o"])
+        .arg(&exr)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    for level in 1..=3 {
+        assert!(
+            err.contains(&format!("unbiased cache, level {level}: mean q"))
+                && err.contains("no q can gain more than"),
+            "{err}"
+        );
+    }
+    let image = hdr_image::RgbImage::read_exr(&exr).unwrap();
+    assert!(image.pixels().iter().all(|p| p.is_finite()));
+    for (args, expected) in [
+        (["--cache-min-continuation", "0"], "min_continuation"),
+        (["--cache-continuation-scale", "-1"], "continuation_scale"),
+    ] {
+        let out = gscache()
+            .arg("render")
+            .arg(&scene)
+            .args(["--width", "16", "--height", "16", "--cache", "--cache-unbiased", "true"])
+            .args(args)
+            .arg("-o")
+            .arg(d.join("bad.exr"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expected), "{args:?}: {err}");
+        assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
+    }
+}

@@ -90,3 +90,24 @@ def test_the_example_runs(repo, tmp_path):
     assert done.returncode == 0, done.stderr
     for name in ("brain_nee.png", "brain_cache.png", "brain_nee.exr", "brain_cache.exr"):
         assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_the_unbiased_cache_renders_nee_on_average(repo, tmp_path):
+    """The unbiased cache (gs-cache's crate docs) with q = 0.5 luminance(throughput), so that
+    most paths stop into it: the image means of 96 frames of 4 spp of it and of 96 independent
+    NEE images of 4 spp agree within 4.42 standard errors (a two-sided false alarm of 1e-5). tests/unbiased.rs holds
+    the same per pixel, paired, on every volume; this checks the settings reach the cache from
+    Python."""
+    scene = small_scene(repo, tmp_path)
+    cache = gscache.Cache(scene, {"unbiased": True, "continuation_scale": 0.5})
+    cache.render(1, warmup=16, spp=1)
+    n = 96
+    cached = np.array([cache.render(1, spp=4).mean() for _ in range(n)], dtype=np.float64)
+    nee = np.array(
+        [gscache.render(scene, spp=4, seed=1000 + i).mean() for i in range(n)], dtype=np.float64
+    )
+    se = np.sqrt(cached.var(ddof=1) / n + nee.var(ddof=1) / n)
+    assert se < 0.01 * nee.mean(), f"the test sees too little: se {se} of {nee.mean()}"
+    assert abs(cached.mean() - nee.mean()) < 4.42 * se, (cached.mean(), nee.mean(), se)
+    with pytest.raises(gscache.GscacheError, match="min_continuation"):
+        gscache.Cache(scene, {"unbiased": True, "min_continuation": 0.0})

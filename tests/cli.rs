@@ -1117,7 +1117,8 @@ fn the_unbiased_cache_renders_and_reports_its_bound() {
         .arg("render")
         .arg(&scene)
         .args(["--width", "48", "--height", "32", "--spp", "1", "--cache"])
-        .args(["--cache-unbiased", "true", "--warmup", "4", "--frames", "8", "-q", "-o"])
+        .args(["--cache-unbiased", "true", "--warmup", "4"])
+        .args(["--frames", "8", "-q", "-o"])
         .arg(&exr)
         .output()
         .unwrap();
@@ -1139,14 +1140,18 @@ fn the_unbiased_cache_renders_and_reports_its_bound() {
         let out = gscache()
             .arg("render")
             .arg(&scene)
-            .args(["--width", "16", "--height", "16", "--cache", "--cache-unbiased", "true"])
+            .args(["--width", "16", "--height", "16", "--cache"])
+            .args(["--cache-unbiased", "true"])
             .args(args)
             .arg("-o")
             .arg(d.join("bad.exr"))
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
-        assert!(!out.status.success() && err.contains(expected), "{args:?}: {err}");
+        assert!(
+            !out.status.success() && err.contains(expected),
+            "{args:?}: {err}"
+        );
         assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
     }
 }

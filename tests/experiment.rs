@@ -661,9 +661,21 @@ fn experiments_write_under_out_unless_told_to_write_elsewhere() {
     assert!(dir.join("out/experiments/mine/report.md").is_file());
     run(&["--results-dir", "committed"]);
     assert!(dir.join("committed/mine/report.md").is_file());
-    let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments");
-    for entry in std::fs::read_dir(&committed).unwrap() {
-        let path = entry.unwrap().path();
+    // Every committed experiment file, in experiments/ and its folders.
+    let mut files = Vec::new();
+    let mut folders = vec![Path::new(env!("CARGO_MANIFEST_DIR")).join("experiments")];
+    while let Some(folder) = folders.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                folders.push(path);
+            } else if path.extension().is_some_and(|e| e == "toml") {
+                files.push(path);
+            }
+        }
+    }
+    assert!(files.len() >= 24, "{files:?}");
+    for path in files {
         let table: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
         assert!(
             !table.contains_key("output"),

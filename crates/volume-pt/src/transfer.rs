@@ -263,6 +263,16 @@ impl TransferFunction {
         self.albedo.eval(self.normalise(v))
     }
 
+    /// The opacity curve at `t`, a position in the window (0 at its low end, 1 at its high).
+    pub fn opacity_at(&self, t: f32) -> f32 {
+        self.opacity.eval(t)
+    }
+
+    /// The colour (single-scattering albedo) at window position `t`.
+    pub fn albedo_at(&self, t: f32) -> Vec3 {
+        self.albedo.eval(t)
+    }
+
     /// The largest extinction any value in `[vmin, vmax]` can produce.
     pub fn max_extinction(&self, vmin: f32, vmax: f32) -> f32 {
         self.density_scale

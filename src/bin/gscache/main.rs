@@ -34,6 +34,7 @@ mod experiment;
 mod merge;
 mod render;
 mod splat;
+mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
@@ -63,6 +64,9 @@ enum Command {
     Experiment(experiment::ExperimentArgs),
     /// Measure the renderers' speed (Markdown tables).
     Bench(bench::BenchArgs),
+    /// Explore a scene in the browser: orbit, edit the transfer function and the lights, switch
+    /// methods, with the image refining live (prints a URL with a token; Ctrl-C stops it).
+    View(view::ViewArgs),
 }
 
 /// The command line, with `render`'s many cache settings grouped under their own headings and
@@ -103,6 +107,7 @@ fn main() {
         Command::Splat(c) => splat::run(c, &cli.global),
         Command::Experiment(a) => experiment::run(a, &cli.global),
         Command::Bench(a) => bench::run(a),
+        Command::View(a) => view::run(a, &cli.global),
     });
     match result {
         Ok(code) => std::process::exit(code),

@@ -1,0 +1,278 @@
+// gscache view's page: one WebSocket to the server; frames arrive as JPEG (binary messages),
+// everything else as JSON. Every edit is sent as it happens (at most one per animation frame)
+// and the server answers with a new image, or an error that is shown here.
+"use strict";
+(() => {
+  const $ = (id) => document.getElementById(id);
+  const token = new URLSearchParams(location.search).get("token") || "";
+  const socket = new WebSocket(`ws://${location.host}/ws?token=${encodeURIComponent(token)}`);
+  socket.binaryType = "blob";
+  let hello = null;
+  let frameUrl = null;
+  const state = { centre: [0, 0, 0], target: [0, 0, 0], distance: 1, azimuth: 0, elevation: 0, up: [0, 1, 0], home: null };
+  const transfer = { colormap: "scene", window: [0, 1], density_scale: 1, opacity: [[0, 0], [1, 1]] };
+  const lights = [];
+
+  // ---- vectors ----
+  const add = (a, b) => a.map((x, i) => x + b[i]);
+  const sub = (a, b) => a.map((x, i) => x - b[i]);
+  const mul = (a, k) => a.map((x) => x * k);
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const norm = (a) => mul(a, 1 / Math.max(Math.hypot(...a), 1e-12));
+  // An orthonormal frame around the scene's up: azimuth and elevation are measured in it.
+  function frame() {
+    const up = norm(state.up);
+    const ref = Math.abs(up[0]) < 0.9 ? [1, 0, 0] : [0, 0, 1];
+    const e1 = norm(cross(up, ref));
+    const e2 = cross(up, e1);
+    return { up, e1, e2 };
+  }
+  function eye() {
+    const { up, e1, e2 } = frame();
+    const c = Math.cos(state.elevation);
+    const dir = add(add(mul(e1, c * Math.cos(state.azimuth)), mul(e2, c * Math.sin(state.azimuth))), mul(up, Math.sin(state.elevation)));
+    return add(state.target, mul(dir, state.distance));
+  }
+  function setFromEye(eyePos, target) {
+    const { up, e1, e2 } = frame();
+    const d = sub(eyePos, target);
+    state.target = target;
+    state.distance = Math.hypot(...d);
+    const n = norm(d);
+    state.elevation = Math.asin(Math.max(-1, Math.min(1, dot(n, up))));
+    state.azimuth = Math.atan2(dot(n, e2), dot(n, e1));
+  }
+
+  // ---- sending, at most once per animation frame per kind ----
+  const queued = new Map();
+  let scheduled = false;
+  function send(kind, message) {
+    queued.set(kind, message);
+    if (!scheduled) {
+      scheduled = true;
+      requestAnimationFrame(() => {
+        scheduled = false;
+        if (socket.readyState === WebSocket.OPEN) for (const m of queued.values()) socket.send(JSON.stringify(m));
+        queued.clear();
+      });
+    }
+  }
+  function sendCamera(moving) {
+    send("camera", { type: "camera", eye: eye(), target: state.target, up: state.up, moving });
+  }
+  function sendTransfer() {
+    send("transfer", { type: "transfer", colormap: transfer.colormap, window: transfer.window, density_scale: transfer.density_scale, opacity: transfer.opacity });
+  }
+
+  // ---- messages from the server ----
+  let errorTimer = null;
+  function showError(text, ok) {
+    const e = $("error");
+    e.textContent = text;
+    e.className = ok ? "ok" : "";
+    clearTimeout(errorTimer);
+    errorTimer = setTimeout(() => (e.textContent = ""), 8000);
+  }
+  socket.onopen = () => ($("status").textContent = "connected");
+  socket.onclose = (e) => ($("status").textContent = `disconnected${e.reason ? ": " + e.reason : ""}`);
+  socket.onmessage = (event) => {
+    if (typeof event.data !== "string") {
+      const url = URL.createObjectURL(event.data);
+      const img = $("frame");
+      img.onload = () => { if (frameUrl) URL.revokeObjectURL(frameUrl); frameUrl = url; };
+      img.src = url;
+      return;
+    }
+    const m = JSON.parse(event.data);
+    if (m.type === "hello") start(m);
+    else if (m.type === "stats") stats(m);
+    else if (m.type === "error") showError(m.message, false);
+    else if (m.type === "saved") showError("saved: " + m.files.join(", "), true);
+  };
+
+  function stats(m) {
+    $("stats").textContent =
+      `${m.method}, ${m.width}x${m.height}${m.moving ? " (moving)" : ""}${m.denoised ? ", denoised" : ""}\n` +
+      `${m.spp} / ${m.target_spp} spp, ${m.fps.toFixed(1)} frames/s\n` +
+      `trace ${m.trace_ms.toFixed(1)} ms, read ${m.lookup_ms.toFixed(1)} ms, train ${m.train_ms.toFixed(1)} ms\n` +
+      `denoise ${m.denoise_ms.toFixed(1)} ms, encode ${m.encode_ms.toFixed(1)} ms`;
+    $("status").textContent = `${m.spp} spp`;
+  }
+
+  function start(m) {
+    hello = m;
+    state.centre = m.centre;
+    state.up = m.camera.up;
+    setFromEye(m.camera.eye, m.camera.target);
+    state.home = { target: state.target.slice(), distance: state.distance, azimuth: state.azimuth, elevation: state.elevation };
+    Object.assign(transfer, m.transfer);
+    const method = $("method");
+    method.innerHTML = "";
+    for (const name of m.methods) method.add(new Option(name, name, false, name === m.method));
+    const maps = $("colormap");
+    maps.innerHTML = "";
+    for (const name of m.colormaps) maps.add(new Option(name, name, false, name === transfer.colormap));
+    $("window-lo").value = transfer.window[0];
+    $("window-hi").value = transfer.window[1];
+    $("density").value = transfer.density_scale;
+    $("denoise").disabled = !m.denoiser;
+    $("environment").value = m.environment;
+    lights.length = 0;
+    const box = $("lights");
+    box.innerHTML = "";
+    m.lights.forEach((l, i) => {
+      const { up, e1, e2 } = frame();
+      const light = { direction: l.direction, intensity: l.intensity };
+      lights.push(light);
+      const az = Math.atan2(dot(l.direction, e2), dot(l.direction, e1));
+      const el = Math.asin(Math.max(-1, Math.min(1, dot(l.direction, up))));
+      const div = document.createElement("div");
+      div.className = "light";
+      div.innerHTML = `<b>light ${i + 1}</b> (${l.kind})
+        <label>azimuth <input type="range" min="-180" max="180" step="1" value="${(az * 180 / Math.PI).toFixed(0)}" data-k="az"></label>
+        <label>elevation <input type="range" min="-89" max="89" step="1" value="${(el * 180 / Math.PI).toFixed(0)}" data-k="el"></label>
+        <label>intensity <input type="number" step="any" min="0" value="${l.intensity}" data-k="k"></label>`;
+      div.addEventListener("input", () => {
+        const get = (k) => div.querySelector(`[data-k=${k}]`);
+        const a = get("az").value * Math.PI / 180, e = get("el").value * Math.PI / 180;
+        const c = Math.cos(e);
+        light.direction = add(add(mul(e1, c * Math.cos(a)), mul(e2, c * Math.sin(a))), mul(up, Math.sin(e)));
+        light.intensity = parseFloat(get("k").value);
+        send(`light${i}`, { type: "light", index: i, direction: light.direction, intensity: light.intensity });
+      });
+      box.appendChild(div);
+    });
+    drawCurve();
+  }
+
+  // ---- camera: orbit (left drag), pan (right or shift drag), zoom (wheel, pinch) ----
+  const view = $("view");
+  const pointers = new Map();
+  let pinch = null;
+  view.addEventListener("contextmenu", (e) => e.preventDefault());
+  view.addEventListener("pointerdown", (e) => {
+    view.setPointerCapture(e.pointerId);
+    pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey });
+    if (pointers.size === 2) {
+      const [a, b] = [...pointers.values()];
+      pinch = Math.hypot(a.x - b.x, a.y - b.y);
+    }
+  });
+  view.addEventListener("pointermove", (e) => {
+    const p = pointers.get(e.pointerId);
+    if (!p || !hello) return;
+    const dx = e.clientX - p.x, dy = e.clientY - p.y;
+    p.x = e.clientX; p.y = e.clientY;
+    if (pointers.size === 2) {
+      const [a, b] = [...pointers.values()];
+      const d = Math.hypot(a.x - b.x, a.y - b.y);
+      if (pinch) state.distance *= pinch / Math.max(d, 1);
+      pinch = d;
+    } else if (p.pan) {
+      const forward = norm(sub(state.target, eye()));
+      const right = norm(cross(forward, state.up));
+      const up = cross(right, forward);
+      const k = state.distance * 0.0015;
+      state.target = add(state.target, add(mul(right, -dx * k), mul(up, dy * k)));
+    } else {
+      state.azimuth -= dx * 0.008;
+      state.elevation = Math.max(-1.5, Math.min(1.5, state.elevation + dy * 0.008));
+    }
+    sendCamera(true);
+  });
+  const release = (e) => {
+    pointers.delete(e.pointerId);
+    if (pointers.size < 2) pinch = null;
+    if (pointers.size === 0 && hello) sendCamera(false);
+  };
+  view.addEventListener("pointerup", release);
+  view.addEventListener("pointercancel", release);
+  let wheelTimer = null;
+  view.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    state.distance *= Math.exp(e.deltaY * 0.001);
+    sendCamera(true);
+    clearTimeout(wheelTimer);
+    wheelTimer = setTimeout(() => sendCamera(false), 200);
+  }, { passive: false });
+  $("reset").onclick = () => {
+    if (!state.home) return;
+    Object.assign(state, { target: state.home.target.slice(), distance: state.home.distance, azimuth: state.home.azimuth, elevation: state.home.elevation });
+    sendCamera(false);
+  };
+
+  // ---- method, denoise, save ----
+  $("method").onchange = (e) => send("method", { type: "method", method: e.target.value });
+  $("denoise").onchange = (e) => send("denoise", { type: "denoise", on: e.target.checked });
+  $("save").onclick = () => send("save", { type: "save" });
+  $("environment").oninput = (e) => send("environment", { type: "environment", intensity: parseFloat(e.target.value) });
+
+  // ---- transfer function ----
+  $("colormap").onchange = (e) => { transfer.colormap = e.target.value; sendTransfer(); };
+  const number = (id, apply) => ($(id).onchange = (e) => { apply(parseFloat(e.target.value)); sendTransfer(); });
+  number("window-lo", (v) => (transfer.window = [v, transfer.window[1]]));
+  number("window-hi", (v) => (transfer.window = [transfer.window[0], v]));
+  number("density", (v) => (transfer.density_scale = v));
+
+  // The opacity curve over the value histogram (log counts), x: position in the window.
+  const curve = $("curve");
+  const ctx = curve.getContext("2d");
+  function drawCurve() {
+    const w = curve.width, h = curve.height;
+    ctx.clearRect(0, 0, w, h);
+    if (hello) {
+      // The histogram is over the data range; the curve over the window.
+      const [r0, r1] = hello.range, [w0, w1] = transfer.window;
+      const bins = hello.histogram, top = Math.log1p(Math.max(...bins));
+      ctx.fillStyle = "#3a4a5a";
+      bins.forEach((c, i) => {
+        const v0 = r0 + (r1 - r0) * i / bins.length, v1 = r0 + (r1 - r0) * (i + 1) / bins.length;
+        const x0 = (v0 - w0) / (w1 - w0) * w, x1 = (v1 - w0) / (w1 - w0) * w;
+        const bh = Math.log1p(c) / top * h;
+        ctx.fillRect(x0, h - bh, Math.max(x1 - x0, 1), bh);
+      });
+    }
+    ctx.strokeStyle = "#ffcc80";
+    ctx.fillStyle = "#ffcc80";
+    ctx.beginPath();
+    transfer.opacity.forEach(([u, o], i) => (i ? ctx.lineTo(u * w, (1 - o) * h) : ctx.moveTo(u * w, (1 - o) * h)));
+    ctx.stroke();
+    for (const [u, o] of transfer.opacity) ctx.fillRect(u * w - 3, (1 - o) * h - 3, 6, 6);
+  }
+  let dragging = -1;
+  const at = (e) => {
+    const r = curve.getBoundingClientRect();
+    return [Math.max(0, Math.min(1, (e.clientX - r.left) / r.width)), Math.max(0, Math.min(1, 1 - (e.clientY - r.top) / r.height))];
+  };
+  const nearest = ([u, o]) => {
+    let best = -1, d = 0.04;
+    transfer.opacity.forEach(([pu, po], i) => { const dd = Math.hypot(pu - u, (po - o) * 0.5); if (dd < d) { d = dd; best = i; } });
+    return best;
+  };
+  curve.addEventListener("pointerdown", (e) => {
+    const p = at(e);
+    dragging = nearest(p);
+    if (dragging < 0) {
+      transfer.opacity.push(p);
+      transfer.opacity.sort((a, b) => a[0] - b[0]);
+      dragging = transfer.opacity.findIndex((q) => q === p);
+    }
+    curve.setPointerCapture(e.pointerId);
+    drawCurve(); sendTransfer();
+  });
+  curve.addEventListener("pointermove", (e) => {
+    if (dragging < 0) return;
+    const [u, o] = at(e);
+    const pts = transfer.opacity;
+    const lo = dragging > 0 ? pts[dragging - 1][0] + 1e-3 : 0;
+    const hi = dragging < pts.length - 1 ? pts[dragging + 1][0] - 1e-3 : 1;
+    pts[dragging] = [Math.max(lo, Math.min(hi, u)), o];
+    drawCurve(); sendTransfer();
+  });
+  curve.addEventListener("pointerup", () => (dragging = -1));
+  curve.addEventListener("dblclick", (e) => {
+    const i = nearest(at(e));
+    if (i >= 0 && transfer.opacity.length > 2) { transfer.opacity.splice(i, 1); drawCurve(); sendTransfer(); }
+  });
+})();

@@ -1,0 +1,607 @@
+//! The messages between the page and the server, and how each is checked.
+//!
+//! The page sends JSON text messages ([`ClientMessage`]), at most [`MAX_MESSAGE_BYTES`] each;
+//! the server answers with binary messages (each a JPEG frame) and JSON text ([`hello`], the
+//! frame statistics, errors, saved files). An edit is checked as the scene file's settings are
+//! (finite numbers, ranges, sizes); a bad one is answered with an error naming the field, and the
+//! view goes on unchanged.
+
+use glam::Vec3;
+use render_session::CacheChoice;
+use serde::Deserialize;
+use splat_raster::Camera;
+use volume_pt::{Colormap, Light, Lights, Scene, TransferFunction};
+
+/// The largest message the server reads (the WebSocket closes on a larger one).
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
+/// The most control points an opacity curve may have.
+pub const MAX_OPACITY_POINTS: usize = 64;
+/// Bins of the value histogram sent to the page.
+pub const HISTOGRAM_BINS: usize = 128;
+/// The largest intensity factor a light or the environment may be given.
+pub const MAX_INTENSITY: f32 = 1e4;
+
+/// What the page may ask.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ClientMessage {
+    /// The camera; `moving` while the user drags (the view renders at a reduced size then).
+    Camera {
+        eye: [f32; 3],
+        target: [f32; 3],
+        up: [f32; 3],
+        #[serde(default)]
+        moving: bool,
+    },
+    /// The transfer function: a colour map, the data window, the density scale and the
+    /// opacity curve as `[position in the window (0..1), opacity (0..1)]` points.
+    Transfer {
+        colormap: String,
+        window: [f32; 2],
+        density_scale: f32,
+        opacity: Vec<[f32; 2]>,
+    },
+    /// Light `index`: the direction from the volume's centre towards it (a sphere light keeps
+    /// its distance; a distant light shines from there) and a factor on its scene intensity.
+    Light {
+        index: usize,
+        direction: [f32; 3],
+        intensity: f32,
+    },
+    /// A factor on the scene's environment radiance.
+    Environment { intensity: f32 },
+    /// `nee`, `cache` (the Gaussian cache), `cache-rt` (its ray-traced lookup), `unbiased` (the
+    /// unbiased Gaussian cache) or `nrc` (the neural cache, where the program has it).
+    Method { method: String },
+    /// Denoise the shown image (where Open Image Denoise is installed).
+    Denoise { on: bool },
+    /// Write the image, the scene and the cache into the output folder (a struct variant, so
+    /// that unknown fields are refused as on every other message).
+    Save {},
+}
+
+/// A message checked and turned into what the render thread does.
+#[derive(Debug, Clone)]
+pub enum Change {
+    Camera { camera: Camera, moving: bool },
+    Transfer(TransferFunction, TransferSettings),
+    Lights(Lights, Vec<(Vec3, f32)>, f32),
+    Method(Method),
+    Denoise(bool),
+    Save,
+}
+
+/// The transfer function as the page edits it (kept to write the scene file back).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TransferSettings {
+    /// A preset, or `None` for the scene's own colours.
+    pub colormap: Option<Colormap>,
+    pub window: [f32; 2],
+    pub density_scale: f32,
+    pub opacity: Vec<[f32; 2]>,
+}
+
+/// The methods the page offers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    Nee,
+    Cache,
+    CacheRt,
+    Unbiased,
+    Nrc,
+}
+
+impl Method {
+    pub const NAMES: [&'static str; 5] = ["nee", "cache", "cache-rt", "unbiased", "nrc"];
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    fn parse(s: &str) -> Result<Self, String> {
+        match s {
+            "nee" => Ok(Method::Nee),
+            "cache" => Ok(Method::Cache),
+            "cache-rt" => Ok(Method::CacheRt),
+            "unbiased" => Ok(Method::Unbiased),
+            "nrc" if cfg!(feature = "nrc") => Ok(Method::Nrc),
+            _ => Err(format!(
+                "method `{s}`: expected one of {}",
+                Self::available().join(", ")
+            )),
+        }
+    }
+
+    /// The names this build offers.
+    pub fn available() -> Vec<&'static str> {
+        Self::NAMES
+            .into_iter()
+            .filter(|n| *n != "nrc" || cfg!(feature = "nrc"))
+            .collect()
+    }
+
+    /// The session's cache for this method.
+    pub fn cache_choice(self) -> CacheChoice {
+        use gs_cache::{CacheConfig, Lookup};
+        match self {
+            Method::Nee => CacheChoice::None,
+            Method::Cache => CacheChoice::gaussian(CacheConfig::default()),
+            Method::CacheRt => CacheChoice::gaussian(CacheConfig {
+                lookup: Lookup::Rt,
+                ..Default::default()
+            }),
+            Method::Unbiased => CacheChoice::gaussian(CacheConfig {
+                unbiased: true,
+                ..Default::default()
+            }),
+            #[cfg(feature = "nrc")]
+            Method::Nrc => CacheChoice::Neural(nrc_cache::NrcConfig::default()),
+            #[cfg(not(feature = "nrc"))]
+            Method::Nrc => CacheChoice::None,
+        }
+    }
+}
+
+/// What the page is told of the scene when it connects, and what an edit is checked against:
+/// the scene as loaded.
+#[derive(Debug, Clone)]
+pub struct SceneFacts {
+    /// The volume's box centre: cameras orbit it and lights move about it.
+    pub centre: Vec3,
+    /// The data range.
+    pub range: [f32; 2],
+    /// The scene's own lights and environment (intensity factors are relative to these).
+    pub lights: Lights,
+    /// The value histogram over the data range, [`HISTOGRAM_BINS`] bins.
+    pub histogram: Vec<u64>,
+    /// The scene's transfer function (its colours stay available as a colour map).
+    pub transfer: TransferFunction,
+    pub width: u32,
+    pub height: u32,
+    pub fov_y: f32,
+}
+
+impl SceneFacts {
+    pub fn of(scene: &Scene) -> Self {
+        let medium = &scene.media.medium;
+        let (lo, hi) = medium.bounds();
+        let grid = medium.grid();
+        let (min, max) = grid.range();
+        Self {
+            centre: 0.5 * (lo + hi),
+            range: [min, max],
+            lights: scene.media.lights.clone(),
+            histogram: histogram(grid, min, max),
+            transfer: medium.transfer_function().clone(),
+            width: scene.camera.width,
+            height: scene.camera.height,
+            fov_y: scene.camera.fov_y_degrees,
+        }
+    }
+}
+
+/// A histogram of about a million voxels spread over the box (every voxel of a smaller one).
+fn histogram(grid: &volume_pt::ScalarGrid, min: f32, max: f32) -> Vec<u64> {
+    let d = grid.dims();
+    let n = d.x as u64 * d.y as u64 * d.z as u64;
+    let stride = ((n as f64 / 1e6).cbrt().ceil() as usize).max(1);
+    let mut bins = vec![0u64; HISTOGRAM_BINS];
+    let width = (max - min).max(f32::MIN_POSITIVE);
+    for z in (0..d.z).step_by(stride) {
+        for y in (0..d.y).step_by(stride) {
+            for x in (0..d.x).step_by(stride) {
+                let v = grid.voxel(x, y, z);
+                if v.is_finite() {
+                    let u = ((v - min) / width).clamp(0.0, 1.0);
+                    bins[((u * HISTOGRAM_BINS as f32) as usize).min(HISTOGRAM_BINS - 1)] += 1;
+                }
+            }
+        }
+    }
+    bins
+}
+
+fn finite3(name: &str, v: [f32; 3]) -> Result<Vec3, String> {
+    let v = Vec3::from_array(v);
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{name} {v}: expected finite numbers"))
+    }
+}
+
+fn intensity(name: &str, k: f32) -> Result<f32, String> {
+    if (0.0..=MAX_INTENSITY).contains(&k) {
+        Ok(k)
+    } else {
+        Err(format!(
+            "{name} intensity {k}: expected 0 to {MAX_INTENSITY}"
+        ))
+    }
+}
+
+/// The colour-map name that keeps the scene's own colours.
+pub const SCENE_COLOURS: &str = "scene";
+
+/// The transfer function the page described, checked. `scene` gives the colours for the
+/// colour map [`SCENE_COLOURS`].
+pub fn transfer_function(
+    colormap: &str,
+    window: [f32; 2],
+    density_scale: f32,
+    opacity: &[[f32; 2]],
+    scene: &TransferFunction,
+) -> Result<(TransferFunction, TransferSettings), String> {
+    let colormap: Option<Colormap> = if colormap == SCENE_COLOURS {
+        None
+    } else {
+        Some(
+            colormap
+                .parse()
+                .map_err(|e| format!("{e}, or {SCENE_COLOURS}"))?,
+        )
+    };
+    let [lo, hi] = window;
+    if !(lo.is_finite() && hi.is_finite() && hi > lo) {
+        return Err(format!(
+            "window [{lo}, {hi}]: expected two finite values, the first below the second"
+        ));
+    }
+    if !(density_scale > 0.0 && density_scale <= 1e6) {
+        return Err(format!(
+            "density scale {density_scale}: expected a value above 0 and at most 1e6"
+        ));
+    }
+    if opacity.len() < 2 || opacity.len() > MAX_OPACITY_POINTS {
+        return Err(format!(
+            "{} opacity points: expected 2 to {MAX_OPACITY_POINTS}",
+            opacity.len()
+        ));
+    }
+    let mut last = f32::NEG_INFINITY;
+    for (i, &[u, o]) in opacity.iter().enumerate() {
+        if !((0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&o)) {
+            return Err(format!(
+                "opacity point {i} ({u}, {o}): expected a position and an opacity in [0, 1]"
+            ));
+        }
+        if !(u > last) {
+            return Err(format!(
+                "opacity point {i} at {u}: expected positions in increasing order"
+            ));
+        }
+        last = u;
+    }
+    let settings = TransferSettings {
+        colormap,
+        window,
+        density_scale,
+        opacity: opacity.to_vec(),
+    };
+    let points = settings.points(scene);
+    let tf = TransferFunction::from_points((lo, hi), &points, density_scale)
+        .map_err(|e| e.to_string())?;
+    Ok((tf, settings))
+}
+
+impl TransferSettings {
+    /// The control points `(position, colour, opacity)` of the function: the colour follows the
+    /// map (or the scene's colours) along the window, the opacity the curve; both are sampled at
+    /// the curve's points and at 16 steps between, so the map's colours are kept.
+    pub fn points(&self, scene: &TransferFunction) -> Vec<(f32, Vec3, f32)> {
+        let opacity = &self.opacity;
+        let mut positions: Vec<f32> = opacity.iter().map(|p| p[0]).collect();
+        positions.extend((0..=16).map(|k| k as f32 / 16.0));
+        positions.sort_by(f32::total_cmp);
+        positions.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
+        let opacity_at = |u: f32| -> f32 {
+            let i = opacity.partition_point(|p| p[0] <= u);
+            if i == 0 {
+                opacity[0][1]
+            } else if i == opacity.len() {
+                opacity[opacity.len() - 1][1]
+            } else {
+                let ([u0, o0], [u1, o1]) = (opacity[i - 1], opacity[i]);
+                o0 + (o1 - o0) * (u - u0) / (u1 - u0)
+            }
+        };
+        positions
+            .iter()
+            .map(|&u| {
+                let colour = match self.colormap {
+                    Some(map) => map.at(u),
+                    None => scene.albedo_at(u),
+                };
+                (u, colour, opacity_at(u))
+            })
+            .collect()
+    }
+}
+
+/// The state of the lights the page has set: per scene light its direction from the centre and
+/// intensity factor, and the environment's factor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LightSettings {
+    pub lights: Vec<(Vec3, f32)>,
+    pub environment: f32,
+}
+
+impl LightSettings {
+    pub fn of(facts: &SceneFacts) -> Self {
+        Self {
+            lights: facts
+                .lights
+                .lights
+                .iter()
+                .map(|l| (light_direction(l, facts.centre), 1.0))
+                .collect(),
+            environment: 1.0,
+        }
+    }
+
+    /// The scene's lights with these settings applied.
+    pub fn lights(&self, facts: &SceneFacts) -> Lights {
+        let mut out = facts.lights.clone();
+        for (light, &(dir, k)) in out.lights.iter_mut().zip(&self.lights) {
+            match light {
+                Light::Sphere(s) => {
+                    let distance = (s.center - facts.centre).length();
+                    s.center = facts.centre + dir * distance;
+                    s.radiance *= k;
+                }
+                Light::Distant(d) => {
+                    d.direction = -dir;
+                    d.irradiance *= k;
+                }
+            }
+        }
+        out.environment *= self.environment;
+        out
+    }
+}
+
+/// The unit direction from `centre` towards `light`.
+pub fn light_direction(light: &Light, centre: Vec3) -> Vec3 {
+    match light {
+        Light::Sphere(s) => (s.center - centre).try_normalize().unwrap_or(Vec3::Y),
+        Light::Distant(d) => (-d.direction).try_normalize().unwrap_or(Vec3::Y),
+    }
+}
+
+/// Checks `message` against the scene and the current light settings.
+pub fn check(
+    message: ClientMessage,
+    facts: &SceneFacts,
+    lights: &LightSettings,
+) -> Result<Change, String> {
+    match message {
+        ClientMessage::Camera {
+            eye,
+            target,
+            up,
+            moving,
+        } => {
+            let (eye, target, up) = (
+                finite3("eye", eye)?,
+                finite3("target", target)?,
+                finite3("up", up)?,
+            );
+            if eye.abs().max_element() > render_base::MAX_COORDINATE
+                || target.abs().max_element() > render_base::MAX_COORDINATE
+            {
+                return Err(format!(
+                    "camera at {eye} looking at {target}: expected coordinates within {}",
+                    render_base::MAX_COORDINATE
+                ));
+            }
+            let camera = Camera::look_at(eye, target, up, facts.fov_y, facts.width, facts.height)
+                .map_err(|e| format!("camera: {e}"))?;
+            Ok(Change::Camera { camera, moving })
+        }
+        ClientMessage::Transfer {
+            colormap,
+            window,
+            density_scale,
+            opacity,
+        } => {
+            let (tf, settings) =
+                transfer_function(&colormap, window, density_scale, &opacity, &facts.transfer)?;
+            Ok(Change::Transfer(tf, settings))
+        }
+        ClientMessage::Light {
+            index,
+            direction,
+            intensity: k,
+        } => {
+            let n = lights.lights.len();
+            if index >= n {
+                return Err(format!(
+                    "light {index}: the scene has {n} light{}",
+                    if n == 1 { "" } else { "s" }
+                ));
+            }
+            let dir = finite3("light direction", direction)?
+                .try_normalize()
+                .ok_or("light direction [0, 0, 0]: expected a direction")?;
+            let k = intensity("light", k)?;
+            let mut next = lights.clone();
+            next.lights[index] = (dir, k);
+            Ok(Change::Lights(
+                next.lights(facts),
+                next.lights,
+                next.environment,
+            ))
+        }
+        ClientMessage::Environment { intensity: k } => {
+            let k = intensity("environment", k)?;
+            let next = LightSettings {
+                environment: k,
+                ..lights.clone()
+            };
+            Ok(Change::Lights(
+                next.lights(facts),
+                next.lights,
+                next.environment,
+            ))
+        }
+        ClientMessage::Method { method } => Ok(Change::Method(Method::parse(&method)?)),
+        ClientMessage::Denoise { on } => Ok(Change::Denoise(on)),
+        ClientMessage::Save {} => Ok(Change::Save),
+    }
+}
+
+/// Parses a text message, naming what is wrong with it.
+pub fn parse(text: &str) -> Result<ClientMessage, String> {
+    if text.len() > MAX_MESSAGE_BYTES {
+        return Err(format!(
+            "a message of {} bytes: expected at most {MAX_MESSAGE_BYTES}",
+            text.len()
+        ));
+    }
+    serde_json::from_str(text).map_err(|e| format!("message not understood: {e}"))
+}
+
+/// The greeting sent to a page when it connects: the scene, what can be edited, and the
+/// current settings.
+pub fn hello(
+    facts: &SceneFacts,
+    camera: &Camera,
+    transfer: &TransferSettings,
+    lights: &LightSettings,
+    method: Method,
+    denoiser: bool,
+) -> serde_json::Value {
+    let (_, down, forward) = camera.axes();
+    // The page orbits its target: the point in front of the camera nearest the volume's centre.
+    let target =
+        camera.position + forward * (facts.centre - camera.position).dot(forward).max(1e-3);
+    serde_json::json!({
+        "type": "hello",
+        "width": facts.width,
+        "height": facts.height,
+        "centre": facts.centre.to_array(),
+        "camera": {
+            "eye": camera.position.to_array(),
+            "target": target.to_array(),
+            "up": (-down).to_array(),
+            "fov_y": facts.fov_y,
+        },
+        "range": facts.range,
+        "histogram": facts.histogram,
+        "colormaps": std::iter::once(SCENE_COLOURS.to_string())
+            .chain(Colormap::ALL.iter().map(|c| c.to_string()))
+            .collect::<Vec<_>>(),
+        "transfer": {
+            "colormap": transfer.colormap.map_or(SCENE_COLOURS.to_string(), |c| c.to_string()),
+            "window": transfer.window,
+            "density_scale": transfer.density_scale,
+            "opacity": transfer.opacity,
+        },
+        "lights": lights.lights.iter().zip(&facts.lights.lights).map(|((d, k), l)| serde_json::json!({
+            "kind": match l { Light::Sphere(_) => "sphere", Light::Distant(_) => "distant" },
+            "direction": d.to_array(),
+            "intensity": k,
+        })).collect::<Vec<_>>(),
+        "environment": lights.environment,
+        "methods": Method::available(),
+        "method": method.name(),
+        "denoiser": denoiser,
+        "max_message_bytes": MAX_MESSAGE_BYTES,
+    })
+}
+
+/// The page's transfer-function settings for the scene's own function: its colours, and its
+/// opacity curve sampled at `steps + 1` points.
+pub fn transfer_settings_of(tf: &TransferFunction, steps: usize) -> TransferSettings {
+    let (lo, hi) = tf.window();
+    let opacity = (0..=steps)
+        .map(|k| {
+            let u = k as f32 / steps as f32;
+            [u, tf.opacity_at(u).clamp(0.0, 1.0)]
+        })
+        .collect();
+    TransferSettings {
+        colormap: None,
+        window: [lo, hi],
+        density_scale: tf.density_scale(),
+        opacity,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_transfer_functions_are_named() {
+        let ok = [[0.0, 0.0], [1.0, 1.0]];
+        let scene = TransferFunction::from_points(
+            (0.0, 1.0),
+            &[(0.0, Vec3::ZERO, 0.0), (1.0, Vec3::ONE, 1.0)],
+            1.0,
+        )
+        .unwrap();
+        assert!(transfer_function("viridis", [0.0, 1.0], 1.0, &ok, &scene).is_ok());
+        let (tf, _) = transfer_function(SCENE_COLOURS, [0.0, 1.0], 1.0, &ok, &scene).unwrap();
+        assert_eq!(tf.albedo_at(0.5), Vec3::splat(0.5));
+        let cases: [(&str, [f32; 2], f32, Vec<[f32; 2]>, &str); 7] = [
+            ("nope", [0.0, 1.0], 1.0, ok.to_vec(), "colour map"),
+            ("viridis", [1.0, 0.0], 1.0, ok.to_vec(), "window"),
+            ("viridis", [f32::NAN, 1.0], 1.0, ok.to_vec(), "window"),
+            (
+                "viridis",
+                [0.0, 1.0],
+                f32::NAN,
+                ok.to_vec(),
+                "density scale",
+            ),
+            (
+                "viridis",
+                [0.0, 1.0],
+                1.0,
+                vec![[0.0, 0.0]],
+                "opacity points",
+            ),
+            (
+                "viridis",
+                [0.0, 1.0],
+                1.0,
+                vec![[0.5, 0.0], [0.2, 1.0]],
+                "increasing",
+            ),
+            (
+                "viridis",
+                [0.0, 1.0],
+                1.0,
+                vec![[0.0, 0.0], [1.0, 2.0]],
+                "in [0, 1]",
+            ),
+        ];
+        for (map, window, scale, opacity, expected) in cases {
+            let e = transfer_function(map, window, scale, &opacity, &scene).unwrap_err();
+            assert!(e.contains(expected), "{e}");
+        }
+    }
+
+    #[test]
+    fn messages_parse_and_garbage_is_named() {
+        assert_eq!(
+            parse(r#"{"type":"denoise","on":true}"#).unwrap(),
+            ClientMessage::Denoise { on: true }
+        );
+        for bad in [
+            "",
+            "{",
+            "[]",
+            r#"{"type":"fly"}"#,
+            r#"{"type":"save","x":1}"#,
+        ] {
+            assert!(parse(bad).unwrap_err().contains("not understood"), "{bad}");
+        }
+        let huge = format!(
+            r#"{{"type":"save","pad":"{}"}}"#,
+            "x".repeat(MAX_MESSAGE_BYTES)
+        );
+        assert!(parse(&huge).unwrap_err().contains("at most"));
+    }
+}

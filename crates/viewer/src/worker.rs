@@ -1,0 +1,366 @@
+//! The render thread. It owns the session and is the only one to touch it: edits arrive as
+//! [`Command`]s between frames (a frame in flight is cancelled when one arrives, so an edit shows
+//! at the next frame), and every frame is published tone-mapped as JPEG to a `watch` channel,
+//! whose readers see only the latest: a slow or vanished client never holds rendering back.
+//!
+//! The still view accumulates (the session's progressive image) up to the scene's samples per
+//! pixel, then the thread waits for the next edit. While the user drags the camera with plain
+//! path tracing the view renders at half the size, then refines at full size; with a cache it
+//! keeps its size (a new size would rebuild the cache).
+
+use crate::protocol::{
+    Change, LightSettings, Method, SceneFacts, TransferSettings, check, hello, transfer_settings_of,
+};
+use crate::save::{SaveRequest, save};
+use hdr_image::RgbImage;
+use render_session::{Control, Edit, FrameReport, Session};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+use tokio::sync::{broadcast, watch};
+use volume_pt::Scene;
+
+/// A frame as the clients get it.
+#[derive(Debug)]
+pub struct Frame {
+    pub jpeg: Vec<u8>,
+    /// The frame's statistics as a JSON text message.
+    pub stats: String,
+}
+
+/// A text message for one client (`to`) or all (`None`).
+#[derive(Debug, Clone)]
+pub struct Event {
+    pub to: Option<u64>,
+    pub text: Arc<String>,
+}
+
+/// What the server asks of the render thread.
+#[derive(Debug)]
+pub enum Command {
+    /// A client connected: send it the greeting.
+    Hello {
+        client: u64,
+    },
+    /// A message from a client: checked here, against the view's state, then applied; what is
+    /// wrong with it goes back to that client.
+    Message {
+        client: u64,
+        message: crate::protocol::ClientMessage,
+    },
+    Shutdown,
+}
+
+/// The render thread's state.
+pub struct Worker {
+    pub session: Session,
+    pub facts: SceneFacts,
+    pub scene_text: String,
+    pub scene_file: PathBuf,
+    pub output: PathBuf,
+    pub transfer: TransferSettings,
+    pub lights: LightSettings,
+    pub method: Method,
+    pub denoiser: Option<denoise::Denoiser>,
+    pub denoise_on: bool,
+    pub moving: bool,
+    /// The camera at full size (the session's may be the half-size one while moving).
+    pub camera: volume_pt::Camera,
+    /// Samples per pixel at which a still view stops refining.
+    pub target_spp: u32,
+    /// Frames per second, smoothed.
+    fps: f64,
+    last_frame: Option<Instant>,
+}
+
+impl Worker {
+    /// A worker on `scene` (its text and file, for saving), writing into `output`.
+    pub fn new(
+        scene: Scene,
+        scene_text: String,
+        scene_file: PathBuf,
+        output: PathBuf,
+        denoiser: Option<denoise::Denoiser>,
+    ) -> crate::Result<Self> {
+        let facts = SceneFacts::of(&scene);
+        let transfer = transfer_settings_of(scene.media.medium.transfer_function(), 16);
+        let lights = LightSettings::of(&facts);
+        let target_spp = scene.settings.spp.max(1);
+        let camera = scene.camera;
+        let mut session = Session::new(scene, render_session::CacheChoice::None)?;
+        // One sample per pixel a frame: an edit shows within one frame's time.
+        session.edit(Edit::Spp(1))?;
+        Ok(Self {
+            session,
+            facts,
+            scene_text,
+            scene_file,
+            output,
+            transfer,
+            lights,
+            method: Method::Nee,
+            denoiser,
+            denoise_on: false,
+            moving: false,
+            camera,
+            target_spp,
+            fps: 0.0,
+            last_frame: None,
+        })
+    }
+
+    fn converged(&self) -> bool {
+        !self.moving && self.session.frames_in_image() >= self.target_spp
+    }
+
+    /// The loop: apply what arrived, render a frame unless the view has converged, publish it.
+    pub fn run(
+        mut self,
+        commands: Receiver<Command>,
+        cancel: Arc<AtomicBool>,
+        frames: watch::Sender<Option<Arc<Frame>>>,
+        events: broadcast::Sender<Event>,
+    ) {
+        loop {
+            let mut pending = Vec::new();
+            if self.converged() {
+                match commands.recv_timeout(Duration::from_millis(250)) {
+                    Ok(c) => pending.push(c),
+                    Err(RecvTimeoutError::Timeout) => continue,
+                    Err(RecvTimeoutError::Disconnected) => return,
+                }
+            }
+            pending.extend(commands.try_iter());
+            cancel.store(false, Ordering::SeqCst);
+            for command in pending {
+                match command {
+                    Command::Shutdown => return,
+                    Command::Hello { client } => {
+                        let text = hello(
+                            &self.facts,
+                            &self.camera,
+                            &self.transfer,
+                            &self.lights,
+                            self.method,
+                            self.denoiser.is_some(),
+                        )
+                        .to_string();
+                        let _ = events.send(Event {
+                            to: Some(client),
+                            text: Arc::new(text),
+                        });
+                        // A new client sees the current image at once. (The read guard
+                        // must be gone before the write: they share one lock.)
+                        let current = frames.borrow().clone();
+                        if let Some(frame) = current {
+                            frames.send_replace(Some(frame));
+                        }
+                    }
+                    Command::Message { client, message } => {
+                        let applied = check(message, &self.facts, &self.lights)
+                            .and_then(|change| self.apply(change, client, &events));
+                        if let Err(message) = applied {
+                            let _ = events.send(Event {
+                                to: Some(client),
+                                text: Arc::new(error_json(&message)),
+                            });
+                        }
+                    }
+                }
+            }
+            if self.converged() {
+                continue;
+            }
+            let control = Control::cancellable(&cancel);
+            match self.session.next_frame(&control) {
+                Ok(report) => {
+                    if let Some(frame) = self.publishable(&report) {
+                        frames.send_replace(Some(Arc::new(frame)));
+                    }
+                }
+                Err(e) => {
+                    let _ = events.send(Event {
+                        to: None,
+                        text: Arc::new(error_json(&format!("rendering failed: {e}"))),
+                    });
+                    // Back to plain path tracing, which needs nothing that can fail.
+                    self.method = Method::Nee;
+                    let _ = self
+                        .session
+                        .edit(Edit::Cache(render_session::CacheChoice::None));
+                }
+            }
+        }
+    }
+
+    /// Applies one checked change.
+    fn apply(
+        &mut self,
+        change: Change,
+        client: u64,
+        events: &broadcast::Sender<Event>,
+    ) -> Result<(), String> {
+        match change {
+            Change::Camera { camera, moving } => {
+                self.camera = camera;
+                self.moving = moving;
+                self.set_camera()?;
+            }
+            Change::Transfer(tf, settings) => {
+                self.session
+                    .edit(Edit::TransferFunction(tf))
+                    .map_err(|e| e.to_string())?;
+                self.transfer = settings;
+            }
+            Change::Lights(lights, directions, environment) => {
+                self.session
+                    .edit(Edit::Lights(lights))
+                    .map_err(|e| e.to_string())?;
+                self.lights = LightSettings {
+                    lights: directions,
+                    environment,
+                };
+            }
+            Change::Method(method) => {
+                self.session
+                    .edit(Edit::Cache(method.cache_choice()))
+                    .map_err(|e| e.to_string())?;
+                self.method = method;
+                self.set_camera()?;
+            }
+            Change::Denoise(on) => {
+                if on && self.denoiser.is_none() {
+                    return Err("denoising needs Intel Open Image Denoise: pip install pyoidn, or set GSCACHE_OIDN to its library folder".into());
+                }
+                self.denoise_on = on;
+                // The next frame shows the change, even on a converged view.
+                self.session.clear_image();
+            }
+            Change::Save => {
+                let image = self.session.image();
+                let saved = save(SaveRequest {
+                    dir: &self.output,
+                    image: &image,
+                    scene: self.session.scene(),
+                    scene_text: &self.scene_text,
+                    scene_file: &self.scene_file,
+                    facts: &self.facts,
+                    transfer: &self.transfer,
+                    lights: &self.lights,
+                    spp: self.target_spp,
+                    session: &self.session,
+                })?;
+                let files: Vec<String> = saved
+                    .files
+                    .iter()
+                    .map(|f| f.display().to_string())
+                    .collect();
+                let _ = events.send(Event {
+                    to: Some(client),
+                    text: Arc::new(
+                        serde_json::json!({"type": "saved", "files": files}).to_string(),
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Puts the camera (half size while moving with plain path tracing) into the session.
+    fn set_camera(&mut self) -> Result<(), String> {
+        let camera = if self.moving && self.method == Method::Nee {
+            self.camera
+                .with_size(
+                    (self.camera.width / 2).max(1),
+                    (self.camera.height / 2).max(1),
+                )
+                .map_err(|e| e.to_string())?
+        } else {
+            self.camera
+        };
+        self.session
+            .edit(Edit::Camera(camera))
+            .map_err(|e| e.to_string())?;
+        Ok(())
+    }
+
+    /// The session's image, denoised where asked, tone-mapped and encoded, with the frame's
+    /// statistics; `None` if the frame added nothing to the image (cancelled before a sample).
+    fn publishable(&mut self, report: &FrameReport) -> Option<Frame> {
+        if self.session.frames_in_image() == 0 {
+            return None;
+        }
+        let now = Instant::now();
+        if let Some(last) = self.last_frame {
+            let rate = 1.0 / now.duration_since(last).as_secs_f64().max(1e-6);
+            self.fps = if self.fps == 0.0 {
+                rate
+            } else {
+                0.8 * self.fps + 0.2 * rate
+            };
+        }
+        self.last_frame = Some(now);
+        let start = Instant::now();
+        let mut image = self.session.image();
+        let mut denoise_ms = 0.0;
+        if self.denoise_on
+            && !self.moving
+            && let Some(d) = self.denoiser.as_mut()
+        {
+            let t = Instant::now();
+            match d.denoise(&image, None, None, denoise::Options::default()) {
+                Ok(out) => image = out,
+                Err(e) => {
+                    self.denoise_on = false;
+                    eprintln!("gscache view: denoising turned off: {e}");
+                }
+            }
+            denoise_ms = t.elapsed().as_secs_f64() * 1e3;
+        }
+        let jpeg = encode(&image, self.session.scene());
+        let encode_ms = start.elapsed().as_secs_f64() * 1e3 - denoise_ms;
+        let stats = serde_json::json!({
+            "type": "stats",
+            "frame": report.frame,
+            "spp": self.session.frames_in_image(),
+            "target_spp": self.target_spp,
+            "width": image.width(),
+            "height": image.height(),
+            "fps": self.fps,
+            "trace_ms": report.trace_seconds * 1e3,
+            "lookup_ms": report.lookup_seconds * 1e3,
+            "train_ms": report.train_seconds * 1e3,
+            "denoise_ms": denoise_ms,
+            "encode_ms": encode_ms,
+            "method": self.method.name(),
+            "moving": self.moving,
+            "denoised": self.denoise_on && !self.moving && self.denoiser.is_some(),
+        })
+        .to_string();
+        Some(Frame { jpeg, stats })
+    }
+}
+
+/// An error as the page's JSON message.
+pub fn error_json(message: &str) -> String {
+    serde_json::json!({"type": "error", "message": message}).to_string()
+}
+
+/// Tone-maps `image` as the scene's output says and encodes it as JPEG (quality 90).
+pub fn encode(image: &RgbImage, scene: &Scene) -> Vec<u8> {
+    let rgb = hdr_image::tone_map(image.pixels(), scene.output.exposure, scene.output.tonemap);
+    let mut out = Vec::new();
+    let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 90);
+    // The buffer is exactly width x height x 3 by construction; an encoder error would be a bug.
+    image::ImageEncoder::write_image(
+        encoder,
+        &rgb,
+        image.width(),
+        image.height(),
+        image::ExtendedColorType::Rgb8,
+    )
+    .expect("an RGB8 buffer of the image's size encodes");
+    out
+}

@@ -1,0 +1,391 @@
+//! The viewer's protocol from a client's side, over real sockets on 127.0.0.1: the token is
+//! required, an edit changes the image, bad edits are refused while the server keeps serving,
+//! garbage cannot stop it, a dropped client frees its place, and Save writes only into the
+//! output folder.
+
+use futures_util::{SinkExt, StreamExt};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use tokio_tungstenite::tungstenite::{self, Message, client::IntoClientRequest};
+use viewer::{Options, Viewer, serve};
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gscache-view-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The bundled default scene at 64x36, refining to 8 spp.
+fn start(output: &Path, max_clients: usize) -> Viewer {
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(64, 36).unwrap();
+    scene.settings.spp = 8;
+    serve(
+        scene,
+        text,
+        file,
+        Options {
+            port: 0,
+            output: output.to_path_buf(),
+            max_clients,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+}
+
+fn token(v: &Viewer) -> String {
+    v.url().split("token=").nth(1).unwrap().to_string()
+}
+
+type Socket =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn connect(v: &Viewer, token: &str) -> Result<Socket, tungstenite::Error> {
+    let url = format!("ws://127.0.0.1:{}/ws?token={token}", v.address().port());
+    tokio_tungstenite::connect_async(url.into_client_request().unwrap())
+        .await
+        .map(|(s, _)| s)
+}
+
+/// What the server sent, until `done` says enough or 20 s pass.
+#[derive(Default)]
+struct Seen {
+    hello: Option<serde_json::Value>,
+    frames: Vec<Vec<u8>>,
+    stats: Vec<serde_json::Value>,
+    errors: Vec<String>,
+    saved: Vec<serde_json::Value>,
+}
+
+async fn read_until(socket: &mut Socket, seen: &mut Seen, done: impl Fn(&Seen) -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !done(seen) {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(!left.is_zero(), "timed out; errors: {:?}", seen.errors);
+        match tokio::time::timeout(left, socket.next()).await {
+            Ok(Some(Ok(Message::Binary(b)))) => seen.frames.push(b.to_vec()),
+            Ok(Some(Ok(Message::Text(t)))) => {
+                let m: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
+                match m["type"].as_str().unwrap() {
+                    "hello" => seen.hello = Some(m),
+                    "stats" => seen.stats.push(m),
+                    "error" => seen.errors.push(m["message"].as_str().unwrap().to_string()),
+                    "saved" => seen.saved.push(m),
+                    other => panic!("unknown message type {other}"),
+                }
+            }
+            Ok(Some(Ok(_))) => {}
+            other => panic!("the connection ended: {other:?}"),
+        }
+    }
+}
+
+/// The mean of a JPEG's pixels, per channel.
+fn mean_colour(jpeg: &[u8]) -> [f64; 3] {
+    let img = image::load_from_memory(jpeg).unwrap().to_rgb8();
+    let mut sum = [0.0f64; 3];
+    for p in img.pixels() {
+        for c in 0..3 {
+            sum[c] += p[c] as f64;
+        }
+    }
+    let n = (img.width() * img.height()) as f64;
+    sum.map(|s| s / n)
+}
+
+fn converged(seen: &Seen) -> bool {
+    seen.stats
+        .last()
+        .is_some_and(|s| s["spp"].as_u64() >= s["target_spp"].as_u64())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_token_is_required_on_every_request() {
+    let out = scratch("token");
+    let v = start(&out, 4);
+    let port = v.address().port();
+    let get = |path: String| async move {
+        let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
+            .await
+            .unwrap();
+        let request =
+            format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n");
+        tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
+            .await
+            .unwrap();
+        let mut response = String::new();
+        tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response)
+            .await
+            .unwrap();
+        response
+    };
+    let t = token(&v);
+    assert!(
+        get(format!("/?token={t}"))
+            .await
+            .starts_with("HTTP/1.1 200")
+    );
+    for path in ["/", "/?token=", "/?token=0123", "/ws", "/nowhere"] {
+        let r = get(path.to_string()).await;
+        assert!(r.starts_with("HTTP/1.1 403"), "{path}: {r}");
+    }
+    let wrong = format!("{}0", &t[..t.len() - 1]);
+    assert!(
+        get(format!("/?token={wrong}"))
+            .await
+            .starts_with("HTTP/1.1 403")
+    );
+    assert!(connect(&v, "").await.is_err());
+    assert!(connect(&v, &wrong).await.is_err());
+    // A page served under another name (DNS rebinding) is refused, token or not.
+    let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    let request = format!(
+        "GET /?token={t} HTTP/1.1\r\nHost: evil.example:{port}\r\nConnection: close\r\n\r\n"
+    );
+    tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
+        .await
+        .unwrap();
+    let mut response = String::new();
+    tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response)
+        .await
+        .unwrap();
+    assert!(response.starts_with("HTTP/1.1 403"), "{response}");
+    // A WebSocket opened by another site's page is refused.
+    let mut request = format!("ws://127.0.0.1:{port}/ws?token={t}")
+        .into_client_request()
+        .unwrap();
+    request
+        .headers_mut()
+        .insert("Origin", "http://evil.example".parse().unwrap());
+    assert!(tokio_tungstenite::connect_async(request).await.is_err());
+    v.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_edit_changes_the_image_and_bad_edits_are_refused() {
+    let out = scratch("edit");
+    let v = start(&out, 4);
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| {
+        s.hello.is_some() && converged(s)
+    })
+    .await;
+    let hello = seen.hello.clone().unwrap();
+    assert_eq!(hello["width"], 64);
+    let before = mean_colour(seen.frames.last().unwrap());
+    assert!(
+        before.iter().sum::<f64>() > 3.0,
+        "a black first image: {before:?}"
+    );
+    // Bad edits: each named, none changes the view.
+    for (bad, expected) in [
+        (
+            r#"{"type":"transfer","colormap":"viridis","window":[1,0],"density_scale":1,"opacity":[[0,0],[1,1]]}"#,
+            "window",
+        ),
+        (
+            r#"{"type":"transfer","colormap":"nope","window":[0,255],"density_scale":1,"opacity":[[0,0],[1,1]]}"#,
+            "colour map",
+        ),
+        (
+            r#"{"type":"camera","eye":[0,0,0],"target":[0,0,0],"up":[0,1,0]}"#,
+            "camera",
+        ),
+        (
+            r#"{"type":"light","index":9,"direction":[0,1,0],"intensity":1}"#,
+            "light 9",
+        ),
+        (
+            r#"{"type":"light","index":0,"direction":[0,1,0],"intensity":-1}"#,
+            "intensity",
+        ),
+        (r#"{"type":"method","method":"magic"}"#, "method"),
+        (r#"{"type":"environment","intensity":1e30}"#, "environment"),
+        ("not json", "not understood"),
+    ] {
+        socket.send(Message::Text(bad.into())).await.unwrap();
+        let n = seen.errors.len();
+        read_until(&mut socket, &mut seen, |s| s.errors.len() > n).await;
+        assert!(
+            seen.errors.last().unwrap().contains(expected),
+            "{bad}: {:?}",
+            seen.errors.last()
+        );
+    }
+    // A denser medium with the inferno map: a different image.
+    let edit = r#"{"type":"transfer","colormap":"inferno","window":[0,255],"density_scale":3,"opacity":[[0,0],[0.3,0.2],[1,1]]}"#;
+    socket.send(Message::Text(edit.into())).await.unwrap();
+    seen.stats.clear();
+    read_until(&mut socket, &mut seen, converged).await;
+    let after = mean_colour(seen.frames.last().unwrap());
+    let change: f64 = before.iter().zip(&after).map(|(a, b)| (a - b).abs()).sum();
+    assert!(
+        change > 5.0,
+        "the edit left the image as it was: {before:?} -> {after:?}"
+    );
+    // The camera, a light, the environment and the method take effect too.
+    for edit in [
+        r#"{"type":"camera","eye":[90,10,40],"target":[0,0,0],"up":[0,1,0],"moving":false}"#,
+        r#"{"type":"light","index":0,"direction":[0,-1,0],"intensity":0.5}"#,
+        r#"{"type":"environment","intensity":2}"#,
+        r#"{"type":"method","method":"cache"}"#,
+    ] {
+        let n = seen.errors.len();
+        socket.send(Message::Text(edit.into())).await.unwrap();
+        seen.stats.clear();
+        read_until(&mut socket, &mut seen, |s| s.stats.len() >= 3).await;
+        assert_eq!(seen.errors.len(), n, "{edit}: {:?}", seen.errors);
+    }
+    // Frames after the switch come from the cache.
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats
+            .last()
+            .is_some_and(|m| m["method"] == "cache" && m["lookup_ms"].as_f64() > Some(0.0))
+    })
+    .await;
+    v.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn garbage_does_not_stop_the_server() {
+    let out = scratch("garbage");
+    let v = start(&out, 4);
+    let t = token(&v);
+    let mut socket = connect(&v, &t).await.unwrap();
+    // A few hundred messages of random bytes, random JSON shapes and numbers out of range,
+    // from a fixed-seed generator.
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let shapes = [
+        r#"{"type":"camera","eye":[N,N,N],"target":[N,N,N],"up":[N,N,N]}"#,
+        r#"{"type":"transfer","colormap":"bone","window":[N,N],"density_scale":N,"opacity":[[N,N],[N,N]]}"#,
+        r#"{"type":"light","index":N,"direction":[N,N,N],"intensity":N}"#,
+        r#"{"type":"environment","intensity":N}"#,
+        r#"{"type":"denoise","on":N}"#,
+    ];
+    let numbers = [
+        "0", "-1", "1e39", "-1e39", "3.5", "1e-45", "NaN", "null", "\"x\"", "255",
+    ];
+    for i in 0..300 {
+        let message = match i % 3 {
+            0 => {
+                let bytes: Vec<u8> = (0..(next() % 200)).map(|_| next() as u8).collect();
+                Message::Text(String::from_utf8_lossy(&bytes).into_owned().into())
+            }
+            1 => {
+                let mut text = shapes[(next() % shapes.len() as u64) as usize].to_string();
+                while text.contains('N') && !text.contains("\"N") {
+                    let n = numbers[(next() % numbers.len() as u64) as usize];
+                    text = text.replacen('N', n, 1);
+                }
+                Message::Text(text.into())
+            }
+            _ => Message::Binary(vec![next() as u8; (next() % 64) as usize].into()),
+        };
+        if socket.send(message).await.is_err() {
+            break;
+        }
+    }
+    // Too large a message closes that connection only.
+    let huge = format!(r#"{{"type":"save","pad":"{}"}}"#, "x".repeat(200_000));
+    let _ = socket.send(Message::Text(huge.into())).await;
+    drop(socket);
+    // The server still serves a new page, and its images.
+    let mut socket = connect(&v, &t).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| {
+        s.hello.is_some() && !s.frames.is_empty()
+    })
+    .await;
+    v.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dropped_client_frees_its_place_and_one_too_many_is_refused() {
+    let out = scratch("clients");
+    let v = start(&out, 1);
+    let t = token(&v);
+    let first = connect(&v, &t).await.unwrap();
+    match connect(&v, &t).await {
+        Err(tungstenite::Error::Http(r)) => assert_eq!(r.status(), 503),
+        other => panic!("a second page was let in: {:?}", other.map(|_| ())),
+    }
+    drop(first);
+    // The server notices the close and frees the place within moments.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut socket = loop {
+        match connect(&v, &t).await {
+            Ok(s) => break s,
+            Err(_) if Instant::now() < deadline => {
+                tokio::time::sleep(Duration::from_millis(50)).await
+            }
+            Err(e) => panic!("the place was not freed: {e}"),
+        }
+    };
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| s.hello.is_some()).await;
+    v.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn save_writes_the_image_scene_and_cache_into_the_output_folder_only() {
+    let out = scratch("save");
+    let v = start(&out.join("saved"), 4);
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    socket
+        .send(Message::Text(
+            r#"{"type":"method","method":"cache"}"#.into(),
+        ))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, converged).await;
+    for _ in 0..2 {
+        socket
+            .send(Message::Text(r#"{"type":"save"}"#.into()))
+            .await
+            .unwrap();
+        let n = seen.saved.len();
+        read_until(&mut socket, &mut seen, |s| s.saved.len() > n).await;
+    }
+    v.stop();
+    let mut names: Vec<String> = std::fs::read_dir(out.join("saved"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "view-0001-cache",
+            "view-0001.exr",
+            "view-0001.png",
+            "view-0001.toml",
+            "view-0002-cache",
+            "view-0002.exr",
+            "view-0002.png",
+            "view-0002.toml"
+        ]
+    );
+    // The saved scene renders: it loads, with the view's camera and the volume found.
+    let scene = volume_pt::load_scene(&out.join("saved/view-0001.toml")).unwrap();
+    assert_eq!((scene.camera.width, scene.camera.height), (64, 36));
+    // Nothing beside the output folder.
+    let beside: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(beside, ["saved"]);
+}

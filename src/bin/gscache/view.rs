@@ -1,0 +1,92 @@
+//! `gscache view`: the render session in a browser (the viewer crate). A thin front: it loads
+//! the scene (or chooses one for a volume file, as `render` does), starts the viewer, prints its
+//! URL and serves until Ctrl-C.
+
+use crate::common::{Global, cancellation};
+use anyhow::{Context, Result};
+use std::net::IpAddr;
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+
+#[derive(clap::Args, Debug)]
+pub struct ViewArgs {
+    /// Scene file (TOML), or a volume file (NIfTI, NRRD, VTK/VTI, raw) to view with a scene
+    /// chosen for it.
+    pub scene: PathBuf,
+    /// Port to listen on (0: any free one).
+    #[arg(long, default_value_t = 8765)]
+    pub port: u16,
+    /// Address to listen on. Anything but a loopback address exposes the viewer to the network
+    /// (the token still guards it).
+    #[arg(long, default_value = "127.0.0.1")]
+    pub bind: IpAddr,
+    /// Where Save writes the image, the scene and the cache.
+    #[arg(long, default_value = "out/view")]
+    pub output: PathBuf,
+    /// Pages connected at once.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub max_clients: u16,
+    /// Image width and height (default: the scene's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    #[arg(long)]
+    pub height: Option<u32>,
+}
+
+pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
+    let is_scene = args
+        .scene
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+        || volume_pt::io::Format::from_path(&args.scene).is_none();
+    let (mut scene, text, file) = if is_scene {
+        let text = std::fs::read_to_string(&args.scene)
+            .with_context(|| format!("{}: cannot read the scene file", args.scene.display()))?;
+        (
+            volume_pt::load_scene(&args.scene)?,
+            text,
+            args.scene.clone(),
+        )
+    } else {
+        let (scene, text) = volume_pt::scene_for_volume(&args.scene, Default::default())?;
+        let file = args.scene.with_extension("auto.toml");
+        (scene, text, file)
+    };
+    if args.width.is_some() || args.height.is_some() {
+        let (w, h) = (
+            args.width.unwrap_or(scene.camera.width),
+            args.height.unwrap_or(scene.camera.height),
+        );
+        scene.camera = scene.camera.with_size(w, h)?;
+    }
+    if !args.bind.is_loopback() {
+        eprintln!(
+            "warning: listening on {}: anyone who can reach this machine and has the URL's token can use the viewer",
+            args.bind
+        );
+    }
+    let denoiser = denoise::Denoiser::load(global.threads.map_or(0, usize::from)).ok();
+    let cancel = cancellation()?;
+    let viewer = viewer::serve(
+        scene,
+        text,
+        file,
+        viewer::Options {
+            bind: args.bind,
+            port: args.port,
+            output: args.output,
+            max_clients: args.max_clients as usize,
+            denoiser,
+        },
+    )?;
+    println!("{}", viewer.url());
+    eprintln!("gscache view: open the URL above; Ctrl-C stops the viewer");
+    while !cancel.load(Ordering::SeqCst) {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    viewer.stop();
+    if !global.quiet {
+        eprintln!("gscache view: stopped");
+    }
+    Ok(0)
+}

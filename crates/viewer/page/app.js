@@ -113,9 +113,11 @@
     const maps = $("colormap");
     maps.innerHTML = "";
     for (const name of m.colormaps) maps.add(new Option(name, name, false, name === transfer.colormap));
-    $("window-lo").value = transfer.window[0];
-    $("window-hi").value = transfer.window[1];
-    $("density").value = transfer.density_scale;
+    // Shown as typed: the server's f32 values at 6 significant digits.
+    const shown = (v) => +Number(v).toPrecision(6);
+    $("window-lo").value = shown(transfer.window[0]);
+    $("window-hi").value = shown(transfer.window[1]);
+    $("density").value = shown(transfer.density_scale);
     $("denoise").disabled = !m.denoiser;
     $("environment").value = m.environment;
     lights.length = 0;

@@ -12,7 +12,7 @@
 //! the latest frame when the render thread publishes one and drops what it could not send in
 //! time, so a slow or vanished client costs nothing but its own connection.
 
-use crate::protocol::{MAX_MESSAGE_BYTES, parse};
+use crate::protocol::{ClientMessage, MAX_MESSAGE_BYTES, parse};
 use crate::worker::{Command, Event, Frame, Worker, error_json};
 use axum::Router;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -381,9 +381,14 @@ async fn client(mut socket: WebSocket, app: Arc<App>, _place: ClientPlace) {
                     None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break,
                     Some(Ok(Message::Text(text))) => match parse(text.as_str()) {
                         Ok(message) => {
+                            // The frame under way is cancelled so the edit shows sooner, but not
+                            // for a drag's stream of cameras: each small frame is let finish.
+                            let dragging =
+                                matches!(message, ClientMessage::Camera { moving: true, .. });
                             app.command(Command::Message { client: id, message });
-                            // The frame under way is cancelled: the edit shows sooner.
-                            app.cancel.store(true, Ordering::SeqCst);
+                            if !dragging {
+                                app.cancel.store(true, Ordering::SeqCst);
+                            }
                             None
                         }
                         Err(e) => Some(error_json(&e)),

@@ -5,8 +5,8 @@
 //!
 //! The still view accumulates (the session's progressive image) up to the scene's samples per
 //! pixel, then the thread waits for the next edit. While the user drags the camera with plain
-//! path tracing the view renders at half the size, then refines at full size; with a cache it
-//! keeps its size (a new size would rebuild the cache).
+//! path tracing the view renders at half the size or less ([`preview_divisor`]), then refines
+//! at full size; with a cache it keeps its size (a new size would rebuild the cache).
 
 use crate::protocol::{
     Change, LightSettings, Method, SceneFacts, TransferSettings, check, hello, transfer_settings_of,
@@ -66,6 +66,8 @@ pub struct Worker {
     pub denoiser: Option<denoise::Denoiser>,
     pub denoise_on: bool,
     pub moving: bool,
+    /// The next frame is the quick one after an edit (plain path tracing: at the preview size).
+    pub preview: bool,
     /// The camera at full size (the session's may be the half-size one while moving).
     pub camera: volume_pt::Camera,
     /// Samples per pixel at which a still view stops refining.
@@ -104,6 +106,7 @@ impl Worker {
             denoiser,
             denoise_on: false,
             moving: false,
+            preview: false,
             camera,
             target_spp,
             fps: 0.0,
@@ -112,7 +115,7 @@ impl Worker {
     }
 
     fn converged(&self) -> bool {
-        !self.moving && self.session.frames_in_image() >= self.target_spp
+        !self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp
     }
 
     /// The loop: apply what arrived, render a frame unless the view has converged, publish it.
@@ -175,9 +178,22 @@ impl Worker {
             }
             let control = Control::cancellable(&cancel);
             match self.session.next_frame(&control) {
+                // A cancelled frame is partial (some pixels without a sample) and an edit is
+                // waiting that will empty the image anyway: not shown.
+                Ok(report) if report.cancelled => {}
                 Ok(report) => {
                     if let Some(frame) = self.publishable(&report) {
                         frames.send_replace(Some(Arc::new(frame)));
+                    }
+                    if self.preview {
+                        // The quick frame is out: refine at full size from here.
+                        self.preview = false;
+                        if let Err(e) = self.set_camera() {
+                            let _ = events.send(Event {
+                                to: None,
+                                text: Arc::new(error_json(&e)),
+                            });
+                        }
                     }
                 }
                 Err(e) => {
@@ -202,6 +218,10 @@ impl Worker {
         client: u64,
         events: &broadcast::Sender<Event>,
     ) -> Result<(), String> {
+        // After an edit of what is seen, the first frame comes quickly at the preview size.
+        if !matches!(change, Change::Save | Change::Denoise(_)) {
+            self.preview = true;
+        }
         match change {
             Change::Camera { camera, moving } => {
                 self.camera = camera;
@@ -213,6 +233,7 @@ impl Worker {
                     .edit(Edit::TransferFunction(tf))
                     .map_err(|e| e.to_string())?;
                 self.transfer = settings;
+                self.set_camera()?;
             }
             Change::Lights(lights, directions, environment) => {
                 self.session
@@ -222,6 +243,7 @@ impl Worker {
                     lights: directions,
                     environment,
                 };
+                self.set_camera()?;
             }
             Change::Method(method) => {
                 self.session
@@ -268,13 +290,15 @@ impl Worker {
         Ok(())
     }
 
-    /// Puts the camera (half size while moving with plain path tracing) into the session.
+    /// Puts the camera into the session: smaller while moving and for the first frame after an
+    /// edit, with plain path tracing.
     fn set_camera(&mut self) -> Result<(), String> {
-        let camera = if self.moving && self.method == Method::Nee {
+        let camera = if (self.moving || self.preview) && self.method == Method::Nee {
+            let d = preview_divisor(self.camera.width, self.camera.height);
             self.camera
                 .with_size(
-                    (self.camera.width / 2).max(1),
-                    (self.camera.height / 2).max(1),
+                    (self.camera.width / d).max(1),
+                    (self.camera.height / d).max(1),
                 )
                 .map_err(|e| e.to_string())?
         } else {
@@ -341,6 +365,17 @@ impl Worker {
         .to_string();
         Some(Frame { jpeg, stats })
     }
+}
+
+/// Pixels a frame may have while the camera moves: about 25 ms of plain path tracing at 1 spp
+/// on 2 cores, so a drag shows 15 frames a second or more at any view size.
+const PREVIEW_PIXELS: f64 = 120_000.0;
+
+/// The factor a moving view is shrunk by: at least 2, more for views above
+/// [`PREVIEW_PIXELS`] x 4.
+pub fn preview_divisor(width: u32, height: u32) -> u32 {
+    let pixels = width as f64 * height as f64;
+    ((pixels / PREVIEW_PIXELS).sqrt().ceil() as u32).max(2)
 }
 
 /// An error as the page's JSON message.

@@ -1,0 +1,131 @@
+"""`gscache view` in a real browser: headless Chromium driven through Selenium's WebDriver
+(Debian's `chromium` and `chromium-driver`; .ci/run installs them). Skipped where either is
+missing, unless GSCACHE_REQUIRE_BROWSER=1 (CI), which makes that a failure.
+
+The page loads and shows a rendered frame; a drag on the view, a colour-map preset and a light
+each change the image; a bad value in a field shows the server's error and the view keeps
+rendering; Ctrl-C stops the program cleanly."""
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+
+import pytest
+
+
+def _require(what):
+    if os.environ.get("GSCACHE_REQUIRE_BROWSER") == "1":
+        pytest.fail(f"{what} (GSCACHE_REQUIRE_BROWSER=1)")
+    pytest.skip(what)
+
+
+@pytest.fixture
+def browser():
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver = shutil.which("chromedriver")
+    if not (chromium and driver):
+        _require("needs Debian's chromium and chromium-driver")
+    try:
+        from selenium import webdriver
+    except ImportError:
+        _require("needs selenium (pip install selenium)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for arg in ["--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1100,600"]:
+        options.add_argument(arg)
+    d = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=driver))
+    yield d
+    d.quit()
+
+
+@pytest.fixture
+def viewer(program, repo, tmp_path):
+    proc = subprocess.Popen(
+        [program, "-q", "view", str(repo / "data/scenes/default.toml"), "--port", "0",
+         "--width", "96", "--height", "54", "--output", str(tmp_path / "out")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    url = proc.stdout.readline().strip()
+    assert url.startswith("http://127.0.0.1:") and "token=" in url, proc.stderr.read()
+    yield url
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=20) == 0, proc.stderr.read()
+
+
+# The shown frame, read back through a canvas: 16x9 grey levels (the image is a blob of the
+# page's own origin, so the canvas may read it).
+FRAME = """
+const img = document.getElementById('frame');
+if (!img.naturalWidth || !img.complete) return null;
+const c = document.createElement('canvas'); c.width = 16; c.height = 9;
+const g = c.getContext('2d'); g.drawImage(img, 0, 0, 16, 9);
+const d = g.getImageData(0, 0, 16, 9).data, out = [];
+for (let i = 0; i < d.length; i += 4) out.push((d[i] + d[i + 1] + d[i + 2]) / 3);
+return out;
+"""
+
+
+def wait(predicate, what, timeout=60):
+    end = time.time() + timeout
+    while time.time() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    pytest.fail(f"timed out waiting for {what}")
+
+
+def settled(d):
+    """The frame once the view has refined to its samples per pixel."""
+    def done():
+        stats = d.find_element("id", "stats").text
+        if "/" not in stats or "(moving)" in stats:
+            return None
+        spp, target = stats.split("\n")[1].split(" spp")[0].split(" / ")
+        return d.execute_script(FRAME) if int(spp) >= int(target) else None
+    return wait(done, "the view to settle")
+
+
+def differ(a, b):
+    return sum(abs(x - y) for x, y in zip(a, b)) / len(a)
+
+
+def test_the_page_renders_and_answers_edits(viewer, browser):
+    from selenium.webdriver import ActionChains
+    from selenium.webdriver.support.ui import Select
+
+    d = browser
+    d.get(viewer)
+    first = settled(d)
+    spread = max(first) - min(first)
+    assert spread > 20, f"a blank frame: {first}"
+
+    # A drag orbits the camera.
+    ActionChains(d).move_to_element(d.find_element("id", "view")).click_and_hold().move_by_offset(
+        150, 40).release().perform()
+    wait(lambda: differ(settled(d), first) > 3, "the drag to change the image")
+    dragged = settled(d)
+
+    # A colour-map preset.
+    Select(d.find_element("id", "colormap")).select_by_value("inferno")
+    wait(lambda: differ(settled(d), dragged) > 3, "the preset to change the image")
+    coloured = settled(d)
+
+    # A light moved to the other side.
+    slider = d.find_element("css selector", "#lights input[data-k=az]")
+    d.execute_script("arguments[0].value = -arguments[0].value + 90;"
+                     "arguments[0].dispatchEvent(new Event('input', {bubbles: true}));", slider)
+    wait(lambda: differ(settled(d), coloured) > 1, "the light to change the image")
+
+    # A bad value: the window's low end above its high end.
+    low = d.find_element("id", "window-lo")
+    d.execute_script("arguments[0].value = 1000;"
+                     "arguments[0].dispatchEvent(new Event('change'));", low)
+    wait(lambda: "window" in d.find_element("id", "error").text, "the error to show")
+    # The view still renders: a camera edit goes through.
+    before = settled(d)
+    ActionChains(d).move_to_element(d.find_element("id", "view")).click_and_hold().move_by_offset(
+        -200, 0).release().perform()
+    wait(lambda: differ(settled(d), before) > 3, "a frame after the error")

@@ -3,8 +3,9 @@
 missing, unless GSCACHE_REQUIRE_BROWSER=1 (CI), which makes that a failure.
 
 The page loads and shows a rendered frame; a drag on the view, a colour-map preset and a light
-each change the image; a bad value in a field shows the server's error and the view keeps
-rendering; Ctrl-C stops the program cleanly."""
+each change the image; the split view shows NEE beside the Gaussian cache; a bad value in a
+field shows the server's error and the view keeps rendering; Ctrl-C stops the program
+cleanly."""
 
 import os
 import shutil
@@ -118,6 +119,15 @@ def test_the_page_renders_and_answers_edits(viewer, browser):
     d.execute_script("arguments[0].value = -arguments[0].value + 90;"
                      "arguments[0].dispatchEvent(new Event('input', {bubbles: true}));", slider)
     wait(lambda: differ(settled(d), coloured) > 1, "the light to change the image")
+
+    # The split view: NEE and the Gaussian cache side by side, at equal time.
+    Select(d.find_element("id", "method")).select_by_value("cache")
+    d.find_element("id", "split").click()
+    wait(lambda: "split: left NEE" in d.find_element("id", "stats").text, "the split view")
+    halves = settled(d)
+    assert max(halves) - min(halves) > 20, f"a blank split view: {halves}"
+    d.find_element("id", "split").click()
+    Select(d.find_element("id", "method")).select_by_value("nee")
 
     # A bad value: the window's low end above its high end.
     low = d.find_element("id", "window-lo")

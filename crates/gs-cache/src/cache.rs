@@ -334,6 +334,12 @@ impl GsCache {
         &self.config
     }
 
+    /// Turns training on or off (`train`) without rebuilding the cache: a viewer freezes what
+    /// the cache has learnt, and lets it learn again.
+    pub fn set_training(&mut self, on: bool) {
+        self.config.train = on;
+    }
+
     pub fn levels(&self) -> &[Level] {
         &self.levels
     }

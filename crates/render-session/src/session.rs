@@ -95,6 +95,11 @@ impl Session {
     pub fn cache(&self) -> &Cache {
         &self.cache
     }
+    /// The cache, to change what does not invalidate the image (the Gaussian cache's
+    /// training on or off); an edit that does goes through [`Session::edit`].
+    pub fn cache_mut(&mut self) -> &mut Cache {
+        &mut self.cache
+    }
     /// The cache choice the session was built with (or last edited to).
     pub fn cache_choice(&self) -> &CacheChoice {
         &self.choice

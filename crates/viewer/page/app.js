@@ -89,15 +89,47 @@
     else if (m.type === "stats") stats(m);
     else if (m.type === "error") showError(m.message, false);
     else if (m.type === "saved") showError("saved: " + m.files.join(", "), true);
+    else if (m.type === "levels") {
+      const box = $("levels");
+      box.innerHTML = "";
+      m.images.forEach((src, i) => { const img = new Image(); img.src = src; img.title = `level ${i + 1}`; box.appendChild(img); });
+    }
   };
+
+  // The cache's training loss (summed over its levels), the last 120 steps.
+  const losses = [];
+  function drawLoss() {
+    const c = $("loss"), g = c.getContext("2d");
+    g.clearRect(0, 0, c.width, c.height);
+    if (losses.length < 2) return;
+    const top = Math.max(...losses), bottom = Math.min(...losses);
+    g.strokeStyle = "#80cbc4";
+    g.beginPath();
+    losses.forEach((l, i) => {
+      const x = i / (losses.length - 1) * c.width;
+      const y = c.height - 4 - (l - bottom) / Math.max(top - bottom, 1e-12) * (c.height - 8);
+      i ? g.lineTo(x, y) : g.moveTo(x, y);
+    });
+    g.stroke();
+  }
 
   function stats(m) {
     $("stats").textContent =
       `${m.method}, ${m.width}x${m.height}${m.moving ? " (moving)" : ""}${m.denoised ? ", denoised" : ""}\n` +
       `${m.spp} / ${m.target_spp} spp, ${m.fps.toFixed(1)} frames/s\n` +
       `trace ${m.trace_ms.toFixed(1)} ms, read ${m.lookup_ms.toFixed(1)} ms, train ${m.train_ms.toFixed(1)} ms\n` +
-      `denoise ${m.denoise_ms.toFixed(1)} ms, encode ${m.encode_ms.toFixed(1)} ms`;
+      `denoise ${m.denoise_ms.toFixed(1)} ms, encode ${m.encode_ms.toFixed(1)} ms` +
+      (m.split ? `\nsplit: left NEE ${m.split.left_spp} spp in ${m.split.left_ms.toFixed(0)} ms, right ${m.method} ${m.spp} spp in ${m.split.right_ms.toFixed(0)} ms` : "");
     $("status").textContent = `${m.spp} spp`;
+    const steps = (m.loss || []).filter((l) => l !== null);
+    if (steps.length) {
+      losses.push(steps.reduce((a, b) => a + b, 0));
+      if (losses.length > 120) losses.shift();
+      drawLoss();
+    }
+    const train = $("train");
+    train.disabled = m.training === null;
+    if (m.training !== null) train.checked = m.training;
   }
 
   function start(m) {
@@ -207,7 +239,11 @@
   // ---- method, denoise, save ----
   $("method").onchange = (e) => send("method", { type: "method", method: e.target.value });
   $("denoise").onchange = (e) => send("denoise", { type: "denoise", on: e.target.checked });
+  $("split").onchange = (e) => send("split", { type: "split", on: e.target.checked });
   $("save").onclick = () => send("save", { type: "save" });
+  $("train").onchange = (e) => send("train", { type: "train", on: e.target.checked });
+  $("reset-cache").onclick = () => { losses.length = 0; drawLoss(); send("reset", { type: "reset_cache" }); };
+  $("show-levels").onclick = () => send("levels", { type: "levels" });
   $("environment").oninput = (e) => send("environment", { type: "environment", intensity: parseFloat(e.target.value) });
 
   // ---- transfer function ----

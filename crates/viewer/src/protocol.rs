@@ -55,6 +55,15 @@ pub enum ClientMessage {
     Method { method: String },
     /// Denoise the shown image (where Open Image Denoise is installed).
     Denoise { on: bool },
+    /// The split view: NEE on the left half, the method on the right, each given the same
+    /// rendering time (the GSCache paper's comparison, live).
+    Split { on: bool },
+    /// The Gaussian cache's training on or off (what it has learnt is kept).
+    Train { on: bool },
+    /// A fresh cache of the same method.
+    ResetCache {},
+    /// Each Gaussian cache level as drawn from the camera (answered with a `levels` message).
+    Levels {},
     /// Write the image, the scene and the cache into the output folder (a struct variant, so
     /// that unknown fields are refused as on every other message).
     Save {},
@@ -68,6 +77,10 @@ pub enum Change {
     Lights(Lights, Vec<(Vec3, f32)>, f32),
     Method(Method),
     Denoise(bool),
+    Split(bool),
+    Train(bool),
+    ResetCache,
+    Levels,
     Save,
 }
 
@@ -446,6 +459,10 @@ pub fn check(
         }
         ClientMessage::Method { method } => Ok(Change::Method(Method::parse(&method)?)),
         ClientMessage::Denoise { on } => Ok(Change::Denoise(on)),
+        ClientMessage::Split { on } => Ok(Change::Split(on)),
+        ClientMessage::Train { on } => Ok(Change::Train(on)),
+        ClientMessage::ResetCache {} => Ok(Change::ResetCache),
+        ClientMessage::Levels {} => Ok(Change::Levels),
         ClientMessage::Save {} => Ok(Change::Save),
     }
 }

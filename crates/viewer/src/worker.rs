@@ -72,6 +72,10 @@ pub struct Worker {
     pub camera: volume_pt::Camera,
     /// Samples per pixel at which a still view stops refining.
     pub target_spp: u32,
+    /// The split view's plain path tracing (the left half), and the seconds each side has
+    /// rendered since the last edit (they are kept equal).
+    pub split: Option<Session>,
+    seconds: [f64; 2],
     /// Frames per second, smoothed.
     fps: f64,
     last_frame: Option<Instant>,
@@ -109,6 +113,8 @@ impl Worker {
             preview: false,
             camera,
             target_spp,
+            split: None,
+            seconds: [0.0; 2],
             fps: 0.0,
             last_frame: None,
         })
@@ -116,6 +122,31 @@ impl Worker {
 
     fn converged(&self) -> bool {
         !self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp
+    }
+
+    /// Applies `edit` to the view's session and to the split view's, if on.
+    fn edit_all(&mut self, edit: Edit) -> Result<(), String> {
+        if let Some(split) = self.split.as_mut() {
+            split.edit(edit.clone()).map_err(|e| e.to_string())?;
+        }
+        self.session.edit(edit).map_err(|e| e.to_string())?;
+        self.seconds = [0.0; 2];
+        Ok(())
+    }
+
+    /// With the split view on, renders a frame of whichever side has had less time, so the
+    /// two stay at equal time; true if it rendered the plain side (nothing to publish yet).
+    fn split_turn(&mut self, control: &Control) -> bool {
+        let Some(split) = self.split.as_mut() else {
+            return false;
+        };
+        if self.seconds[0] > self.seconds[1] {
+            return false;
+        }
+        if let Ok(report) = split.next_frame(control) {
+            self.seconds[0] += report.seconds;
+        }
+        true
     }
 
     /// The loop: apply what arrived, render a frame unless the view has converged, publish it.
@@ -177,11 +208,15 @@ impl Worker {
                 continue;
             }
             let control = Control::cancellable(&cancel);
+            if self.split_turn(&control) {
+                continue;
+            }
             match self.session.next_frame(&control) {
                 // A cancelled frame is partial (some pixels without a sample) and an edit is
                 // waiting that will empty the image anyway: not shown.
                 Ok(report) if report.cancelled => {}
                 Ok(report) => {
+                    self.seconds[1] += report.seconds;
                     if let Some(frame) = self.publishable(&report) {
                         frames.send_replace(Some(Arc::new(frame)));
                     }
@@ -219,7 +254,10 @@ impl Worker {
         events: &broadcast::Sender<Event>,
     ) -> Result<(), String> {
         // After an edit of what is seen, the first frame comes quickly at the preview size.
-        if !matches!(change, Change::Save | Change::Denoise(_)) {
+        if !matches!(
+            change,
+            Change::Save | Change::Denoise(_) | Change::Train(_) | Change::Levels
+        ) {
             self.preview = true;
         }
         match change {
@@ -229,16 +267,12 @@ impl Worker {
                 self.set_camera()?;
             }
             Change::Transfer(tf, settings) => {
-                self.session
-                    .edit(Edit::TransferFunction(tf))
-                    .map_err(|e| e.to_string())?;
+                self.edit_all(Edit::TransferFunction(tf))?;
                 self.transfer = settings;
                 self.set_camera()?;
             }
             Change::Lights(lights, directions, environment) => {
-                self.session
-                    .edit(Edit::Lights(lights))
-                    .map_err(|e| e.to_string())?;
+                self.edit_all(Edit::Lights(lights))?;
                 self.lights = LightSettings {
                     lights: directions,
                     environment,
@@ -250,6 +284,65 @@ impl Worker {
                     .edit(Edit::Cache(method.cache_choice()))
                     .map_err(|e| e.to_string())?;
                 self.method = method;
+                self.set_camera()?;
+                if let Some(split) = self.split.as_mut() {
+                    split.clear_image();
+                }
+                self.seconds = [0.0; 2];
+            }
+            Change::Train(on) => {
+                let cache = self
+                    .session
+                    .cache_mut()
+                    .gaussian_mut()
+                    .ok_or("training on or off: the method has no Gaussian cache")?;
+                cache.set_training(on);
+            }
+            Change::ResetCache => {
+                self.session
+                    .edit(Edit::Cache(self.method.cache_choice()))
+                    .map_err(|e| e.to_string())?;
+                self.set_camera()?;
+            }
+            Change::Levels => {
+                let images = self
+                    .session
+                    .level_images()
+                    .ok_or("level images: the method has no Gaussian cache")?
+                    .map_err(|e| e.to_string())?;
+                let scene = self.session.scene().clone();
+                let urls: Vec<String> = images
+                    .iter()
+                    .map(|img| {
+                        format!(
+                            "data:image/jpeg;base64,{}",
+                            base64::encode(encode(img, &scene))
+                        )
+                    })
+                    .collect();
+                let _ = events.send(Event {
+                    to: Some(client),
+                    text: Arc::new(
+                        serde_json::json!({"type": "levels", "images": urls}).to_string(),
+                    ),
+                });
+            }
+            Change::Split(on) => {
+                self.split = if on {
+                    let mut plain = Session::new(
+                        self.session.scene().clone(),
+                        render_session::CacheChoice::None,
+                    )
+                    .map_err(|e| e.to_string())?;
+                    plain
+                        .edit(Edit::Camera(self.camera))
+                        .map_err(|e| e.to_string())?;
+                    Some(plain)
+                } else {
+                    None
+                };
+                self.session.clear_image();
+                self.seconds = [0.0; 2];
                 self.set_camera()?;
             }
             Change::Denoise(on) => {
@@ -293,7 +386,9 @@ impl Worker {
     /// Puts the camera into the session: smaller while moving and for the first frame after an
     /// edit, with plain path tracing.
     fn set_camera(&mut self) -> Result<(), String> {
-        let camera = if (self.moving || self.preview) && self.method == Method::Nee {
+        // The split view compares at equal time and size: never smaller there.
+        let small = (self.moving || self.preview) && self.method == Method::Nee;
+        let camera = if small && self.split.is_none() {
             let d = preview_divisor(self.camera.width, self.camera.height);
             self.camera
                 .with_size(
@@ -304,9 +399,15 @@ impl Worker {
         } else {
             self.camera
         };
+        if let Some(split) = self.split.as_mut() {
+            split
+                .edit(Edit::Camera(camera))
+                .map_err(|e| e.to_string())?;
+        }
         self.session
             .edit(Edit::Camera(camera))
             .map_err(|e| e.to_string())?;
+        self.seconds = [0.0; 2];
         Ok(())
     }
 
@@ -328,6 +429,9 @@ impl Worker {
         self.last_frame = Some(now);
         let start = Instant::now();
         let mut image = self.session.image();
+        if let Some(split) = &self.split {
+            image = side_by_side(&split.image(), &image);
+        }
         let mut denoise_ms = 0.0;
         if self.denoise_on
             && !self.moving
@@ -359,6 +463,16 @@ impl Worker {
             "denoise_ms": denoise_ms,
             "encode_ms": encode_ms,
             "method": self.method.name(),
+            // The training loss per level (none on frames without a step): the page's
+            // sparkline; and whether the cache trains.
+            "loss": report.loss,
+            "training": self.session.cache().gaussian().map(|c| c.config().train),
+            "split": self.split.as_ref().map(|s| serde_json::json!({
+                "left": "nee",
+                "left_spp": s.frames_in_image(),
+                "left_ms": self.seconds[0] * 1e3,
+                "right_ms": self.seconds[1] * 1e3,
+            })),
             "moving": self.moving,
             "denoised": self.denoise_on && !self.moving && self.denoiser.is_some(),
         })
@@ -376,6 +490,26 @@ const PREVIEW_PIXELS: f64 = 120_000.0;
 pub fn preview_divisor(width: u32, height: u32) -> u32 {
     let pixels = width as f64 * height as f64;
     ((pixels / PREVIEW_PIXELS).sqrt().ceil() as u32).max(2)
+}
+
+/// The left half of `left` beside the right half of `right` (images of one size), with a dark
+/// line between them.
+pub fn side_by_side(left: &RgbImage, right: &RgbImage) -> RgbImage {
+    let (w, h) = (right.width(), right.height());
+    if (left.width(), left.height()) != (w, h) {
+        return right.clone();
+    }
+    let mut out = right.clone();
+    let half = w / 2;
+    let pixels = out.pixels_mut();
+    for y in 0..h {
+        for x in 0..half {
+            let i = (y * w + x) as usize;
+            pixels[i] = left.pixels()[i];
+        }
+        pixels[(y * w + half) as usize] = glam::Vec3::ZERO;
+    }
+    out
 }
 
 /// An error as the page's JSON message.

@@ -22,6 +22,7 @@ Errors the renderer refuses are ``GscacheError``, with the message the program p
 from __future__ import annotations
 
 import json
+import pathlib
 import math
 from typing import Any, Callable, Mapping, Optional, Sequence, Tuple
 
@@ -44,6 +45,8 @@ __all__ = [
     "Cache",
     "Cloud",
     "GscacheError",
+    "Viewer",
+    "view",
     "Interrupted",
     "Partial",
     "Scene",
@@ -146,6 +149,7 @@ class Scene:
             volume = Volume.from_array(volume)
         self = cls.__new__(cls)
         self._inner, self.toml = _gscache.Scene.from_volume(volume, colormap, nifti)
+        self._path = "volume.auto.toml"
         return self
 
     @classmethod
@@ -153,6 +157,7 @@ class Scene:
         """Reads a scene file (TOML), as ``gscache render`` does."""
         self = cls.__new__(cls)
         self._inner = _gscache.Scene.load(str(path))
+        self._path = str(path)
         return self
 
     width = property(lambda self: self._inner.width)
@@ -390,3 +395,46 @@ def _config_json(config: Optional[Mapping[str, Any]]) -> Optional[str]:
         return None
     _finite_tables(dict(config), "cache")
     return json.dumps(dict(config), default=_json_number)
+
+
+class Viewer:
+    """A running ``gscache view`` (``gscache.view``): ``url`` to open, ``stop()`` to end it. In
+    Jupyter it shows itself as the page in an IFrame."""
+
+    def __init__(self, inner):
+        self._inner = inner
+
+    @property
+    def url(self) -> str:
+        return self._inner.url
+
+    def stop(self) -> None:
+        self._inner.stop()
+
+    def _repr_html_(self) -> str:
+        import html
+
+        u = html.escape(self.url, quote=True)
+        return f'<iframe src="{u}" width="100%" height="620" style="border:0"></iframe>'
+
+    def __repr__(self) -> str:
+        return f"gscache.Viewer({self.url!r})"
+
+
+def view(
+    scene: "Scene",
+    *,
+    port: int = 0,
+    bind: str = "127.0.0.1",
+    output: str = "out/view",
+    max_clients: int = 4,
+) -> Viewer:
+    """Explores ``scene`` in the browser, as ``gscache view`` does: returns at once with a
+    ``Viewer`` whose ``url`` (with its token) opens the page; in Jupyter the result displays as
+    the page itself. ``port`` 0 picks a free one. It listens on 127.0.0.1 unless ``bind`` says
+    otherwise. Save writes into ``output`` only."""
+    text, path = "", ""
+    if getattr(scene, "_path", None):
+        path = scene._path
+        text = getattr(scene, "toml", None) or pathlib.Path(path).read_text()
+    return Viewer(_gscache._view(scene._inner, text, path, port, bind, output, max_clients))

@@ -139,3 +139,26 @@ def test_the_page_renders_and_answers_edits(viewer, browser):
     ActionChains(d).move_to_element(d.find_element("id", "view")).click_and_hold().move_by_offset(
         -200, 0).release().perform()
     wait(lambda: differ(settled(d), before) > 3, "a frame after the error")
+
+
+def test_view_from_python(repo, tmp_path):
+    """``gscache.view`` serves a scene in memory: its URL carries a token, the page answers
+    with it and refuses without it, and the handle shows as an IFrame in Jupyter."""
+    import urllib.error
+    import urllib.request
+
+    import gscache
+
+    scene = gscache.Scene.load(str(repo / "data/scenes/default.toml"))
+    v = gscache.view(scene, output=str(tmp_path / "out"))
+    try:
+        assert v.url.startswith("http://127.0.0.1:") and "token=" in v.url
+        with urllib.request.urlopen(v.url, timeout=10) as r:
+            assert r.status == 200 and b"gscache view" in r.read()
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(v.url.split("?")[0], timeout=10)
+        assert refused.value.code == 403
+        assert v._repr_html_().startswith("<iframe src=\"http://127.0.0.1:")
+    finally:
+        v.stop()
+    assert not (tmp_path / "out").exists(), "nothing is written before a Save"

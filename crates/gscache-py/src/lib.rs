@@ -20,6 +20,7 @@ mod denoise;
 mod images;
 mod render;
 mod run;
+mod view;
 mod volume;
 
 use pyo3::create_exception;
@@ -49,6 +50,8 @@ fn _gscache(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<cache::Cache>()?;
     m.add_class::<clouds::Cloud>()?;
     m.add_class::<denoise::Denoiser>()?;
+    m.add_class::<view::Viewer>()?;
+    m.add_function(wrap_pyfunction!(view::_view, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_image, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_partial, m)?)?;
     m.add_function(wrap_pyfunction!(clouds::splat_render, m)?)?;

@@ -104,6 +104,15 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
     let mut table: toml::Table =
         toml::from_str(r.scene_text).map_err(|e| format!("{}: {e}", r.scene_file.display()))?;
     let anchor = r.scene_file.parent().unwrap_or(Path::new("."));
+    // A scene made from tables in Python has no file: its volume is named as it was given.
+    if !table.contains_key("volume") {
+        let mut volume = toml::Table::new();
+        volume.insert(
+            "file".into(),
+            toml::Value::String(r.scene.volume_path.display().to_string()),
+        );
+        table.insert("volume".into(), toml::Value::Table(volume));
+    }
     if let Some(toml::Value::Table(volume)) = table.get_mut("volume")
         && let Some(toml::Value::String(file)) = volume.get("file")
     {

@@ -76,6 +76,8 @@ pub struct Worker {
     /// rendered since the last edit (they are kept equal).
     pub split: Option<Session>,
     seconds: [f64; 2],
+    /// A page has connected.
+    greeted: bool,
     /// Frames per second, smoothed.
     fps: f64,
     last_frame: Option<Instant>,
@@ -115,13 +117,17 @@ impl Worker {
             target_spp,
             split: None,
             seconds: [0.0; 2],
+            greeted: false,
             fps: 0.0,
             last_frame: None,
         })
     }
 
+    /// Nothing to render: no page has connected yet (a viewer nobody watches burns no
+    /// cores), or the still view has its samples.
     fn converged(&self) -> bool {
-        !self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp
+        !self.greeted
+            || (!self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp)
     }
 
     /// Applies `edit` to the view's session and to the split view's, if on.
@@ -172,6 +178,7 @@ impl Worker {
                 match command {
                     Command::Shutdown => return,
                     Command::Hello { client } => {
+                        self.greeted = true;
                         let text = hello(
                             &self.facts,
                             &self.camera,

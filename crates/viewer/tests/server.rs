@@ -389,3 +389,76 @@ async fn save_writes_the_image_scene_and_cache_into_the_output_folder_only() {
         .collect();
     assert_eq!(beside, ["saved"]);
 }
+
+/// The still view converges to what `gscache render` makes with as many samples: the saved
+/// image's mean brightness against 16 independent renders of 64 spp (the viewer draws other
+/// sample indices, so the images agree in distribution, not bit for bit). The statistic is
+/// Student's t with 15 degrees of freedom; 7.7 is its two-sided 1e-5 quantile. The scene's
+/// bright light spheres make a 64-spp image's mean vary by about 2% from seed to seed, so this
+/// sees a difference of some 17% or more: it catches a view that accumulates wrongly (frames
+/// lost, the image cleared, the wrong scale), not a subtle bias, which the renderer's own tests
+/// hold.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_still_view_converges_to_the_render() {
+    let out = scratch("converge");
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(64, 36).unwrap();
+    scene.settings.spp = 64;
+    let v = serve(
+        scene.clone(),
+        text,
+        file,
+        Options {
+            port: 0,
+            output: out.clone(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, converged).await;
+    socket
+        .send(Message::Text(r#"{"type":"save"}"#.into()))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.saved.is_empty()).await;
+    v.stop();
+    let mean = |pixels: &[glam::Vec3]| {
+        pixels.iter().map(|p| (p.x + p.y + p.z) as f64).sum::<f64>() / pixels.len() as f64
+    };
+    let viewed = mean(
+        hdr_image::RgbImage::read_exr(&out.join("view-0001.exr"))
+            .unwrap()
+            .pixels(),
+    );
+    let renders: Vec<f64> = (0..16u64)
+        .map(|seed| {
+            let mut settings = scene.settings;
+            settings.seed = 100 + seed;
+            let mut film = volume_pt::Film::new(64, 36);
+            volume_pt::render(
+                &scene.media,
+                &scene.camera,
+                &settings,
+                &mut film,
+                &volume_pt::Control::none(),
+            );
+            mean(&film.mean())
+        })
+        .collect();
+    let m = renders.iter().sum::<f64>() / 16.0;
+    let sd = (renders.iter().map(|r| (r - m).powi(2)).sum::<f64>() / 15.0).sqrt();
+    let t = (viewed - m) / (sd * (1.0 + 1.0 / 16.0f64).sqrt());
+    assert!(sd > 0.0 && sd < 0.05 * m, "the renders' spread {sd} of {m}");
+    eprintln!(
+        "view {viewed:.4}, renders {m:.4} (sd {sd:.4}), t = {:.2}",
+        (viewed - m) / sd
+    );
+    assert!(
+        t.abs() < 7.7,
+        "the view's mean {viewed} against the renders' {m} (sd {sd}): t = {t}"
+    );
+}

@@ -119,6 +119,7 @@
       `${m.spp} / ${m.target_spp} spp, ${m.fps.toFixed(1)} frames/s\n` +
       `trace ${m.trace_ms.toFixed(1)} ms, read ${m.lookup_ms.toFixed(1)} ms, train ${m.train_ms.toFixed(1)} ms\n` +
       `denoise ${m.denoise_ms.toFixed(1)} ms, encode ${m.encode_ms.toFixed(1)} ms` +
+      (m.stale && m.stale.some((x) => x !== null) ? `\nstale: ${m.stale.map((x) => x === null ? "–" : (100 * x).toFixed(1) + "%").join(" / ")}` : "") +
       (m.split ? `\nsplit: left NEE ${m.split.left_spp} spp in ${m.split.left_ms.toFixed(0)} ms, right ${m.method} ${m.spp} spp in ${m.split.right_ms.toFixed(0)} ms` : "");
     $("status").textContent = `${m.spp} spp`;
     const steps = (m.loss || []).filter((l) => l !== null);

@@ -474,6 +474,9 @@ impl Worker {
             // sparkline; and whether the cache trains.
             "loss": report.loss,
             "training": self.session.cache().gaussian().map(|c| c.config().train),
+            // Per level, the fraction of cache pixels whose residual was gross this frame (the
+            // fallback's verdict: paths there go on as plain path tracing).
+            "stale": self.session.cache().gaussian().map(|c| c.report().stale_fraction.clone()),
             "split": self.split.as_ref().map(|s| serde_json::json!({
                 "left": "nee",
                 "left_spp": s.frames_in_image(),

@@ -561,7 +561,9 @@ mod tests {
         assert!(transfer_function("viridis", [0.0, 1.0], 1.0, &ok, &scene).is_ok());
         let (tf, _) = transfer_function(SCENE_COLOURS, [0.0, 1.0], 1.0, &ok, &scene).unwrap();
         assert_eq!(tf.albedo_at(0.5), Vec3::splat(0.5));
-        let cases: [(&str, [f32; 2], f32, Vec<[f32; 2]>, &str); 7] = [
+        /// Colour map, window, density scale, opacity points, and what the error names.
+        type Case = (&'static str, [f32; 2], f32, Vec<[f32; 2]>, &'static str);
+        let cases: [Case; 7] = [
             ("nope", [0.0, 1.0], 1.0, ok.to_vec(), "colour map"),
             ("viridis", [1.0, 0.0], 1.0, ok.to_vec(), "window"),
             ("viridis", [f32::NAN, 1.0], 1.0, ok.to_vec(), "window"),

@@ -45,6 +45,7 @@ __all__ = [
     "Cache",
     "Cloud",
     "GscacheError",
+    "Image",
     "Viewer",
     "view",
     "Interrupted",
@@ -206,6 +207,36 @@ def _json_number(v: Any) -> Any:
     raise TypeError(f"{type(v).__name__} in a scene table: expected numbers, strings, lists")
 
 
+class Image(np.ndarray):
+    """A rendered image: a float32 (height, width, 3) numpy array of linear radiance that also
+    shows itself in Jupyter, tone-mapped as its scene says (``_repr_png_``, by the program's own
+    tone map). Arithmetic gives plain arrays' results; ``np.asarray(image)`` is the bare array."""
+
+    exposure: float = 0.0
+    tonemap: str = "clip"
+
+    @staticmethod
+    def of(array: np.ndarray, exposure: float = 0.0, tonemap: str = "clip") -> "Image":
+        image = np.asarray(array).view(Image)
+        image.exposure, image.tonemap = float(exposure), str(tonemap)
+        return image
+
+    def __array_finalize__(self, obj) -> None:
+        self.exposure = getattr(obj, "exposure", 0.0)
+        self.tonemap = getattr(obj, "tonemap", "clip")
+
+    def _repr_png_(self) -> Optional[bytes]:
+        if self.ndim != 3 or self.shape[2] != 3:
+            return None
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as folder:
+            path = pathlib.Path(folder) / "image.png"
+            write_png(str(path), np.ascontiguousarray(self, dtype=np.float32), self.exposure,
+                      self.tonemap)
+            return path.read_bytes()
+
+
 def render(
     scene: Scene,
     spp: Optional[int] = None,
@@ -217,7 +248,8 @@ def render(
     progress: Optional[Progress] = None,
     features: bool = False,
 ) -> Any:
-    """Path-traces ``scene``: float32 (height, width, 3), linear radiance. ``spp``, ``seed``,
+    """Path-traces ``scene``: float32 (height, width, 3), linear radiance, as an ``Image`` (a
+    numpy array that shows itself in Jupyter). ``spp``, ``seed``,
     ``integrator`` (``"uniform"`` or ``"nee"``) and ``max_depth`` (-1: unlimited) override the
     scene's. ``progress(samples_done)`` is called from this thread about every 50 ms; an
     exception it raises stops the render and propagates. The GIL is released while rendering.
@@ -235,6 +267,7 @@ def render(
     )
     if interrupted:
         raise Interrupted(image, samples)
+    image = Image.of(image, scene.exposure, scene.tonemap)
     if not features:
         return image
     albedo, normal, depth, coverage = aovs

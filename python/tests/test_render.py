@@ -189,3 +189,18 @@ def test_bad_input_gives_the_programs_message(program, tmp_path):
             camera={"eye": [0, 0, 9], "target": [0, 0, 0], "fov_y": 40, "width": 8, "height": 8},
         )
         gscache.render(scene, spp=1, integrator="bidirectional")
+
+
+def test_a_rendered_image_shows_itself_as_png(repo, tmp_path):
+    """``render`` gives an ``Image``: still a float32 numpy array, and ``_repr_png_`` draws it
+    tone-mapped by the program's own code (the same bytes ``write_png`` writes)."""
+    scene = gscache.Scene.load(str(small_default_scene(repo, tmp_path, 24, 16)))
+    image = gscache.render(scene, spp=2)
+    assert isinstance(image, np.ndarray) and image.dtype == np.float32
+    assert image.shape == (16, 24, 3)
+    png = image._repr_png_()
+    assert png.startswith(b"\x89PNG\r\n\x1a\n")
+    gscache.write_png(str(tmp_path / "direct.png"), np.asarray(image), scene.exposure,
+                      scene.tonemap)
+    assert png == (tmp_path / "direct.png").read_bytes()
+    assert (image * 2.0)._repr_png_() != png

@@ -63,7 +63,7 @@ __all__ = [
     "write_png",
 ]
 
-Progress = Callable[[int], Any]
+Progress = Callable[..., Any]  # progress(done, total) or progress(done)
 
 
 class Interrupted(KeyboardInterrupt):
@@ -251,8 +251,9 @@ def render(
     """Path-traces ``scene``: float32 (height, width, 3), linear radiance, as an ``Image`` (a
     numpy array that shows itself in Jupyter). ``spp``, ``seed``,
     ``integrator`` (``"uniform"`` or ``"nee"``) and ``max_depth`` (-1: unlimited) override the
-    scene's. ``progress(samples_done)`` is called from this thread about every 50 ms; an
-    exception it raises stops the render and propagates. The GIL is released while rendering.
+    scene's. ``progress(samples_done, samples_total)`` (or ``progress(samples_done)`` for a
+    callable of one argument) is called from this thread about every 50 ms; an exception it
+    raises stops the render and propagates. The GIL is released while rendering.
     The image is bit-identical to ``gscache render``'s for the same scene and settings, and
     does not depend on ``threads``.
 

@@ -1,5 +1,5 @@
-"""Renders from Python against the program's, bit for bit; volumes from numpy; progress,
-Ctrl-C and errors."""
+"""Renders from Python against the program's, bit for bit; volumes from numpy; progress with a
+total, Ctrl-C and errors."""
 
 import os
 import pathlib
@@ -115,6 +115,15 @@ def test_progress_counts_every_sample_and_its_exception_stops_the_render(repo):
     gscache.render(scene, spp=4, progress=seen.append)
     assert seen and seen[-1] == 48 * 40 * 4
     assert seen == sorted(seen)
+    # A callable of two arguments is given the total too.
+    totals = []
+    gscache.render(scene, spp=4, progress=lambda done, total: totals.append((done, total)))
+    assert totals and totals[-1] == (48 * 40 * 4, 48 * 40 * 4)
+    assert {t for _, t in totals} == {48 * 40 * 4}
+    cache = gscache.Cache(scene, {"levels": 2})
+    frames = []
+    cache.render(2, warmup=3, spp=1, progress=lambda done, total: frames.append((done, total)))
+    assert frames[-1] == (48 * 40 * 5, 48 * 40 * 5), frames[-3:]
 
     class Stop(Exception):
         pass

@@ -107,7 +107,12 @@ impl Cache {
                 ))
             })?)
             .map_err(crate::error)?;
-        let outcome = run_polled(py, threads, progress.as_ref(), |control| {
+        let camera = *session.camera();
+        let total = camera.width as u64
+            * camera.height as u64
+            * spp as u64
+            * (warmup as u64 + frames as u64);
+        let outcome = run_polled(py, threads, progress.as_ref(), total, |control| {
             let mut costs = [0.0f64; 3];
             let mut counted = 0;
             session.warm_up(warmup, 0.0, control)?;

@@ -188,7 +188,7 @@ pub(crate) fn splat_trace<'py>(
         random,
     };
     let c = &cloud.cloud;
-    let outcome = crate::run::run_polled(py, threads, None, |control| {
+    let outcome = crate::run::run_polled(py, threads, None, 0, |control| {
         trace_image_with(&GaussianScene::new(c), &cam, &settings, control).0
     })?;
     Ok((

@@ -36,7 +36,8 @@ fn render_range(
     } else {
         Film::new(s.camera.width, s.camera.height)
     };
-    let outcome = run_polled(py, threads, progress, |control| {
+    let total = s.camera.width as u64 * s.camera.height as u64 * samples.len() as u64;
+    let outcome = run_polled(py, threads, progress, total, |control| {
         render_samples(&s.media, &s.camera, settings, samples, &mut film, control)
     })?;
     Ok((film, outcome.interrupted))

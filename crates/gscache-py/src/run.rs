@@ -38,15 +38,31 @@ pub(crate) fn pool(threads: Option<usize>) -> PyResult<rayon::ThreadPool> {
     b.build().map_err(crate::error)
 }
 
+/// Whether `callback` takes two positional arguments (`progress(done, total)`), by
+/// `inspect.signature`; a callable without a signature (a builtin such as `print`) takes them
+/// as `*args` and is given both too.
+fn takes_total(py: Python<'_>, callback: &Bound<'_, PyAny>) -> bool {
+    let Ok(inspect) = py.import("inspect") else {
+        return false;
+    };
+    match inspect.call_method1("signature", (callback,)) {
+        Ok(signature) => signature.call_method1("bind", (0, 0)).is_ok(),
+        Err(_) => true,
+    }
+}
+
 /// Runs `work(control)` on `threads` threads with the GIL released; the units `work` reports to
-/// its control reach `progress(done)` on the calling thread, and Ctrl-C cancels it. An
-/// exception from the callback cancels the work and is returned once it has stopped.
+/// its control reach `progress(done, total)` on the calling thread (`progress(done)` for a
+/// callable of one argument), and Ctrl-C cancels it. An exception from the callback cancels the
+/// work and is returned once it has stopped.
 pub(crate) fn run_polled<T: Send>(
     py: Python<'_>,
     threads: Option<usize>,
     progress: Option<&Bound<'_, PyAny>>,
+    total: u64,
     work: impl FnOnce(&Control) -> T + Send,
 ) -> PyResult<Outcome<T>> {
+    let with_total = progress.is_some_and(|cb| takes_total(py, cb));
     let pool = pool(threads)?;
     let cancel = AtomicBool::new(false);
     let done = AtomicU64::new(0);
@@ -91,7 +107,12 @@ pub(crate) fn run_polled<T: Send>(
                 let n = done.load(Ordering::Relaxed);
                 if n != reported {
                     reported = n;
-                    if let Err(e) = cb.call1((n,)) {
+                    let called = if with_total {
+                        cb.call1((n, total))
+                    } else {
+                        cb.call1((n,))
+                    };
+                    if let Err(e) = called {
                         // Ctrl-C that Python raised inside the callback is still Ctrl-C.
                         if e.is_instance_of::<PyKeyboardInterrupt>(py) {
                             interrupted = true;

@@ -46,6 +46,9 @@ pub struct PathSettings {
     pub max_depth: Option<u32>,
     /// First vertex at which Russian roulette may end a path.
     pub rr_start_depth: u32,
+    /// Whether camera rays see the light spheres (they light the volume either way). A
+    /// scientific view usually hides them (`show_lights = false` in the scene's `[render]`).
+    pub show_lights: bool,
 }
 
 impl Default for PathSettings {
@@ -54,6 +57,7 @@ impl Default for PathSettings {
             integrator: IntegratorKind::Nee,
             max_depth: Some(64),
             rr_start_depth: 3,
+            show_lights: true,
         }
     }
 }
@@ -134,7 +138,12 @@ pub fn radiance_with<H: PathHooks>(
     let mut phase_pdf = 0.0f32;
     let mut first_hit = None;
     loop {
-        let hit = lights.nearest(o, d, 0.0);
+        // A camera ray passes through hidden light spheres (and sees what lies behind them).
+        let hit = if depth == 0 && !settings.show_lights {
+            None
+        } else {
+            lights.nearest(o, d, 0.0)
+        };
         let t_end = hit.map_or(f32::INFINITY, |h| h.1);
         let ray = medium.to_index_ray(o, d);
         let Some(Collision { t, value }) = free_flight(medium, &ray, 0.0, t_end, rng) else {

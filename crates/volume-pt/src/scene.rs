@@ -205,6 +205,10 @@ pub struct RenderDesc {
     pub integrator: IntegratorKind,
     pub seed: u64,
     pub rr_start_depth: u32,
+    /// Whether camera rays see the light spheres (default true: they are part of the scene's
+    /// radiance, and the committed results were measured with them; false for the look
+    /// scientific viewers have, with the volume lit by lights that are not in the picture).
+    pub show_lights: bool,
 }
 
 impl Default for RenderDesc {
@@ -215,6 +219,7 @@ impl Default for RenderDesc {
             integrator: IntegratorKind::Nee,
             seed: 0,
             rr_start_depth: 3,
+            show_lights: true,
         }
     }
 }
@@ -462,6 +467,7 @@ pub fn build_scene_with_volume(
                 integrator: r.integrator,
                 max_depth,
                 rr_start_depth: r.rr_start_depth,
+                show_lights: r.show_lights,
             },
         },
         output: desc.output,

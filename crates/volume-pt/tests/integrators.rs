@@ -56,6 +56,7 @@ fn white_furnace_both_integrators() {
                     integrator,
                     max_depth: None,
                     rr_start_depth: 1,
+                    show_lights: true,
                 };
                 let (mean, var) = path_stats(&scene, &settings, o, d, 100_000, 3);
                 let se = var[0].sqrt();
@@ -155,6 +156,7 @@ fn uniform_and_nee_agree_on_a_lit_volume() {
             integrator: IntegratorKind::Uniform,
             max_depth,
             rr_start_depth: 3,
+            show_lights: true,
         };
         let n = PathSettings {
             integrator: IntegratorKind::Nee,
@@ -176,6 +178,7 @@ fn majorant_grid_and_global_majorant_agree() {
         integrator: IntegratorKind::Nee,
         max_depth: Some(8),
         rr_start_depth: 3,
+        show_lights: true,
     };
     let a = pixel_stats(&media, &cam, &s, 3000, 4);
     let b = pixel_stats(&global, &cam, &s, 3000, 5);
@@ -208,6 +211,7 @@ fn tiny_light_single_scattering_matches_quadrature() {
         integrator: IntegratorKind::Nee,
         max_depth: Some(1),
         rr_start_depth: 3,
+        show_lights: true,
     };
     let (mean, var) = path_stats(&scene, &settings, o, Vec3::Z, 400_000, 8);
 
@@ -270,6 +274,7 @@ fn distant_light_single_scattering_in_a_homogeneous_cube_matches_the_closed_form
         integrator: IntegratorKind::Nee,
         max_depth: Some(1),
         rr_start_depth: 3,
+        show_lights: true,
     };
     let o = Vec3::new(0.0, 0.0, -5.0);
     let chunks = 32u64;
@@ -312,4 +317,67 @@ fn distant_light_single_scattering_in_a_homogeneous_cube_matches_the_closed_form
     };
     let (mean, _) = path_stats(&scene, &uniform, o, Vec3::Z, 1000, 12);
     assert_eq!(mean, [0.0; 3]);
+}
+
+/// `show_lights = false`: camera rays pass through the light spheres (a pixel fully covered by
+/// the default scene's bright disc drops to what lies behind it), while every pixel whose rays
+/// cannot reach a sphere is bit for bit the same (it draws the same random numbers), and the
+/// spheres still light the volume.
+#[test]
+fn hidden_lights_are_not_seen_by_the_camera() {
+    use volume_pt::{Film, render};
+    let path =
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let mut scene = load_scene(&path).unwrap();
+    scene.camera = scene.camera.with_size(64, 64).unwrap();
+    let image = |show: bool| {
+        let mut settings = scene.settings;
+        settings.spp = 4;
+        settings.path.show_lights = show;
+        let mut film = Film::new(64, 64);
+        render(
+            &scene.media,
+            &scene.camera,
+            &settings,
+            &mut film,
+            &volume_pt::Control::none(),
+        );
+        film.mean()
+    };
+    let (shown, hidden) = (image(true), image(false));
+    let lights = &scene.media.lights;
+    let (mut covered, mut clear, mut lit) = (0, 0, 0);
+    for y in 0..64u32 {
+        for x in 0..64u32 {
+            let hits = |u: f32, v: f32| {
+                let d = scene.camera.ray_direction(x as f32 + u, y as f32 + v);
+                lights.nearest(scene.camera.position, d, 0.0).is_some()
+            };
+            let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5)];
+            let i = (y * 64 + x) as usize;
+            if corners.iter().all(|&(u, v)| hits(u, v)) {
+                covered += 1;
+                assert!(
+                    shown[i].min_element() > 50.0,
+                    "pixel ({x}, {y}): {}",
+                    shown[i]
+                );
+                assert!(
+                    hidden[i].max_element() < 5.0,
+                    "pixel ({x}, {y}): {}",
+                    hidden[i]
+                );
+            } else if !corners.iter().any(|&(u, v)| hits(u, v)) {
+                clear += 1;
+                assert_eq!(shown[i], hidden[i], "pixel ({x}, {y})");
+                if hidden[i].max_element() > 0.2 {
+                    lit += 1;
+                }
+            }
+        }
+    }
+    assert!(
+        covered >= 1 && clear > 3000 && lit > 300,
+        "{covered} {clear} {lit}"
+    );
 }

@@ -30,7 +30,7 @@ fn beer_lambert_pixel_through_absorbing_box() {
             let settings = PathSettings {
                 integrator,
                 max_depth: None,
-                rr_start_depth: 3,
+                ..PathSettings::default()
             };
             let n = 1_000_000;
             let (mean, _) = path_stats(

@@ -153,6 +153,7 @@
     $("density").value = shown(transfer.density_scale);
     $("denoise").disabled = !m.denoiser;
     $("environment").value = m.environment;
+    $("show-lights").checked = m.show_lights;
     lights.length = 0;
     const box = $("lights");
     box.innerHTML = "";
@@ -241,6 +242,7 @@
   $("method").onchange = (e) => send("method", { type: "method", method: e.target.value });
   $("denoise").onchange = (e) => send("denoise", { type: "denoise", on: e.target.checked });
   $("split").onchange = (e) => send("split", { type: "split", on: e.target.checked });
+  $("show-lights").onchange = (e) => send("show_lights", { type: "show_lights", on: e.target.checked });
   $("save").onclick = () => send("save", { type: "save" });
   $("train").onchange = (e) => send("train", { type: "train", on: e.target.checked });
   $("reset-cache").onclick = () => { losses.length = 0; drawLoss(); send("reset", { type: "reset_cache" }); };

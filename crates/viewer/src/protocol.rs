@@ -60,6 +60,8 @@ pub enum ClientMessage {
     Split { on: bool },
     /// The Gaussian cache's training on or off (what it has learnt is kept).
     Train { on: bool },
+    /// Whether the camera sees the light spheres (they light the volume either way).
+    ShowLights { on: bool },
     /// A fresh cache of the same method.
     ResetCache {},
     /// Each Gaussian cache level as drawn from the camera (answered with a `levels` message).
@@ -79,6 +81,7 @@ pub enum Change {
     Denoise(bool),
     Split(bool),
     Train(bool),
+    ShowLights(bool),
     ResetCache,
     Levels,
     Save,
@@ -461,6 +464,7 @@ pub fn check(
         ClientMessage::Denoise { on } => Ok(Change::Denoise(on)),
         ClientMessage::Split { on } => Ok(Change::Split(on)),
         ClientMessage::Train { on } => Ok(Change::Train(on)),
+        ClientMessage::ShowLights { on } => Ok(Change::ShowLights(on)),
         ClientMessage::ResetCache {} => Ok(Change::ResetCache),
         ClientMessage::Levels {} => Ok(Change::Levels),
         ClientMessage::Save {} => Ok(Change::Save),
@@ -482,6 +486,7 @@ pub fn parse(text: &str) -> Result<ClientMessage, String> {
 /// current settings.
 pub fn hello(
     facts: &SceneFacts,
+    show_lights: bool,
     camera: &Camera,
     transfer: &TransferSettings,
     lights: &LightSettings,
@@ -520,6 +525,7 @@ pub fn hello(
             "intensity": k,
         })).collect::<Vec<_>>(),
         "environment": lights.environment,
+        "show_lights": show_lights,
         "methods": Method::available(),
         "method": method.name(),
         "denoiser": denoiser,

@@ -193,8 +193,15 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
     let mut env = toml::Table::new();
     env.insert("radiance".into(), array(lights.environment));
     table.insert("environment".into(), toml::Value::Table(env));
-    if let Some(toml::Value::Table(render)) = table.get_mut("render") {
+    let render = table
+        .entry("render")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let toml::Value::Table(render) = render {
         render.insert("spp".into(), toml::Value::Integer(r.spp.max(1) as i64));
+        render.insert(
+            "show_lights".into(),
+            toml::Value::Boolean(r.scene.settings.path.show_lights),
+        );
     }
     let body = toml::to_string(&table).map_err(|e| e.to_string())?;
     Ok(format!(

@@ -181,6 +181,7 @@ impl Worker {
                         self.greeted = true;
                         let text = hello(
                             &self.facts,
+                            self.session.scene().settings.path.show_lights,
                             &self.camera,
                             &self.transfer,
                             &self.lights,
@@ -304,6 +305,12 @@ impl Worker {
                     .gaussian_mut()
                     .ok_or("training on or off: the method has no Gaussian cache")?;
                 cache.set_training(on);
+            }
+            Change::ShowLights(on) => {
+                let mut path = self.session.scene().settings.path;
+                path.show_lights = on;
+                self.edit_all(Edit::Path(path))?;
+                self.set_camera()?;
             }
             Change::ResetCache => {
                 self.session

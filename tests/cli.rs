@@ -669,22 +669,28 @@ fn the_neural_cache_renders_and_its_bad_settings_are_named() {
         (&["--cache"], "cannot be used with"),
     ];
     for (args, expected) in cases {
-        let out = gscache()
-            .arg("render")
-            .arg(&scene)
-            .args(["--width", "16", "--height", "16", "--nrc"])
-            .args(args)
-            .arg("-o")
-            .arg(d.join("bad.exr"))
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(
-            !out.status.success() && err.contains(expected),
-            "{args:?}: {err}"
-        );
-        assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
+        assert_refused(&scene, &["--nrc"], args, expected, &d);
     }
+}
+
+/// `render SCENE` at 16x16 with `base` and `args` fails naming `expected`, and writes no image.
+fn assert_refused(scene: &Path, base: &[&str], args: &[&str], expected: &str, d: &Path) {
+    let out = gscache()
+        .arg("render")
+        .arg(scene)
+        .args(["--width", "16", "--height", "16"])
+        .args(base)
+        .args(args)
+        .arg("-o")
+        .arg(d.join("bad.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains(expected),
+        "{args:?}: {err}"
+    );
+    assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
 }
 
 /// The benches take their data from `--data` (an installed program has no source tree to read
@@ -1137,21 +1143,12 @@ fn the_unbiased_cache_renders_and_reports_its_bound() {
         (["--cache-min-continuation", "0"], "min_continuation"),
         (["--cache-continuation-scale", "-1"], "continuation_scale"),
     ] {
-        let out = gscache()
-            .arg("render")
-            .arg(&scene)
-            .args(["--width", "16", "--height", "16", "--cache"])
-            .args(["--cache-unbiased", "true"])
-            .args(args)
-            .arg("-o")
-            .arg(d.join("bad.exr"))
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(
-            !out.status.success() && err.contains(expected),
-            "{args:?}: {err}"
+        assert_refused(
+            &scene,
+            &["--cache", "--cache-unbiased", "true"],
+            &args,
+            expected,
+            &d,
         );
-        assert!(!d.join("bad.exr").exists(), "{args:?} wrote an image");
     }
 }

@@ -242,9 +242,9 @@ pub fn serve(
         .spawn(move || {
             runtime.block_on(async move {
                 let router = Router::new()
-                    .route("/", get(index))
+                    .route("/", get(get_page))
                     .route("/ws", get(websocket))
-                    .fallback(not_found)
+                    .fallback(get_page)
                     .with_state(app);
                 let Ok(listener) = tokio::net::TcpListener::from_std(listener) else {
                     eprintln!("gscache view: the listening socket could not join the runtime");
@@ -277,13 +277,18 @@ fn page() -> String {
         .replace("/*SCRIPT*/", include_str!("../page/app.js"))
 }
 
-async fn index(
+/// A plain GET: the page at `/`, 404 elsewhere, each behind the token.
+async fn get_page(
     State(app): State<Arc<App>>,
     Query(query): Query<HashMap<String, String>>,
     headers: HeaderMap,
+    uri: axum::http::Uri,
 ) -> Response {
     if let Err(refused) = app.admit(&query, &headers) {
         return refused.into_response();
+    }
+    if uri.path() != "/" {
+        return (StatusCode::NOT_FOUND, "no such page").into_response();
     }
     (
         [
@@ -293,17 +298,6 @@ async fn index(
         Html(app.page.clone()),
     )
         .into_response()
-}
-
-async fn not_found(
-    State(app): State<Arc<App>>,
-    Query(query): Query<HashMap<String, String>>,
-    headers: HeaderMap,
-) -> Response {
-    if let Err(refused) = app.admit(&query, &headers) {
-        return refused.into_response();
-    }
-    (StatusCode::NOT_FOUND, "no such page").into_response()
 }
 
 /// Counts a connected client; dropping it frees the place.

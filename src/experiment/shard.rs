@@ -385,6 +385,8 @@ pub fn check_unit(spec: &UnitSpec<'_>, r: &UnitResult, pixels: usize) -> Result<
 /// Images in shard files: f32 bits in base64 (exact, and a third the size of decimal text).
 pub mod image_bits {
     use super::Vec3;
+    use base64::Engine as _;
+    use base64::engine::general_purpose::STANDARD as BASE64;
     use serde::{Deserialize, Deserializer, Serializer};
 
     pub fn encode(image: &[Vec3]) -> String {
@@ -393,11 +395,11 @@ pub mod image_bits {
             .flat_map(|p| p.to_array())
             .flat_map(f32::to_le_bytes)
             .collect();
-        base64::encode(bytes)
+        BASE64.encode(bytes)
     }
 
     pub fn decode(text: &str) -> Result<Vec<Vec3>, String> {
-        let bytes = base64::decode(text).map_err(|e| e.to_string())?;
+        let bytes = BASE64.decode(text).map_err(|e| e.to_string())?;
         if bytes.len() % 12 != 0 {
             return Err(format!(
                 "{} bytes is not a whole number of RGB pixels",

@@ -12,6 +12,8 @@ use crate::protocol::{
     Change, LightSettings, Method, SceneFacts, TransferSettings, check, hello, transfer_settings_of,
 };
 use crate::save::{SaveRequest, save};
+use base64::Engine as _;
+use base64::engine::general_purpose::STANDARD as BASE64;
 use hdr_image::RgbImage;
 use render_session::{Control, Edit, FrameReport, Session};
 use std::path::PathBuf;
@@ -330,7 +332,7 @@ impl Worker {
                     .map(|img| {
                         format!(
                             "data:image/jpeg;base64,{}",
-                            base64::encode(encode(img, &scene))
+                            BASE64.encode(encode(img, &scene))
                         )
                     })
                     .collect();

@@ -5,6 +5,8 @@
 
 mod common;
 
+use base64::Engine as _;
+use base64::engine::general_purpose::STANDARD as BASE64;
 use common::*;
 use flate2::Compression;
 use flate2::write::{GzEncoder, ZlibEncoder};
@@ -184,8 +186,8 @@ fn vti_with_block(raw: &[u8], extent: &str) -> String {
          <Piece Extent=\"{extent}\">\n<PointData Scalars=\"v\">\n\
          <DataArray type=\"UInt8\" Name=\"v\" format=\"binary\">\n{}{}\n</DataArray>\n\
          </PointData>\n<CellData>\n</CellData>\n</Piece>\n</ImageData>\n</VTKFile>\n",
-        base64::encode(&header),
-        base64::encode(&block)
+        BASE64.encode(&header),
+        BASE64.encode(&block)
     )
 }
 

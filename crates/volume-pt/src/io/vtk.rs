@@ -2,7 +2,7 @@
 //! The first scalar point-data array (one component) is the volume. VTK's point samples map to
 //! our voxel centres; the file's origin is reported as a note, the scene places the volume.
 //!
-//! Two vtkio 0.6.3 faults are worked around here. Its legacy parser rejects the blank lines that
+//! Two vtkio faults (0.6.3; still in 0.7.0-rc2) are worked around here. Its legacy parser rejects the blank lines that
 //! old VTK writers put between header sections (see [`tidy_legacy_header`]). Its XML reader
 //! hands every zlib block of a compressed array to one zlib stream, so only the first block (VTK
 //! writes 32 KiB blocks) is decoded and any larger array is dropped without an error; such arrays
@@ -11,6 +11,8 @@
 use super::{DType, LoadedVolume, check_volume_size, grid_for};
 use crate::error::{Error, Result};
 use crate::grid::Voxels;
+use base64::Engine as _;
+use base64::engine::general_purpose::STANDARD as BASE64;
 use glam::Vec3;
 use std::path::Path;
 use vtkio::model::{Attribute, DataSet, Extent, IOBuffer, Piece};
@@ -295,8 +297,9 @@ fn decode_compressed_array(
         let b64_err =
             |e: base64::DecodeError| format!("VTK array `{name}` is not valid base64: {e}");
         let hsize = if wide { 8 } else { 4 };
-        let first =
-            base64::decode(b64.get(..12).ok_or("VTK array is truncated")?).map_err(b64_err)?;
+        let first = BASE64
+            .decode(b64.get(..12).ok_or("VTK array is truncated")?)
+            .map_err(b64_err)?;
         let read_int = |b: &[u8]| -> usize {
             let mut a = [0u8; 8];
             if big {
@@ -313,9 +316,10 @@ fn decode_compressed_array(
             .filter(|&n| n <= b64.len())
             .ok_or_else(|| format!("VTK array `{name}`: block count is larger than the file"))?;
         let split = header_len.div_ceil(3) * 4;
-        let header = base64::decode(b64.get(..split).ok_or("VTK array header is truncated")?)
+        let header = BASE64
+            .decode(b64.get(..split).ok_or("VTK array header is truncated")?)
             .map_err(b64_err)?;
-        let bytes = base64::decode(&b64[split..]).map_err(b64_err)?;
+        let bytes = BASE64.decode(&b64[split..]).map_err(b64_err)?;
         let int = |i: usize| -> std::result::Result<usize, String> {
             let b = header
                 .get(i * hsize..(i + 1) * hsize)

@@ -92,6 +92,30 @@ def test_the_example_runs(repo, tmp_path):
         assert (tmp_path / name).stat().st_size > 0, name
 
 
+def test_the_docs_brain_snippet_runs(repo, tmp_path):
+    """docs/python.md's numpy snippet runs as written, on nibabel's T1 crop at 96x96 and 16
+    spp, and draws something: over 2% of the pixels differ from the background (the corner
+    pixel) by more than 0.05 after x / (1 + x). Whether it looks like anatomy is judged by eye,
+    in the contact sheet (tools/contact_sheet.py)."""
+    nibabel = pytest.importorskip("nibabel")
+    text = (repo / "docs/python.md").read_text()
+    code = text.split("```python\nimport numpy as np, nibabel, gscache\n", 1)[1].split("```", 1)[0]
+    t1 = pathlib.Path(nibabel.__file__).parent / "tests" / "data" / "anatomical.nii"
+    code = (
+        code.replace('"brain.nii.gz"', repr(str(t1)))
+        .replace('"width": 512, "height": 512', '"width": 96, "height": 96')
+        .replace("spp=64, progress=print", "spp=16")
+        .replace('"brain.png"', repr(str(tmp_path / "brain.png")))
+    )
+    names = {}
+    exec("import numpy as np, nibabel, gscache\n" + code, names)
+    assert (tmp_path / "brain.png").stat().st_size > 0
+    x = np.asarray(names["image"], dtype=np.float64)
+    x = x / (1.0 + x)
+    covered = (np.abs(x - x[0, 0]).max(axis=2) > 0.05).mean()
+    assert covered > 0.02, f"the snippet draws {covered:.3f} of the image: nothing to see"
+
+
 def test_the_unbiased_cache_renders_nee_on_average(repo, tmp_path):
     """The unbiased cache (gs-cache's crate docs) with q = 0.5 luminance(throughput), so that
     most paths stop into it: the image means of 96 frames of 4 spp of it and of 96 independent

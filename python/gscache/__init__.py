@@ -40,8 +40,10 @@ from ._gscache import (
     write_png,
 )
 from . import _gscache
+from ._program import program
 
 __all__ = [
+    "program",
     "Cache",
     "Cloud",
     "GscacheError",

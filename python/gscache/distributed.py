@@ -108,14 +108,35 @@ def map_sweep(
     return client.gather(futures)
 
 
-def _experiment_shard(program: str, experiment: str, index: int, count: int, out: str) -> str:
+def _resolve_program(program: Optional[str]) -> str:
+    """The program to run where this is called (a worker or the client): the one given, else
+    the package's (``gscache.program()``: $GSCACHE_BIN, or the one the wheel installed)."""
+    if program is not None:
+        return program
+    from ._program import program as installed
+
+    found = installed()
+    if found is None:
+        raise RuntimeError(
+            "no gscache program here: the package was installed without it (an editable "
+            "install, or GSCACHE_WHEEL_PROGRAM=0). Install it with `pip install .` on every "
+            "worker, set GSCACHE_BIN, or pass program=PATH."
+        )
+    return found
+
+
+def _run_program(command: list) -> str:
     import subprocess
 
-    subprocess.run(
-        [program, "-q", "experiment", experiment, "--shard", f"{index}/{count}", "--shard-output", out],
-        check=True,
-        capture_output=True,
-    )
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}): {done.stderr.strip()}")
+    return done.stdout
+
+
+def _experiment_shard(program: Optional[str], experiment: str, index: int, count: int, out: str) -> str:
+    command = [_resolve_program(program), "-q", "experiment", experiment]
+    _run_program(command + ["--shard", f"{index}/{count}", "--shard-output", out])
     return out
 
 
@@ -125,15 +146,15 @@ def run_experiment_sharded(
     shards: int,
     folder: str,
     *,
-    program: str = "gscache",
+    program: Optional[str] = None,
     output: Optional[str] = None,
 ) -> Dict[str, Any]:
     """Runs ``gscache experiment EXPERIMENT --shard i/n`` for every shard as worker tasks
     (each writes ``folder/shard-i-of-n.json``; the folder must be shared by the workers),
     then ``gscache experiment merge`` on the client: the report a single run would write.
-    ``program`` is the ``gscache`` binary (on every worker's PATH, or a path)."""
+    ``program`` is the ``gscache`` binary's path; by default each machine runs the one its
+    package installed (``gscache.program()``), whatever its PATH."""
     import os
-    import subprocess
 
     os.makedirs(folder, exist_ok=True)
     outs = [os.path.join(folder, f"shard-{i}-of-{shards}.json") for i in range(shards)]
@@ -142,8 +163,7 @@ def run_experiment_sharded(
         for i, o in enumerate(outs)
     ]
     client.gather(futures)
-    cmd = [program, "-q", "experiment", "merge", experiment, *outs]
+    cmd = [_resolve_program(program), "-q", "experiment", "merge", experiment, *outs]
     if output is not None:
         cmd += ["--output", output]
-    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
-    return {"shards": outs, "stdout": done.stdout}
+    return {"shards": outs, "stdout": _run_program(cmd)}

@@ -816,9 +816,12 @@ fn outputs_do_not_overwrite_each_other() {
     );
     assert!(hdr_image::RgbImage::read_exr(&d.join("x.exr")).is_ok());
     assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    // Each method's render leaves the earlier ones' files as they were, byte for byte.
+    let mut written: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     for (flags, name) in [
         (&[][..], "default.exr"),
         (&["--cache"][..], "default.cache.exr"),
+        (&["--nrc"][..], "default.nrc.exr"),
     ] {
         let out = render()
             .current_dir(&d)
@@ -832,10 +835,17 @@ fn outputs_do_not_overwrite_each_other() {
             "{}",
             String::from_utf8_lossy(&out.stderr)
         );
-        assert!(
-            d.join("out").join(name).exists(),
-            "{flags:?}: no out/{name}"
-        );
+        for (earlier, bytes) in &written {
+            assert!(
+                std::fs::read(earlier).unwrap() == *bytes,
+                "{flags:?} changed {}",
+                earlier.display()
+            );
+        }
+        let path = d.join("out").join(name);
+        let bytes =
+            std::fs::read(&path).unwrap_or_else(|e| panic!("{flags:?}: no out/{name}: {e}"));
+        written.push((path, bytes));
     }
 }
 
@@ -844,15 +854,34 @@ fn outputs_do_not_overwrite_each_other() {
 #[test]
 fn splat_outputs_are_named_after_the_asset() {
     let d = scratch("splat-names");
-    let asset = repo().join("data/splats/fruit_drops_minimal.ply");
-    for (sub, name) in [
-        ("render", "fruit_drops_minimal.exr"),
-        ("trace", "fruit_drops_minimal.trace.exr"),
+    // Two assets, each rendered and traced: every output stays as written, byte for byte.
+    let mut written: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    for (asset, sub, name) in [
+        (
+            "fruit_drops_minimal.ply",
+            "render",
+            "fruit_drops_minimal.exr",
+        ),
+        (
+            "fruit_drops_minimal.ply",
+            "trace",
+            "fruit_drops_minimal.trace.exr",
+        ),
+        (
+            "fruit_drops_minimal_inria.ply",
+            "render",
+            "fruit_drops_minimal_inria.exr",
+        ),
+        (
+            "fruit_drops_minimal_inria.ply",
+            "trace",
+            "fruit_drops_minimal_inria.trace.exr",
+        ),
     ] {
         let out = gscache()
             .current_dir(&d)
             .args(["splat", sub])
-            .arg(&asset)
+            .arg(repo().join("data/splats").join(asset))
             .args(["--width", "16", "--height", "12", "-q"])
             .output()
             .unwrap();
@@ -861,7 +890,16 @@ fn splat_outputs_are_named_after_the_asset() {
             "{sub}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
-        assert!(d.join("out").join(name).exists(), "{sub}: no out/{name}");
+        for (earlier, bytes) in &written {
+            assert!(
+                std::fs::read(earlier).unwrap() == *bytes,
+                "{sub} {asset} changed {}",
+                earlier.display()
+            );
+        }
+        let path = d.join("out").join(name);
+        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{sub}: no out/{name}: {e}"));
+        written.push((path, bytes));
     }
 }
 

@@ -52,6 +52,26 @@ fn vtk_legacy_and_xml_match_the_raw_files() {
     );
 }
 
+/// The uncompressed XML forms (ASCII and inline base64), read by vtkio; the compressed form
+/// (hydrogen.vti above) is read by the project's own decoder. Both fixtures hold the ramp
+/// (7 (x + 2y + 3z)) mod 256 on 6x5x4 points with spacing 1 2 3.
+#[test]
+fn uncompressed_vti_files_read_their_values() {
+    let d = data_dir().join("fixtures");
+    for name in ["ramp_ascii.vti", "ramp_binary.vti"] {
+        let v = read(&d.join(name));
+        assert_eq!(v.grid.dims(), glam::UVec3::new(6, 5, 4), "{name}");
+        assert_eq!(v.spacing, Some(Vec3::new(1.0, 2.0, 3.0)), "{name}");
+        let expected: Vec<f32> = (0..4)
+            .flat_map(|z| {
+                (0..5)
+                    .flat_map(move |y| (0..6).map(move |x| ((x + 2 * y + 3 * z) * 7 % 256) as f32))
+            })
+            .collect();
+        assert_eq!(v.grid.to_f32(), expected, "{name}");
+    }
+}
+
 #[test]
 fn nrrd_attached_detached_gzip_and_big_endian_match() {
     let d = data_dir();

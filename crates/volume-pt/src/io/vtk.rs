@@ -1,13 +1,16 @@
-//! VTK image data through vtkio: legacy `.vtk` STRUCTURED_POINTS and XML `.vti` ImageData.
-//! The first scalar point-data array (one component) is the volume. VTK's point samples map to
-//! our voxel centres; the file's origin is reported as a note, the scene places the volume.
+//! VTK image data: legacy `.vtk` STRUCTURED_POINTS and XML `.vti` ImageData. The first scalar
+//! point-data array (one component) is the volume. VTK's point samples map to our voxel
+//! centres; the file's origin is reported as a note, the scene places the volume.
 //!
-//! Two vtkio faults (0.6.3; still in 0.7.0-rc2) are worked around here. Its legacy parser rejects the blank lines that
-//! old VTK writers put between header sections (see [`tidy_legacy_header`]). Its XML reader
-//! hands every zlib block of a compressed array to one zlib stream, so only the first block (VTK
-//! writes 32 KiB blocks) is decoded and any larger array is dropped without an error; such arrays
-//! are decoded here from the file's text instead ([`decode_compressed_array`]).
+//! vtkio reads the legacy files and the uncompressed XML ones, with two of its faults worked
+//! around. Its legacy parser rejects the blank lines that old VTK writers put between header
+//! sections (see [`tidy_legacy_header`]). Its handling of zlib-compressed XML arrays is unsafe
+//! to use: 0.6.3 decoded only the first 32 KiB block and dropped larger arrays without an
+//! error, and 0.7.0-rc2 slices the data by the header's block sizes unchecked, so a damaged
+//! header panics inside it. Compressed `.vti` files are therefore read here
+//! ([`read_compressed_xml`], [`decode_compressed_array`]), every size checked against the file.
 
+use super::budget::VolumeSize;
 use super::{DType, LoadedVolume, check_volume_size, grid_for};
 use crate::error::{Error, Result};
 use crate::grid::Voxels;
@@ -73,6 +76,9 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     // The size the file states is checked before vtkio allocates anything for it.
     let (stated, dtype) = stated_size(&bytes, is_legacy).map_err(bad)?;
     let size = check_volume_size(path, stated, dtype)?;
+    if !is_legacy && let Some(loaded) = read_compressed_xml(path, &bytes, &size)? {
+        return Ok(loaded);
+    }
     let vtk = if is_legacy {
         vtkio::Vtk::parse_legacy_be(&tidy_legacy_header(&bytes)[..])
     } else {
@@ -141,11 +147,6 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
                 .ok_or_else(|| bad(format!("VTK array `{name}` is a bit array")))?;
             (name, values)
         }
-        None if !is_legacy => {
-            let text = std::str::from_utf8(&bytes)
-                .map_err(|_| bad("VTK XML file is not UTF-8 text".into()))?;
-            decode_compressed_array(text, size.voxels * 8).map_err(bad)?
-        }
         None => return Err(bad("VTK file has no one-component point-data array".into())),
     };
     let n = size.voxels;
@@ -169,6 +170,72 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
         spacing: Some(Vec3::from_array(spacing)),
         notes,
     })
+}
+
+/// A `.vti` whose arrays are zlib-compressed is read here, not by vtkio: 0.6.3 decoded only its
+/// first 32 KiB block, and 0.7.0-rc2 slices the data by the header's block sizes unchecked (a
+/// mutated header panicked inside it; the fuzzer found it). The image data's Spacing and
+/// Origin come from its tag, the array from [`decode_compressed_array`], which checks every
+/// size against the file and the extent. `None`: the file is not compressed.
+fn read_compressed_xml(
+    path: &Path,
+    bytes: &[u8],
+    size: &VolumeSize,
+) -> Result<Option<LoadedVolume>> {
+    let voxels = size.voxels;
+    let bad = |m: String| Error::format(path, m);
+    let text = std::str::from_utf8(bytes).map_err(|_| {
+        bad("VTK XML file is not UTF-8 text: expected inline (not appended raw) data".into())
+    })?;
+    let root_start = text
+        .find("<VTKFile")
+        .ok_or_else(|| bad("VTK XML file has no <VTKFile> element".into()))?;
+    let root = &text[root_start..root_start + text[root_start..].find('>').unwrap_or(0)];
+    if xml_attr(root, "compressor").is_none() {
+        return Ok(None);
+    }
+    let pieces = text.matches("<Piece").count();
+    if pieces != 1 {
+        return Err(bad(format!(
+            "VTK image data has {pieces} pieces: expected exactly one inline piece"
+        )));
+    }
+    let start = text
+        .find("<ImageData")
+        .ok_or_else(|| bad("VTK XML file has no <ImageData> element".into()))?;
+    let tag = &text[start..start + text[start..].find('>').unwrap_or(0)];
+    let triple = |name: &str, default: [f32; 3]| -> Result<[f32; 3]> {
+        let Some(value) = xml_attr(tag, name) else {
+            return Ok(default);
+        };
+        let v: Option<Vec<f32>> = value.split_whitespace().map(|t| t.parse().ok()).collect();
+        match v.as_deref() {
+            Some(&[a, b, c]) if [a, b, c].iter().all(|x| x.is_finite()) => Ok([a, b, c]),
+            _ => Err(bad(format!(
+                "VTK <ImageData> {name} `{value}` is not three finite numbers"
+            ))),
+        }
+    };
+    let spacing = triple("Spacing", [1.0; 3])?;
+    let origin = triple("Origin", [0.0; 3])?;
+    let (name, values) = decode_compressed_array(text, voxels * 8).map_err(bad)?;
+    if values.len() != voxels {
+        return Err(bad(format!(
+            "VTK array `{name}` has {} values, expected {voxels} for its extent",
+            values.len()
+        )));
+    }
+    let mut notes = vec![format!("read point-data array `{name}`")];
+    if origin != [0.0; 3] {
+        notes.push(format!(
+            "file origin {origin:?} is not applied: the scene places the volume"
+        ));
+    }
+    Ok(Some(LoadedVolume {
+        grid: grid_for(path, size.dims, values)?,
+        spacing: Some(Vec3::from_array(spacing)),
+        notes,
+    }))
 }
 
 /// The dims (and element type, where the text says it) that a VTK file's text states, read

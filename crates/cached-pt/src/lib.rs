@@ -15,6 +15,7 @@
 
 use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets};
 use splat_raster::Camera;
+use std::time::Instant;
 use volume_pt::{
     Control, FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect,
     render_frame_with,
@@ -100,15 +101,20 @@ impl FrameCache for GsFrame<'_> {
     }
 }
 
-/// What one cached frame did.
+/// What one cached frame did. The parts add up to the frame: a caller's wall time less their
+/// sum is only the bookkeeping between them (issue 31 found a third of a frame in no part).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct CachedFrameStats {
     /// Path tracing time (the GSCache paper's PT).
     pub trace_seconds: f64,
-    /// Drawing the levels (ST).
+    /// Drawing the levels (ST): the whole of [`GsCache::begin_frame`].
     pub lookup_seconds: f64,
-    /// Training (OT).
+    /// Gathering the tiles' training samples into the frame's targets.
+    pub targets_seconds: f64,
+    /// Training (OT): the whole of [`GsCache::train`].
     pub train_seconds: f64,
+    /// Making a film for a frame that keeps none (a warm-up frame's scratch film).
+    pub film_seconds: f64,
     pub samples: u64,
     pub nonfinite_samples: u64,
     /// Training samples the cache refused (negative or not finite).
@@ -130,9 +136,15 @@ pub fn render_cached_frame(
     control: &Control,
 ) -> Result<CachedFrameStats, gs_cache::CacheError> {
     let termination = cache.config().termination();
-    let levels = cache.levels().len();
+    let clock = Instant::now();
     cache.begin_frame(camera);
-    let lookup_seconds = cache.report().lookup_seconds;
+    let lookup_seconds = clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    let mut targets = cache
+        .take_training_targets()
+        .expect("begin_frame draws the frame");
+    let mut targets_seconds = clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
     let mut scratch;
     let film = match film {
         Some(film) => film,
@@ -141,6 +153,7 @@ pub fn render_cached_frame(
             &mut scratch
         }
     };
+    let film_seconds = clock.elapsed().as_secs_f64();
     let frame = cache.frame().expect("begin_frame draws the frame");
     let gs_frame = GsFrame { frame, termination };
     let traced = render_frame_with(
@@ -152,24 +165,30 @@ pub fn render_cached_frame(
         &gs_frame,
         control,
     );
-    let mut targets = frame.training_targets();
-    debug_assert_eq!(targets.levels(), levels);
-    for (_, tile) in &traced.records {
-        targets.add_tile(tile);
-    }
+    let (trace_seconds, nonfinite_samples) = (traced.trace_seconds, traced.nonfinite_samples);
     let cancelled = traced.cancelled || control.cancelled();
-    let train_seconds = if cancelled {
-        0.0
-    } else {
-        cache.train(&targets)?.train_seconds
-    };
+    let clock = Instant::now();
+    let tiles: Vec<&TileTargets> = traced.records.iter().map(|(_, tile)| tile).collect();
+    targets.add_tiles(&tiles);
+    drop(tiles);
+    drop(traced);
+    targets_seconds += clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    if !cancelled {
+        cache.train(&targets)?;
+    }
+    let train_seconds = clock.elapsed().as_secs_f64();
+    let dropped_training_samples = targets.dropped();
+    cache.recycle_training_targets(targets);
     Ok(CachedFrameStats {
-        trace_seconds: traced.trace_seconds,
+        trace_seconds,
         lookup_seconds,
+        targets_seconds,
         train_seconds,
+        film_seconds,
         samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
-        nonfinite_samples: traced.nonfinite_samples,
-        dropped_training_samples: targets.dropped(),
+        nonfinite_samples,
+        dropped_training_samples,
         cancelled,
     })
 }

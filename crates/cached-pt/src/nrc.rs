@@ -268,8 +268,10 @@ pub struct NrcFrameStats {
     pub trace_seconds: f64,
     /// Inference and composition (IT).
     pub inference_seconds: f64,
-    /// Training (OT).
+    /// Training (OT), gathering the tiles' records included.
     pub train_seconds: f64,
+    /// Making a film for a frame that keeps none (a warm-up frame's scratch film).
+    pub film_seconds: f64,
     /// Paths that stopped into the cache.
     pub queries: usize,
     pub samples: u64,
@@ -298,6 +300,7 @@ pub fn render_nrc_frame(
         settings.seed,
         frame_index,
     );
+    let clock = std::time::Instant::now();
     let mut scratch;
     let has_film = film.is_some();
     let film = match film {
@@ -307,10 +310,12 @@ pub fn render_nrc_frame(
             &mut scratch
         }
     };
+    let film_seconds = clock.elapsed().as_secs_f64();
     let nonfinite_before = film.nonfinite_samples;
     let traced = render_frame_with(scene, camera, settings, frame_index, film, &frame, control);
     let mut stats = NrcFrameStats {
         trace_seconds: traced.trace_seconds,
+        film_seconds,
         samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
         ..Default::default()
     };

@@ -177,6 +177,7 @@ impl Cache {
         let accumulated = film.is_some();
         let report = match self {
             Cache::None => {
+                let clock = Instant::now();
                 let mut scratch;
                 let film = match film {
                     Some(f) => f,
@@ -185,10 +186,12 @@ impl Cache {
                         &mut scratch
                     }
                 };
+                let film_seconds = clock.elapsed().as_secs_f64();
                 let s = render_samples(media, camera, settings, samples, film, control);
                 FrameReport {
                     samples: s.samples,
                     trace_seconds: s.seconds,
+                    film_seconds,
                     nonfinite_samples: s.nonfinite_samples,
                     cancelled: s.cancelled,
                     ..Default::default()
@@ -202,7 +205,9 @@ impl Cache {
                     samples: s.samples,
                     trace_seconds: s.trace_seconds,
                     lookup_seconds: s.lookup_seconds,
+                    targets_seconds: s.targets_seconds,
                     train_seconds: s.train_seconds,
+                    film_seconds: s.film_seconds,
                     nonfinite_samples: s.nonfinite_samples,
                     dropped_training_samples: s.dropped_training_samples,
                     loss: cache.report().mse.clone(),
@@ -221,6 +226,7 @@ impl Cache {
                     trace_seconds: s.trace_seconds,
                     lookup_seconds: s.inference_seconds,
                     train_seconds: s.train_seconds,
+                    film_seconds: s.film_seconds,
                     nonfinite_samples: s.nonfinite_samples,
                     loss: vec![(s.train.steps > 0).then_some(s.train.mean_loss)],
                     cancelled: s.cancelled,

@@ -13,8 +13,13 @@ pub struct FrameReport {
     /// Reading the cache: drawing the Gaussian levels (ST), or the neural cache's inference and
     /// composition (IT). Zero without a cache.
     pub lookup_seconds: f64,
+    /// Gathering the paths' training samples into the Gaussian cache's targets (the neural
+    /// cache counts its gathering in training). Zero without a cache.
+    pub targets_seconds: f64,
     /// Training the cache (OT). Zero without a cache.
     pub train_seconds: f64,
+    /// Making a scratch film for a frame that keeps none (a warm-up frame).
+    pub film_seconds: f64,
     /// Wall-clock seconds of the whole frame, accumulation included.
     pub seconds: f64,
     /// Samples that came out NaN or infinite and were counted as black.
@@ -29,4 +34,17 @@ pub struct FrameReport {
     /// The frame went into the session's image (a warm-up frame does not).
     pub accumulated: bool,
     pub cancelled: bool,
+}
+
+impl FrameReport {
+    /// The frame's wall time outside its named parts (the session's own bookkeeping): what a
+    /// per-frame table must show so its parts add up to the frame (issue 31).
+    pub fn other_seconds(&self) -> f64 {
+        self.seconds
+            - (self.trace_seconds
+                + self.lookup_seconds
+                + self.targets_seconds
+                + self.train_seconds
+                + self.film_seconds)
+    }
 }

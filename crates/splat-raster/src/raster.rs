@@ -26,6 +26,7 @@ use crate::real::{Real, SplatGrad};
 use crate::simd::{Isa, Kernel};
 use rayon::prelude::*;
 use std::any::Any;
+use std::sync::OnceLock;
 
 pub use crate::tile::TILE;
 use crate::tile::{TILE_PIXELS, TileOut, TilePixels};
@@ -86,6 +87,46 @@ pub struct ForwardState<F: Real> {
     /// The settings of the forward pass, with the kernel that ran (never `Auto`): the backward
     /// pass must divide out the very alphas the forward pass multiplied in.
     config: RasterConfig,
+    /// Where each splat's records lie, built by the first backward pass and kept for the next
+    /// ones over this state (the cache's warm start runs three).
+    index: OnceLock<SplatIndex>,
+}
+
+/// Per splat, the positions of its entries in tile order (a counting sort of `entries`: its
+/// records are `slots[starts[s]..starts[s + 1]]`), and per Gaussian its splat (`u32::MAX`:
+/// culled). It depends on the forward pass alone, not on the gradients.
+#[derive(Debug, Clone)]
+struct SplatIndex {
+    starts: Vec<u32>,
+    slots: Vec<u32>,
+    splat_of: Vec<u32>,
+}
+
+impl SplatIndex {
+    fn build(entries: &[u32], ids: &[u32], n_splats: usize, gaussians: usize) -> Self {
+        let mut starts = vec![0u32; n_splats + 1];
+        for &e in entries {
+            starts[e as usize + 1] += 1;
+        }
+        for i in 0..n_splats {
+            starts[i + 1] += starts[i];
+        }
+        let mut slots = vec![0u32; entries.len()];
+        let mut cursor = starts.clone();
+        for (pos, &e) in entries.iter().enumerate() {
+            slots[cursor[e as usize] as usize] = pos as u32;
+            cursor[e as usize] += 1;
+        }
+        let mut splat_of = vec![u32::MAX; gaussians];
+        for (si, &g) in ids.iter().enumerate() {
+            splat_of[g as usize] = si as u32;
+        }
+        Self {
+            starts,
+            slots,
+            splat_of,
+        }
+    }
 }
 
 impl<F: Real> ForwardState<F> {
@@ -489,6 +530,7 @@ pub fn render<F: Real>(
         tiles_x,
         lane_evaluations,
         config: RasterConfig { kernel, ..*config },
+        index: OnceLock::new(),
     };
     (
         RenderOutput {
@@ -576,27 +618,19 @@ pub fn backward<F: Real>(
         }
     });
 
-    // For each splat, its records in tile order.
-    let n_splats = state.splats.len();
-    let mut counts = vec![0u32; n_splats + 1];
-    for &e in &state.entries {
-        counts[e as usize + 1] += 1;
-    }
-    for i in 0..n_splats {
-        counts[i + 1] += counts[i];
-    }
-    let mut slots = vec![0u32; state.entries.len()];
-    let mut cursor = counts.clone();
-    for (pos, &e) in state.entries.iter().enumerate() {
-        slots[cursor[e as usize] as usize] = pos as u32;
-        cursor[e as usize] += 1;
-    }
-
-    // Each Gaussian's splat, if it has one.
-    let mut splat_of = vec![u32::MAX; cloud.len()];
-    for (si, &g) in state.ids.iter().enumerate() {
-        splat_of[g as usize] = si as u32;
-    }
+    // For each splat, its records in tile order; for each Gaussian, its splat.
+    let SplatIndex {
+        starts,
+        slots,
+        splat_of,
+    } = state.index.get_or_init(|| {
+        SplatIndex::build(&state.entries, &state.ids, state.splats.len(), cloud.len())
+    });
+    assert_eq!(
+        splat_of.len(),
+        cloud.len(),
+        "backward over a cloud other than the one drawn"
+    );
     let mut out = cloud.zeros_like();
     let stride = cloud.color_stride();
     let GaussianCloud {
@@ -625,7 +659,7 @@ pub fn backward<F: Real>(
                 return; // culled: no gradient
             }
             let mut total = SplatGrad::<F>::default();
-            for &pos in &slots[counts[si] as usize..counts[si + 1] as usize] {
+            for &pos in &slots[starts[si] as usize..starts[si + 1] as usize] {
                 total.add(&records[pos as usize]);
             }
             project_backward(
@@ -733,10 +767,12 @@ fn backward_tile_scalar<F: Real>(
 /// Replaces non-finite gradient values by 0: a NaN never reaches a parameter.
 fn sanitize<F: Real>(g: &mut CloudGradients<F>) {
     for group in g.groups_mut() {
-        for v in group.iter_mut() {
-            if !v.is_finite() {
-                *v = F::zero();
+        group.par_chunks_mut(1 << 14).for_each(|chunk| {
+            for v in chunk {
+                if !v.is_finite() {
+                    *v = F::zero();
+                }
             }
-        }
+        });
     }
 }

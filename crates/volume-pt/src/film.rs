@@ -13,6 +13,7 @@
 //! and coverage layers.
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 /// Side of the square tiles that threads take one at a time.
 pub const TILE_SIZE: u32 = 16;
@@ -289,13 +290,23 @@ impl Film {
     }
 
     fn build(width: u32, height: u32, features: bool) -> Self {
-        let mut tiles = Vec::new();
-        for y0 in (0..height).step_by(TILE_SIZE as usize) {
-            for x0 in (0..width).step_by(TILE_SIZE as usize) {
+        // The tiles are allocated in parallel: a 1280x720 film is 48 MB in 3600 tiles, which
+        // took 5.6 ms of every warm-up frame serially (issue 31). Row-major order is kept.
+        let corners: Vec<(u32, u32)> = (0..height)
+            .step_by(TILE_SIZE as usize)
+            .flat_map(|y0| {
+                (0..width)
+                    .step_by(TILE_SIZE as usize)
+                    .map(move |x0| (x0, y0))
+            })
+            .collect();
+        let tiles = corners
+            .into_par_iter()
+            .map(|(x0, y0)| {
                 let w = TILE_SIZE.min(width - x0);
                 let h = TILE_SIZE.min(height - y0);
                 let n = (w * h) as usize;
-                tiles.push(Tile {
+                Tile {
                     x0,
                     y0,
                     width: w,
@@ -307,9 +318,9 @@ impl Film {
                     } else {
                         Vec::new()
                     },
-                });
-            }
-        }
+                }
+            })
+            .collect();
         Self {
             width,
             height,

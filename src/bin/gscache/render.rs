@@ -353,7 +353,9 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             .map(|r| r.nonfinite_samples)
             .sum(),
     };
-    print_frame_costs(&session, &accumulated);
+    print_frame_costs(&session, "per warm-up frame", &warm);
+    print_frame_costs(&session, "per frame", &accumulated);
+    print_control_summary(&session);
     let dropped: u64 = warm
         .iter()
         .chain(&accumulated)
@@ -582,8 +584,9 @@ fn describe_cache(session: &Session, loaded: bool) {
     }
 }
 
-/// Prints a cached render's mean per-frame costs over the frames in the image.
-fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
+/// Prints a cached render's mean per-frame costs over `frames` (`what`: which frames): every
+/// part of the frame's wall time, the remainder ("other", the session's bookkeeping) included.
+fn print_frame_costs(session: &Session, what: &str, frames: &[FrameReport]) {
     let read = match session.cache() {
         Cache::None => return,
         Cache::Gaussian(_) => "cache lookup",
@@ -593,13 +596,30 @@ fn print_frame_costs(session: &Session, frames: &[FrameReport]) {
         return;
     }
     let n = frames.len() as f64 * 1e-3;
-    let sum = |f: fn(&FrameReport) -> f64| frames.iter().map(f).sum::<f64>() / n;
+    let mean = |f: &dyn Fn(&FrameReport) -> f64| frames.iter().map(f).sum::<f64>() / n;
+    let mut parts = vec![
+        ("path tracing", mean(&|r| r.trace_seconds)),
+        (read, mean(&|r| r.lookup_seconds)),
+        ("gathering targets", mean(&|r| r.targets_seconds)),
+        ("training", mean(&|r| r.train_seconds)),
+        ("scratch film", mean(&|r| r.film_seconds)),
+    ];
+    // The neural cache gathers inside its training; a frame that keeps its film makes none.
+    parts.retain(|&(name, ms)| ms > 0.0 || name == "training");
+    parts.push(("other", mean(&|r| r.other_seconds())));
+    let parts: Vec<String> = parts
+        .iter()
+        .map(|(name, ms)| format!("{name} {ms:.1} ms"))
+        .collect();
     eprintln!(
-        "per frame: path tracing {:.1} ms, {read} {:.1} ms, training {:.1} ms",
-        sum(|r| r.trace_seconds),
-        sum(|r| r.lookup_seconds),
-        sum(|r| r.train_seconds)
+        "{what}: {:.1} ms = {}",
+        mean(&|r| r.seconds),
+        parts.join(" + ")
     );
+}
+
+/// Prints the unbiased cache's choice of continuation per level and the bound on its gain.
+fn print_control_summary(session: &Session) {
     if let Cache::Gaussian(c) = session.cache() {
         for (l, s) in c.control_summary().iter().enumerate() {
             eprintln!(

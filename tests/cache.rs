@@ -344,7 +344,14 @@ fn train_every_steps_on_one_frame_in_k() {
         );
         assert_eq!(means(&cache) != before, stepped, "frame {f}");
         if !stepped {
-            assert_eq!(stats.train_seconds, 0.0, "frame {f}");
+            // The frame's training part is the call's wall time (checks only); the cache's own
+            // step time is zero.
+            assert_eq!(cache.report().train_seconds, 0.0, "frame {f}");
+            assert!(
+                stats.train_seconds < 0.01,
+                "frame {f}: {}",
+                stats.train_seconds
+            );
         }
     }
 }

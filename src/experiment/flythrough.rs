@@ -122,6 +122,7 @@ pub fn fly(
                     &edited,
                     &cam,
                     fly.reference_spp,
+                    None,
                 )?;
                 if !r.reused {
                     progress(&format!(

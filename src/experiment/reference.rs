@@ -10,7 +10,7 @@ use hdr_image::RgbImage;
 use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use volume_pt::{Control, Film, IntegratorKind, Scene, render};
+use volume_pt::{Control, Film, IntegratorKind, Scene, render_samples};
 
 /// FNV-1a, 64 bits (render-base's, the one definition), and its offset basis.
 pub use render_base::hash::{FNV_OFFSET as FNV_START, fnv1a64 as fnv1a};
@@ -39,6 +39,7 @@ pub fn reference(
     scene: &Scene,
     camera: &Camera,
     spp: u32,
+    progress: Option<&dyn Fn(&str)>,
 ) -> Result<Reference> {
     let scene_bytes = std::fs::read(scene_file)
         .with_context(|| format!("{}: cannot read the scene file", scene_file.display()))?;
@@ -93,7 +94,36 @@ pub fn reference(
     settings.path.integrator = IntegratorKind::Nee;
     let mut film = Film::new(camera.width, camera.height);
     let start = Instant::now();
-    render(&scene.media, camera, &settings, &mut film, &Control::none());
+    // In ten passes of sample indices, reporting after each: a reference can take minutes,
+    // and it once printed nothing for 102 s (issue 33). The exact film makes the passes' sum
+    // the one render's, bit for bit.
+    let passes = if progress.is_some() { spp.min(10) } else { 1 };
+    if let Some(say) = progress {
+        say(&format!(
+            "reference: rendering {spp} spp at {}x{} (none kept for this scene and view)",
+            camera.width, camera.height
+        ));
+    }
+    for pass in 0..passes {
+        let samples = spp * pass / passes..spp * (pass + 1) / passes;
+        render_samples(
+            &scene.media,
+            camera,
+            &settings,
+            samples,
+            &mut film,
+            &Control::none(),
+        );
+        if let Some(say) = progress.filter(|_| pass + 1 < passes) {
+            let done = (pass + 1) as f64 / passes as f64;
+            let elapsed = start.elapsed().as_secs_f64();
+            say(&format!(
+                "reference: {:.0}% in {elapsed:.0} s, about {:.0} s left",
+                100.0 * done,
+                elapsed * (1.0 - done) / done
+            ));
+        }
+    }
     let seconds = start.elapsed().as_secs_f64();
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     // Written atomically, so an interrupted run leaves no half file that a later run would take

@@ -507,6 +507,7 @@ fn assemble(
         scene,
         &scene.camera,
         exp.reference.spp,
+        Some(progress),
     )?;
     progress(&if r.reused {
         format!("reference: reused {}", r.file.display())

@@ -45,6 +45,7 @@ enum TraceMode {
 
 #[derive(ClapArgs, Debug)]
 pub struct TraceArgs {
+    /// The Gaussian cloud: a 3DGS `.ply` (INRIA layout) or an antimatter15 `.splat`.
     asset: PathBuf,
     #[command(flatten)]
     camera: CameraArgs,
@@ -71,6 +72,7 @@ pub struct TraceArgs {
     /// is biased for faint Gaussians).
     #[arg(long, value_enum, default_value_t = RandomKind::Hash)]
     random: RandomKind,
+    /// Seed of the acceptance numbers (images are bit-identical for a seed on any thread count).
     #[arg(long, default_value_t = 0)]
     seed: u32,
     /// Background colour `r,g,b`.
@@ -79,6 +81,7 @@ pub struct TraceArgs {
     /// EXR output (default: out/<asset>.trace.exr; `-o NAME.png` names the PNG, the EXR beside).
     #[arg(short = 'o', long)]
     output: Option<PathBuf>,
+    /// PNG output, tone-mapped by clipping (default: beside the EXR, same name).
     #[arg(long)]
     png: Option<PathBuf>,
 }
@@ -107,14 +110,17 @@ struct CameraArgs {
     /// Vertical field of view in degrees.
     #[arg(long, default_value_t = 50.0, value_parser = positive_f32)]
     fov: f32,
+    /// Image width in pixels.
     #[arg(long, default_value_t = 1280)]
     width: u32,
+    /// Image height in pixels.
     #[arg(long, default_value_t = 720)]
     height: u32,
 }
 
 #[derive(ClapArgs, Debug)]
 pub struct RenderArgs {
+    /// The Gaussian cloud: a 3DGS `.ply` (INRIA layout) or an antimatter15 `.splat`.
     asset: PathBuf,
     #[command(flatten)]
     camera: CameraArgs,
@@ -134,6 +140,7 @@ pub struct RenderArgs {
     /// EXR output (default: out/<asset>.exr; `-o NAME.png` names the PNG, the EXR beside).
     #[arg(short = 'o', long)]
     output: Option<PathBuf>,
+    /// PNG output, tone-mapped by clipping (default: beside the EXR, same name).
     #[arg(long)]
     png: Option<PathBuf>,
 }
@@ -151,11 +158,13 @@ pub struct FitArgs {
     /// Random Gaussians to start from when there is no --init.
     #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=16_777_216))]
     points: u32,
+    /// Optimisation steps.
     #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u32).range(1..))]
     iterations: u32,
     /// `hdr` (the GSCache paper's Eq. 4), `l1` or `l2`.
     #[arg(long, value_enum, default_value_t = Loss::L1)]
     loss: Loss,
+    /// The fitted cloud (3DGS `.ply`).
     #[arg(short = 'o', long, default_value = "out/fitted.ply")]
     output: PathBuf,
 }

@@ -101,6 +101,7 @@ fn reference(path: &Path, scene: &Scene, args: &CacheBenchArgs) -> Result<Vec<Ve
         scene,
         &scene.camera,
         args.reference_spp,
+        Some(&|line: &str| eprintln!("{name}: {line}")),
     )?;
     if r.reused {
         eprintln!("{name}: reference {}", r.file.display());

@@ -791,6 +791,21 @@ fn an_interrupted_splat_render_or_trace_writes_what_it_has() {
     }
 }
 
+/// Asserts that every file in `written` still holds the bytes it had (the run `what` left the
+/// earlier outputs intact), then adds `path`, which `what` must have written.
+fn keep_written(written: &mut Vec<(PathBuf, Vec<u8>)>, path: PathBuf, what: &str) {
+    for (earlier, bytes) in written.iter() {
+        assert!(
+            std::fs::read(earlier).unwrap() == *bytes,
+            "{what} changed {}",
+            earlier.display()
+        );
+    }
+    let bytes =
+        std::fs::read(&path).unwrap_or_else(|e| panic!("{what}: no {}: {e}", path.display()));
+    written.push((path, bytes));
+}
+
 /// Output names: `-o NAME.png` names the PNG and puts the EXR beside it (it once wrote the PNG
 /// over the EXR: "wrote out/x.png and out/x.png"), and a cached render's default name differs
 /// from the plain one's, so neither overwrites the other.
@@ -835,17 +850,11 @@ fn outputs_do_not_overwrite_each_other() {
             "{}",
             String::from_utf8_lossy(&out.stderr)
         );
-        for (earlier, bytes) in &written {
-            assert!(
-                std::fs::read(earlier).unwrap() == *bytes,
-                "{flags:?} changed {}",
-                earlier.display()
-            );
-        }
-        let path = d.join("out").join(name);
-        let bytes =
-            std::fs::read(&path).unwrap_or_else(|e| panic!("{flags:?}: no out/{name}: {e}"));
-        written.push((path, bytes));
+        keep_written(
+            &mut written,
+            d.join("out").join(name),
+            &format!("{flags:?}"),
+        );
     }
 }
 
@@ -890,16 +899,11 @@ fn splat_outputs_are_named_after_the_asset() {
             "{sub}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
-        for (earlier, bytes) in &written {
-            assert!(
-                std::fs::read(earlier).unwrap() == *bytes,
-                "{sub} {asset} changed {}",
-                earlier.display()
-            );
-        }
-        let path = d.join("out").join(name);
-        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{sub}: no out/{name}: {e}"));
-        written.push((path, bytes));
+        keep_written(
+            &mut written,
+            d.join("out").join(name),
+            &format!("{sub} {asset}"),
+        );
     }
 }
 

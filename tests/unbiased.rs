@@ -285,14 +285,17 @@ fn assert_matches_nee(name: &str, scene: &Scene, lookup: Lookup, frames: u32, sp
 fn frozen_unbiased_cache_matches_nee_on_the_bundled_scenes() {
     for name in ["default", "headsq", "hydrogen", "ironprot"] {
         let scene = scene_at(&bundled(name), 96, 54);
-        assert_matches_nee(name, &scene, Lookup::Raster, 4096, 1);
+        // Up to 6144 frames: the default scene, its light sphere hidden from the camera, needs
+        // about 4400 to see a 0.1% bias (the sphere's exact, bright pixels had lowered the
+        // image's relative error).
+        assert_matches_nee(name, &scene, Lookup::Raster, 6144, 1);
     }
 }
 
 #[test]
 fn frozen_unbiased_cache_matches_nee_with_the_ray_traced_lookup() {
     let scene = scene_at(&bundled("default"), 96, 54);
-    assert_matches_nee("default, rt lookup", &scene, Lookup::Rt, 4096, 1);
+    assert_matches_nee("default, rt lookup", &scene, Lookup::Rt, 6144, 1);
 }
 
 #[test]
@@ -300,7 +303,8 @@ fn frozen_unbiased_cache_matches_nee_with_the_ray_traced_lookup() {
 fn frozen_unbiased_cache_matches_nee_on_the_shared_volumes() {
     for name in ["chest_ct", "embryo"] {
         let scene = scene_at(&bundled(name), 96, 54);
-        assert_matches_nee(name, &scene, Lookup::Raster, 4096, 1);
+        // Up to 6144 frames, as for the bundled scenes (embryo hides its light sphere too).
+        assert_matches_nee(name, &scene, Lookup::Raster, 6144, 1);
     }
 }
 

@@ -5,8 +5,8 @@
 The program is built by cargo in the release profile, as maturin builds the extension, so the crates they
 share compile once. It is copied to python/gscache/_bin/gscache (ignored by git; pyproject.toml
 includes it in the wheel), and the package's console script `gscache` (gscache._program) runs
-it, so it is on the environment's PATH. `GSCACHE_WHEEL_PROGRAM=0` leaves it out: a wheel of
-the module alone builds in about half the time.
+it, so it is on the environment's PATH. `GSCACHE_WHEEL_PROGRAM=0` leaves it out (a wheel of
+the module alone, which needs no burn).
 """
 
 import json

@@ -1194,3 +1194,59 @@ fn the_unbiased_cache_renders_and_reports_its_bound() {
         );
     }
 }
+
+/// The cached renders are the same bytes on 1 and 3 threads: both caches train in parallel
+/// (the Gaussian cache's levels side by side, each level's parts by rows and tiles), and
+/// nothing of that may show in the image. Cold caches, so the warm start and the fallback's
+/// first verdicts run too.
+#[test]
+fn cached_renders_are_the_same_bytes_on_any_thread_count() {
+    let d = scratch("cached-threads");
+    let scene = repo().join("data/scenes/default.toml");
+    let runs: [&[&str]; 4] = [
+        &["--cache", "--warmup", "0", "--frames", "6"],
+        &[
+            "--cache",
+            "--cache-lookup",
+            "rt",
+            "--warmup",
+            "2",
+            "--frames",
+            "3",
+        ],
+        &[
+            "--cache",
+            "--cache-unbiased",
+            "true",
+            "--warmup",
+            "2",
+            "--frames",
+            "3",
+        ],
+        &["--nrc", "--warmup", "2", "--frames", "3"],
+    ];
+    for args in runs {
+        let bytes: Vec<Vec<u8>> = ["1", "3"]
+            .iter()
+            .map(|threads| {
+                let exr = d.join(format!("t{threads}.exr"));
+                let out = render()
+                    .arg(&scene)
+                    .args(args)
+                    .args(["--width", "96", "--height", "54", "--spp", "1", "-q"])
+                    .args(["--threads", threads])
+                    .arg("-o")
+                    .arg(&exr)
+                    .output()
+                    .unwrap();
+                assert!(
+                    out.status.success(),
+                    "{args:?}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                std::fs::read(&exr).unwrap()
+            })
+            .collect();
+        assert!(bytes[0] == bytes[1], "{args:?}: 1 and 3 threads differ");
+    }
+}

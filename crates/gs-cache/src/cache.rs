@@ -3,13 +3,14 @@
 use crate::config::{CacheConfig, Lookup, Optimizer};
 use crate::control::Continuation;
 use crate::error::{CacheError, Result};
-use crate::fallback::Trust;
+use crate::fallback::{Trust, Verdict, update_trust};
 use crate::init::{SH_C0, initial_levels};
 use crate::resolution::PixelMap;
 use crate::schedule::Schedule;
 use crate::targets::TrainingTargets;
 use crate::warm_start::{Drawn, fit_colors};
 use glam::Vec3;
+use rayon::prelude::*;
 use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
 use splat_raster::loss::{Loss, loss_and_grad};
 use splat_raster::raster::ForwardState;
@@ -444,10 +445,12 @@ impl GsCache {
             trust
         });
         let draw_camera = &cache_camera;
+        // The levels are drawn side by side, as they train (see `LevelStep`): one level's
+        // image is too small a problem to keep many cores busy through its serial parts.
         let (images, states) = match self.config.lookup {
             Lookup::Raster => self
                 .levels
-                .iter()
+                .par_iter()
                 .map(|l| {
                     let (out, state) = render(&l.cloud, draw_camera, &self.raster);
                     (out.color, Some(state))
@@ -464,8 +467,8 @@ impl GsCache {
                 };
                 self.traced.resize_with(self.levels.len(), || None);
                 self.levels
-                    .iter()
-                    .zip(self.traced.iter_mut())
+                    .par_iter()
+                    .zip(self.traced.par_iter_mut())
                     .map(|(l, traced)| {
                         let scene = match traced {
                             Some(scene) => {
@@ -481,17 +484,20 @@ impl GsCache {
             }
         };
         let mut images: Vec<Vec<[f32; 3]>> = images;
-        for (image, level) in images.iter_mut().zip(&self.levels) {
-            let s = level.radiance_scale();
-            if s != 1.0 {
-                image.iter_mut().flatten().for_each(|v| *v *= s);
-            }
-        }
+        images
+            .par_iter_mut()
+            .zip(&self.levels)
+            .for_each(|(image, level)| {
+                let s = level.radiance_scale();
+                if s != 1.0 {
+                    image.iter_mut().flatten().for_each(|v| *v *= s);
+                }
+            });
         let (images, drawn) = if map.is_identity() {
             (images, None)
         } else {
             (
-                images.iter().map(|i| map.upsample(i)).collect(),
+                images.par_iter().map(|i| map.upsample(i)).collect(),
                 Some(images),
             )
         };
@@ -634,94 +640,34 @@ impl GsCache {
         let lr_scale = self.schedule.next_scale();
         self.report.lr_scale = lr_scale;
         self.levels_changed = true;
-        for (i, level) in self.levels.iter_mut().enumerate() {
-            let (target, mask) = targets.level_target_binned(i, self.config.masked_targets, &map);
-            if !mask.iter().any(|&m| m) {
-                continue;
-            }
-            let scale_before = level.radiance_scale();
-            if level.radiance_scale.is_none()
-                && self.config.normalized_radiance
-                && level.set_radiance_scale(&target, &mask)
-            {
-                // The drawn image no longer matches the cloud: draw it again below.
-                frame.states[i] = None;
-            }
-            let scale = level.radiance_scale();
-            // The lookup's forward pass is reused when it was the rasteriser's: the level has
-            // not changed since it was drawn.
-            let (mut prediction, state, drawn_scale) = match frame.states[i].take() {
-                Some(state) => (
-                    match frame.drawn.as_mut() {
-                        Some(drawn) => std::mem::take(&mut drawn[i]),
-                        None => std::mem::take(&mut frame.images[i]),
-                    },
-                    state,
-                    scale_before,
-                ),
-                None => {
-                    let (out, state) = render(&level.cloud, &camera, &self.raster);
-                    (out.color, state, 1.0)
-                }
-            };
-            if scale != drawn_scale {
-                let f = scale / drawn_scale;
-                prediction.iter_mut().flatten().for_each(|v| *v *= f);
-            }
-            if let Some(trust) = frame.trust.as_mut().filter(|_| !self.fresh) {
-                let spread = targets.level_spread_binned(i, &map);
-                self.report.stale_fraction[i] = trust.update(i, &prediction, &target, &spread);
-            }
-            let (loss, mut grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
-            // The cloud draws radiance / scale: the chain rule multiplies its gradient by scale.
-            grad.iter_mut().flatten().for_each(|g| *g *= scale);
-            if !loss.is_finite() {
-                continue;
-            }
-            let mut grads = backward(
-                &level.cloud,
-                &camera,
-                &state,
-                PixelGrads {
-                    color: &grad,
-                    transmittance: None,
-                    depth: None,
-                },
-            );
-            if level.warm_steps < self.config.warm_start_frames {
-                // The warm start sets the colours; Adam trains the rest (see `warm_start`).
-                level.warm_steps += 1;
-                level.warm_weights.resize(level.cloud.colors.len(), 0.0);
-                let drawn = Drawn {
-                    camera: &camera,
-                    state: &state,
-                    prediction: &prediction,
-                    radiance_scale: scale,
-                };
-                fit_colors(
-                    &mut level.cloud,
-                    drawn,
-                    &target,
-                    &mask,
-                    &mut level.warm_weights,
-                );
-                if level.warm_steps == self.config.warm_start_frames {
-                    level.warm_weights = Vec::new();
-                }
-                grads.colors.fill(0.0);
-            }
-            level.optimizer.step(&mut level.cloud, &grads, lr_scale);
-            self.report.losses[i] = Some(loss);
-            self.report.mse[i] = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);
-            match frame.drawn.as_mut() {
-                Some(drawn) => {
-                    if scale != scale_before {
-                        frame.images[i] = map.upsample(&prediction);
-                    }
-                    drawn[i] = prediction;
-                }
-                None => frame.images[i] = prediction,
-            }
+        // The levels train side by side: each is a small problem (a cache-resolution image,
+        // tens of thousands of Gaussians) whose serial parts would otherwise add up level after
+        // level and stop the step from scaling past a few cores (issue 31). Each level's step
+        // depends on nothing of the others', so the result is the same on any thread count.
+        let step = LevelStep {
+            targets,
+            map: &map,
+            camera: &camera,
+            raster: &self.raster,
+            config: &self.config,
+            lr_scale,
+        };
+        let trust = frame.trust.as_mut().filter(|_| !self.fresh);
+        let outcomes: Vec<LevelOutcome> = LevelSlot::split(
+            &mut self.levels,
+            &mut frame.states,
+            &mut frame.images,
+            frame.drawn.as_mut(),
+            trust,
+        )
+        .into_par_iter()
+        .enumerate()
+        .map(|(i, slot)| step.train(i, slot))
+        .collect();
+        for (i, outcome) in outcomes.into_iter().enumerate() {
+            self.report.losses[i] = outcome.loss;
+            self.report.mse[i] = outcome.mse;
+            self.report.stale_fraction[i] = outcome.stale_fraction;
         }
         settle_fresh(&mut self.fresh, frame);
         // The schedule watches the levels' summed HDR loss (relative to the prediction, so levels
@@ -747,6 +693,170 @@ impl GsCache {
     /// Timings and losses of the last frame.
     pub fn report(&self) -> &FrameReport {
         &self.report
+    }
+}
+
+/// What every level's training step shares: the frame's targets, its cameras and the settings.
+struct LevelStep<'a> {
+    targets: &'a TrainingTargets,
+    map: &'a PixelMap,
+    /// The camera the levels were drawn from (the cache's resolution).
+    camera: &'a Camera,
+    raster: &'a RasterConfig,
+    config: &'a CacheConfig,
+    lr_scale: f32,
+}
+
+/// One level's part of the cache and of the frame: what its training step may change.
+struct LevelSlot<'a> {
+    level: &'a mut Level,
+    /// The lookup's forward state, when it can be reused for the backward pass.
+    state: &'a mut Option<ForwardState<f32>>,
+    /// The level's image at the frame's resolution.
+    image: &'a mut Vec<[f32; 3]>,
+    /// The level's image as drawn, when the cache's resolution is not the frame's.
+    drawn: Option<&'a mut Vec<[f32; 3]>>,
+    /// The fallback's verdicts for this level (`None`: no residual test this frame).
+    trust: Option<&'a mut [Verdict]>,
+}
+
+/// What one level's step reports.
+#[derive(Default)]
+struct LevelOutcome {
+    loss: Option<f64>,
+    mse: Option<f64>,
+    stale_fraction: Option<f64>,
+}
+
+impl<'a> LevelSlot<'a> {
+    /// The per-level slots of the cache's levels and the frame's per-level buffers.
+    fn split(
+        levels: &'a mut [Level],
+        states: &'a mut [Option<ForwardState<f32>>],
+        images: &'a mut [Vec<[f32; 3]>],
+        drawn: Option<&'a mut Vec<Vec<[f32; 3]>>>,
+        trust: Option<&'a mut Trust>,
+    ) -> Vec<Self> {
+        let mut drawn = drawn.map(|d| d.iter_mut());
+        let mut trust = trust.map(|t| t.levels_mut().iter_mut());
+        levels
+            .iter_mut()
+            .zip(states)
+            .zip(images)
+            .map(|((level, state), image)| LevelSlot {
+                level,
+                state,
+                image,
+                drawn: drawn.as_mut().and_then(|d| d.next()),
+                trust: trust.as_mut().and_then(|t| t.next()).map(|v| &mut v[..]),
+            })
+            .collect()
+    }
+}
+
+impl LevelStep<'_> {
+    /// One optimisation step of level `i` against its binned targets.
+    fn train(&self, i: usize, slot: LevelSlot<'_>) -> LevelOutcome {
+        let LevelSlot {
+            level,
+            state: saved_state,
+            image,
+            mut drawn,
+            trust,
+        } = slot;
+        let (target, mask) =
+            self.targets
+                .level_target_binned(i, self.config.masked_targets, self.map);
+        if !mask.iter().any(|&m| m) {
+            return LevelOutcome::default();
+        }
+        let scale_before = level.radiance_scale();
+        if level.radiance_scale.is_none()
+            && self.config.normalized_radiance
+            && level.set_radiance_scale(&target, &mask)
+        {
+            // The drawn image no longer matches the cloud: draw it again below.
+            *saved_state = None;
+        }
+        let scale = level.radiance_scale();
+        // The lookup's forward pass is reused when it was the rasteriser's: the level has not
+        // changed since it was drawn.
+        let (mut prediction, state, drawn_scale) = match saved_state.take() {
+            Some(state) => (
+                match drawn.as_deref_mut() {
+                    Some(drawn) => std::mem::take(drawn),
+                    None => std::mem::take(image),
+                },
+                state,
+                scale_before,
+            ),
+            None => {
+                let (out, state) = render(&level.cloud, self.camera, self.raster);
+                (out.color, state, 1.0)
+            }
+        };
+        if scale != drawn_scale {
+            let f = scale / drawn_scale;
+            prediction.iter_mut().flatten().for_each(|v| *v *= f);
+        }
+        let mut outcome = LevelOutcome::default();
+        if let Some(verdicts) = trust {
+            let spread = self.targets.level_spread_binned(i, self.map);
+            outcome.stale_fraction = update_trust(verdicts, &prediction, &target, &spread);
+        }
+        let (loss, mut grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
+        // The cloud draws radiance / scale: the chain rule multiplies its gradient by scale.
+        grad.iter_mut().flatten().for_each(|g| *g *= scale);
+        if !loss.is_finite() {
+            return outcome;
+        }
+        let mut grads = backward(
+            &level.cloud,
+            self.camera,
+            &state,
+            PixelGrads {
+                color: &grad,
+                transmittance: None,
+                depth: None,
+            },
+        );
+        if level.warm_steps < self.config.warm_start_frames {
+            // The warm start sets the colours; Adam trains the rest (see `warm_start`).
+            level.warm_steps += 1;
+            level.warm_weights.resize(level.cloud.colors.len(), 0.0);
+            let drawn_level = Drawn {
+                camera: self.camera,
+                state: &state,
+                prediction: &prediction,
+                radiance_scale: scale,
+            };
+            fit_colors(
+                &mut level.cloud,
+                drawn_level,
+                &target,
+                &mask,
+                &mut level.warm_weights,
+            );
+            if level.warm_steps == self.config.warm_start_frames {
+                level.warm_weights = Vec::new();
+            }
+            grads.colors.fill(0.0);
+        }
+        level
+            .optimizer
+            .step(&mut level.cloud, &grads, self.lr_scale);
+        outcome.loss = Some(loss);
+        outcome.mse = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);
+        match drawn {
+            Some(drawn) => {
+                if scale != scale_before {
+                    *image = self.map.upsample(&prediction);
+                }
+                *drawn = prediction;
+            }
+            None => *image = prediction,
+        }
+        outcome
     }
 }
 

@@ -51,7 +51,7 @@ pub const STALE_ERROR: f32 = 0.5;
 
 /// One cache pixel's verdict.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Verdict {
+pub(crate) enum Verdict {
     Distrusted,
     Trusted,
     /// Trusted, but its last test failed.
@@ -107,11 +107,7 @@ impl Trust {
         l.iter().filter(|&&t| t != Verdict::Distrusted).count() as f64 / l.len().max(1) as f64
     }
 
-    /// The test above for `level`: `drawn` is the level as the frame's paths read it and
-    /// `target` the binned sample means (both radiance, cache resolution); `spread` holds per
-    /// pixel the sample count and the variance of the mean's luminance. Returns the fraction
-    /// of the tested pixels (two samples or more) whose residual was gross, beyond the noise and
-    /// [`STALE_ERROR`] of the value (`None`: no pixel was tested).
+    /// The test above for `level` (see [`update_trust`]).
     pub fn update(
         &mut self,
         level: usize,
@@ -119,36 +115,52 @@ impl Trust {
         target: &[[f32; 3]],
         spread: &[(u64, f32)],
     ) -> Option<f64> {
-        let (mut tested, mut gross_count) = (0u64, 0u64);
-        let lum = |c: &[f32; 3]| crate::termination::luminance(glam::Vec3::from_array(*c));
-        for (((verdict, d), t), &(count, variance)) in self.levels[level]
-            .iter_mut()
-            .zip(drawn)
-            .zip(target)
-            .zip(spread)
-        {
-            if count < 2 {
-                continue;
-            }
-            let (d, t) = (lum(d), lum(t));
-            let residual = (t - d).abs();
-            // Written so that NaN anywhere distrusts the pixel.
-            let noise = residual <= Z_SCORE * variance.sqrt();
-            let scale = t.max(d);
-            let fits = noise || residual <= RELATIVE_ERROR * scale;
-            let gross = !(noise || residual <= STALE_ERROR * scale);
-            tested += 1;
-            gross_count += gross as u64;
-            *verdict = match *verdict {
-                Verdict::Distrusted if fits => Verdict::Trusted,
-                Verdict::Distrusted => Verdict::Distrusted,
-                Verdict::Trusted | Verdict::Struck if !gross => Verdict::Trusted,
-                Verdict::Trusted => Verdict::Struck,
-                Verdict::Struck => Verdict::Distrusted,
-            };
-        }
-        (tested > 0).then(|| gross_count as f64 / tested as f64)
+        update_trust(&mut self.levels[level], drawn, target, spread)
     }
+
+    /// Each level's verdicts, to update the levels side by side.
+    pub(crate) fn levels_mut(&mut self) -> &mut [Vec<Verdict>] {
+        &mut self.levels
+    }
+}
+
+/// The test above for one level's `verdicts`: `drawn` is the level as the frame's paths read
+/// it and `target` the binned sample means (both radiance, cache resolution); `spread` holds per
+/// pixel the sample count and the variance of the mean's luminance. Returns the fraction of the
+/// tested pixels (two samples or more) whose residual was gross, beyond the noise and
+/// [`STALE_ERROR`] of the value (`None`: no pixel was tested).
+pub(crate) fn update_trust(
+    verdicts: &mut [Verdict],
+    drawn: &[[f32; 3]],
+    target: &[[f32; 3]],
+    spread: &[(u64, f32)],
+) -> Option<f64> {
+    let (mut tested, mut gross_count) = (0u64, 0u64);
+    let lum = |c: &[f32; 3]| crate::termination::luminance(glam::Vec3::from_array(*c));
+    for (((verdict, d), t), &(count, variance)) in
+        verdicts.iter_mut().zip(drawn).zip(target).zip(spread)
+    {
+        if count < 2 {
+            continue;
+        }
+        let (d, t) = (lum(d), lum(t));
+        let residual = (t - d).abs();
+        // Written so that NaN anywhere distrusts the pixel.
+        let noise = residual <= Z_SCORE * variance.sqrt();
+        let scale = t.max(d);
+        let fits = noise || residual <= RELATIVE_ERROR * scale;
+        let gross = !(noise || residual <= STALE_ERROR * scale);
+        tested += 1;
+        gross_count += gross as u64;
+        *verdict = match *verdict {
+            Verdict::Distrusted if fits => Verdict::Trusted,
+            Verdict::Distrusted => Verdict::Distrusted,
+            Verdict::Trusted | Verdict::Struck if !gross => Verdict::Trusted,
+            Verdict::Trusted => Verdict::Struck,
+            Verdict::Struck => Verdict::Distrusted,
+        };
+    }
+    (tested > 0).then(|| gross_count as f64 / tested as f64)
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@ use splat_raster::loss::{Loss, loss_and_grad};
 use splat_raster::raster::ForwardState;
 use splat_raster::{Camera, GaussianCloud, PixelGrads, RasterConfig, backward, render};
 use std::time::Instant;
-use stochastic_rt::{DepthMode, Estimator, GaussianScene, TraceSettings, trace_image};
+use stochastic_rt::{TraceGaussians, TraceSettings, trace_camera_image};
 
 /// One level: the Gaussians for paths of one length, and their optimiser state.
 #[derive(Debug, Clone)]
@@ -196,9 +196,6 @@ pub struct GsCache {
     config: CacheConfig,
     levels: Vec<Level>,
     schedule: Schedule,
-    /// Per level, the ray-traced lookup's scene, kept across frames and refitted after training
-    /// moves the Gaussians (rebuilt only when the refit tree degrades).
-    traced: Vec<Option<GaussianScene>>,
     /// Calls of [`GsCache::train`] so far (a step is taken on one in `train_every`).
     train_calls: u64,
     /// A fresh cache before its first training frame: its colours are still the albedo start
@@ -327,7 +324,6 @@ impl GsCache {
             image_frames: None,
             fresh: false,
             levels_changed: true,
-            traced: Vec::new(),
             frame: None,
             report: FrameReport::default(),
             raster: RasterConfig::default(),
@@ -457,27 +453,23 @@ impl GsCache {
                 })
                 .unzip(),
             Lookup::Rt => {
-                let settings = TraceSettings {
-                    estimator: Estimator::Stochastic {
-                        samples_per_traversal: self.config.rt_samples.max(1),
-                    },
-                    depth_mode: DepthMode::Center,
-                    spp: 1,
-                    ..Default::default()
-                };
-                self.traced.resize_with(self.levels.len(), || None);
+                // The lookup's rays all leave the camera's centre, so they are traced through
+                // a screen grid of depth-sorted lists rather than a BVH: the same image as the
+                // BVH's, bit for bit, without its traversal (`stochastic_rt::camera_grid`).
+                let samples = self.config.rt_samples.max(1);
+                let defaults = TraceSettings::default();
                 self.levels
                     .par_iter()
-                    .zip(self.traced.par_iter_mut())
-                    .map(|(l, traced)| {
-                        let scene = match traced {
-                            Some(scene) => {
-                                scene.update(&l.cloud);
-                                scene
-                            }
-                            None => traced.insert(GaussianScene::new(&l.cloud)),
-                        };
-                        let img = trace_image(scene, draw_camera, &settings);
+                    .map(|l| {
+                        let img = trace_camera_image(
+                            &TraceGaussians::new(&l.cloud),
+                            draw_camera,
+                            samples,
+                            1,
+                            defaults.seed,
+                            defaults.random,
+                            defaults.background,
+                        );
                         (img.into_iter().map(|c| c.to_array()).collect(), None)
                     })
                     .unzip()

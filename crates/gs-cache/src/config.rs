@@ -45,9 +45,10 @@ pub enum Lookup {
     /// Rasterise each level with splat-raster (the paper's lookup).
     Raster,
     /// Ray-trace each level with stochastic-rt's single-traversal stochastic estimator (Sun et
-    /// al., 2025), `rt_samples` samples per traversal. Each level's BVH is kept across frames
-    /// and refitted after training moves the Gaussians (rebuilt only when the refit tree
-    /// degrades); training still uses the rasteriser's gradients.
+    /// al., 2025), `rt_samples` samples per traversal. The lookup's rays all leave the camera,
+    /// so they walk a screen grid of depth-sorted lists instead of a BVH, for the BVH's image at
+    /// a third of its cost (`stochastic_rt::camera_grid`); training still uses the rasteriser's
+    /// gradients.
     Rt,
 }
 

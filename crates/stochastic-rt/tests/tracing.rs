@@ -516,3 +516,61 @@ fn both_generators_are_unbiased_on_a_real_asset() {
         scores.assert_unbiased(&format!("{kind:?} on the fruit asset"), 5.5, 500);
     }
 }
+
+/// The cache's lookup traces its camera's rays through a screen grid of depth-sorted lists
+/// instead of the BVH: the image must be the BVH's bit for bit (the same hits, the same
+/// acceptance numbers, the same closest accepted hit per slot), for 1, 8 and 64 slots, more
+/// than one estimate per pixel, both acceptance generators, and cameras from outside the cloud
+/// looking at it, at an angle, and from its edge.
+#[test]
+fn the_camera_grid_traces_the_bvhs_image_bit_for_bit() {
+    use stochastic_rt::{Estimator, TraceSettings, trace_camera_image, trace_image};
+    let cloud = random_cloud(3000, 11);
+    let scene = GaussianScene::new(&cloud);
+    let cameras = [
+        (Vec3::new(0.3, -0.2, -4.0), Vec3::ZERO, 97, 61),
+        (Vec3::new(3.0, 2.0, 2.5), Vec3::new(0.2, 0.0, 0.1), 80, 80),
+        (Vec3::new(0.0, 0.0, -2.2), Vec3::new(0.5, 0.5, 0.0), 64, 33),
+    ];
+    let mut compared = 0;
+    for (eye, target, w, h) in cameras {
+        let camera = Camera::look_at(eye, target, Vec3::Y, 45.0, w, h).unwrap();
+        for (slots, spp, random) in [
+            (1, 1, RandomKind::Hash),
+            (8, 2, RandomKind::Hash),
+            (64, 1, RandomKind::Trig),
+        ] {
+            let settings = TraceSettings {
+                estimator: Estimator::Stochastic {
+                    samples_per_traversal: slots,
+                },
+                depth_mode: DepthMode::Center,
+                spp,
+                seed: 5,
+                background: Vec3::new(0.1, 0.2, 0.3),
+                random,
+            };
+            let bvh = trace_image(&scene, &camera, &settings);
+            let grid = trace_camera_image(
+                &scene.gaussians,
+                &camera,
+                slots,
+                spp,
+                5,
+                random,
+                settings.background,
+            );
+            let differ = bvh.iter().zip(&grid).filter(|(a, b)| a != b).count();
+            assert_eq!(
+                differ,
+                0,
+                "camera at {eye}, {slots} slots, {spp} spp: {differ} of {} pixels differ",
+                bvh.len()
+            );
+            // The images must show the cloud, not only the background.
+            assert!(bvh.iter().filter(|c| **c != settings.background).count() > bvh.len() / 4);
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, 9);
+}

@@ -31,13 +31,13 @@ run() { # label, then the render's arguments
 }
 
 hd=(--width 1280 --height 720 --spp 1)
-# Plain tracing, 1 to all threads.
-for t in 1 2 4 8 16; do
-    run "plain $t" --width 1280 --height 720 --spp 4 --threads "$t"
+# Plain tracing, 1 to all threads, about 2 s each.
+for ts in "1 2" "2 4" "4 8" "8 16" "16 32" "16 32"; do
+    set -- $ts
+    run "plain $1" --width 1280 --height 720 --spp "$2" --threads "$1"
 done
-run "plain 16 again" --width 1280 --height 720 --spp 4 --threads 16
 # Both caches, both runs of the table.
-for t in 16 8; do
+for t in 16 8 4; do
     for c in --cache --nrc; do
         run "$c defaults $t" "$c" --warmup 40 --frames 20 "${hd[@]}" --threads "$t"
         run "$c cold $t" "$c" --warmup 0 --frames 60 --cache-handoff-frames 0 "${hd[@]}" --threads "$t"

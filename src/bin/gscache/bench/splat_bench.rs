@@ -195,8 +195,13 @@ pub fn run(a: &SplatArgs, data: &DataDirs) -> Result<()> {
         Err(e) => eprintln!("note: skipping the plant asset ({e}); is ../shared/data present?"),
     }
     let peak = PEAK_FLOPS_PER_CYCLE * ghz;
+    // 1 and 2 threads (the issues' figures), and all of the pool's threads where it has more.
+    let mut thread_counts = vec![1, 2];
+    if rayon::current_num_threads() > 2 {
+        thread_counts.push(rayon::current_num_threads());
+    }
     for (name, cloud, cam) in &clouds {
-        for threads in [1, 2] {
+        for &threads in &thread_counts {
             let rows = measure(cloud, cam, a.reps, threads, &kernels);
             let scalar = kernels.iter().position(|k| *k == Kernel::Scalar);
             for (kernel, &(f, b, evals)) in kernels.iter().zip(&rows) {

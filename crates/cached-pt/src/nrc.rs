@@ -325,9 +325,9 @@ pub fn render_nrc_frame(
     let stops: usize = traced.records.iter().map(|(_, t)| t.stops.len()).sum();
     stats.queries = stops;
     if has_film && stops > 0 {
-        // Gathered and composed by tile in parallel (a serial pass over the stops cost 5-10 ms
-        // of every frame at any thread count, issue 31); the film's sums are exact, so the
-        // order does not show in the image.
+        // Gathered and composed by tile in parallel (a serial pass over the stops does not
+        // scale with the cores, issue 31); the film's sums are exact, so the order does not
+        // show in the image.
         let queries: Vec<Query> = traced
             .records
             .par_iter()

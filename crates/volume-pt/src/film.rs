@@ -413,8 +413,8 @@ impl Film {
     /// `tile_values(rect)` gives each tile's values as (pixel index within the tile,
     /// radiance). The film's sums are exact, so the result is the same bits as adding them one
     /// by one in any order; refused values are counted as `add_deferred` counts them. A neural
-    /// cache composes a value into most of a frame's pixels, which serially took 5-10 ms of
-    /// every frame on any number of cores (issue 31).
+    /// cache composes a value into most of a frame's pixels: one serial loop over them would
+    /// not scale with the cores (issue 31).
     pub fn add_deferred_by_tile<F, I>(&mut self, tile_values: F)
     where
         F: Fn(crate::cache::TileRect) -> I + Sync,

@@ -67,32 +67,46 @@ pub fn trace_camera_image(
         .enumerate()
         .for_each(|(y, row)| {
             let y = y as u32;
-            for (x, out) in (0..width).zip(row.iter_mut()) {
-                let (px, py) = (x as f32 + 0.5, y as f32 + 0.5);
-                let ray = CameraRay {
-                    o: camera.position,
-                    d: camera.ray_direction(px, py),
-                    forward,
-                    pixel: [px, py],
-                };
-                let list = grid.list(x / TILE, y / TILE);
-                let pixel = y * width + x;
-                let mut sum = glam::DVec3::ZERO;
+            let mut hits = vec![EMPTY_SLOT; LANES * slots];
+            // A tile's row of pixels at a time: its rays share the tile's list.
+            for (tx, span) in row.chunks_mut(LANES).enumerate() {
+                let x0 = tx as u32 * TILE;
+                let rays: [CameraRay; LANES] = std::array::from_fn(|l| {
+                    let (px, py) = ((x0 + l as u32) as f32 + 0.5, y as f32 + 0.5);
+                    CameraRay {
+                        o: camera.position,
+                        d: camera.ray_direction(px, py),
+                        forward,
+                        pixel: [px, py],
+                    }
+                });
+                let rays = &rays[..span.len()];
+                let list = grid.list(tx as u32, y / TILE);
+                let mut sums = [glam::DVec3::ZERO; LANES];
                 for s in 0..spp {
-                    let key = SampleKey::new(seed, pixel, s);
+                    let keys: [SampleKey; LANES] = std::array::from_fn(|l| {
+                        SampleKey::new(seed, y * width + x0 + l as u32, s)
+                    });
                     let walk = Walk {
                         g: gaussians,
-                        key: &key,
                         random,
                         background,
                     };
-                    sum += walk.estimate(&ray, list, slots).as_dvec3();
+                    walk.estimate(rays, &keys, list, slots, &mut hits, &mut sums);
                 }
-                *out = (sum / spp as f64).as_vec3();
+                for (out, sum) in span.iter_mut().zip(sums) {
+                    *out = (sum / spp as f64).as_vec3();
+                }
             }
         });
     image
 }
+
+/// Pixels walked together: a tile's row.
+const LANES: usize = TILE as usize;
+
+/// A slot before any hit: (distance, Gaussian, centre depth).
+const EMPTY_SLOT: (f32, usize, f32) = (f32::INFINITY, usize::MAX, f32::INFINITY);
 
 /// A camera ray through a pixel position; its hits are placed at their Gaussians' centre depth.
 struct CameraRay {
@@ -119,46 +133,70 @@ struct Entry {
     reaches_behind: bool,
 }
 
-impl Entry {
-    #[inline]
-    fn may_meet(&self, r: &CameraRay) -> bool {
-        let (dx, dy) = (r.pixel[0] - self.centre[0], r.pixel[1] - self.centre[1]);
-        let [qxx, qxy, qyy] = self.form;
-        qxx * dx * dx + 2.0 * qxy * dx * dy + qyy * dy * dy <= SILHOUETTE_SLACK
-    }
-}
-
-/// What one estimate reads besides its ray and list.
+/// What every estimate reads besides its rays and list.
 struct Walk<'a> {
     g: &'a TraceGaussians,
-    key: &'a SampleKey,
     random: RandomKind,
     background: Vec3,
 }
 
 impl Walk<'_> {
-    /// One estimate: the mean of the slots' closest accepted colours, walking `list` (sorted by
-    /// centre depth) front to back until the next Gaussian lies behind every slot's hit.
-    fn estimate(&self, r: &CameraRay, list: &[Entry], slots: usize) -> Vec3 {
+    /// One estimate for each of `rays` (one row of a tile, all on the same `list`, sorted by
+    /// centre depth) with sample keys `keys`, added to `sums`: the mean of each ray's slots'
+    /// closest accepted colours. The list is walked front to back once for all the rays; a
+    /// ray takes part until the next Gaussian lies behind every one of its slots' hits, and the
+    /// walk stops when no ray takes part. Each ray meets exactly the hits it would meet alone.
+    /// `hits` is scratch for `rays.len() * slots` slots.
+    fn estimate(
+        &self,
+        rays: &[CameraRay],
+        keys: &[SampleKey; LANES],
+        list: &[Entry],
+        slots: usize,
+        hits: &mut [(f32, usize, f32)],
+        sums: &mut [glam::DVec3; LANES],
+    ) {
         let g = self.g;
-        let mut hits = [(f32::INFINITY, usize::MAX, f32::INFINITY); MAX_SLOTS];
-        let hits = &mut hits[..slots];
-        let fd = r.forward.dot(r.d);
-        // `intersect` places every hit at `centre depth / fd`: a ray that does not point
-        // forward meets nothing (written so that NaN meets nothing too).
-        if fd > 0.0 {
-            // The centre depth of the farthest slot's hit (infinite while a slot is empty).
-            // `intersect` places a hit at `depth / fd`, which never decreases with the depth:
-            // a Gaussian at or behind this depth cannot come before any slot's hit. One in
-            // front of it whose hit rounds to the same distance is walked and replaces nothing
-            // (a slot takes only a strictly nearer hit), so the image is the same.
-            let mut farthest = f32::INFINITY;
-            for e in list {
-                if !(e.depth < farthest) {
-                    break;
-                }
-                let i = e.index as usize;
-                if !e.may_meet(r) || (e.reaches_behind && !meets_box(g, i, r)) {
+        let n = rays.len();
+        hits[..n * slots].fill(EMPTY_SLOT);
+        // Per ray, the centre depth of its farthest slot's hit: infinite while a slot is
+        // empty. `intersect` places a hit at `depth / fd`, which never decreases with the
+        // depth, so a Gaussian at or behind it cannot come before any of the ray's hits; one in
+        // front of it whose hit rounds to the same distance is walked and replaces nothing (a
+        // slot takes only a strictly nearer hit). A ray that does not point forward meets
+        // nothing (written so that NaN meets nothing too); lanes past the row's end take no
+        // part.
+        let mut farthest = [f32::NEG_INFINITY; LANES];
+        let mut px = [0.0f32; LANES];
+        for (l, r) in rays.iter().enumerate() {
+            px[l] = r.pixel[0];
+            if r.forward.dot(r.d) > 0.0 {
+                farthest[l] = f32::INFINITY;
+            }
+        }
+        let py = rays[0].pixel[1];
+        let mut walking = farthest.iter().fold(f32::NEG_INFINITY, |m, &f| m.max(f));
+        for e in list {
+            if !(e.depth < walking) {
+                break;
+            }
+            // The silhouette test for the row's pixels at once (it only saves `intersect`
+            // calls), and whether each ray still takes part.
+            let dy = py - e.centre[1];
+            let [qxx, qxy, qyy] = e.form;
+            let (cross, last) = (2.0 * qxy * dy, qyy * dy * dy);
+            let mut meets = [false; LANES];
+            for l in 0..LANES {
+                let dx = px[l] - e.centre[0];
+                meets[l] = (qxx * dx * dx + cross * dx + last <= SILHOUETTE_SLACK)
+                    & (e.depth < farthest[l]);
+            }
+            if !meets.iter().any(|&m| m) {
+                continue;
+            }
+            let i = e.index as usize;
+            for (l, r) in rays.iter().enumerate() {
+                if !meets[l] || (e.reaches_behind && !meets_box(g, i, r)) {
                     continue;
                 }
                 let Some(h) = g.intersect(
@@ -173,27 +211,31 @@ impl Walk<'_> {
                     continue;
                 };
                 let p = r.o + h.t * r.d;
-                for (s, slot) in hits.iter_mut().enumerate() {
+                let lane = &mut hits[l * slots..(l + 1) * slots];
+                for (s, slot) in lane.iter_mut().enumerate() {
                     if h.t < slot.0
-                        && acceptance(self.random, self.key, g.ids[i], s as u32, p) < h.alpha
+                        && acceptance(self.random, &keys[l], g.ids[i], s as u32, p) < h.alpha
                     {
                         *slot = (h.t, i, e.depth);
                     }
                 }
-                farthest = hits.iter().fold(0.0f32, |m, s| m.max(s.2));
+                farthest[l] = lane.iter().fold(0.0f32, |m, s| m.max(s.2));
             }
+            walking = farthest.iter().fold(f32::NEG_INFINITY, |m, &f| m.max(f));
         }
-        let sum: Vec3 = hits
-            .iter()
-            .map(|&(_, i, _)| {
-                if i == usize::MAX {
-                    self.background
-                } else {
-                    g.color(i, r.o)
-                }
-            })
-            .sum();
-        sum / hits.len() as f32
+        for (l, r) in rays.iter().enumerate() {
+            let sum: Vec3 = hits[l * slots..(l + 1) * slots]
+                .iter()
+                .map(|&(_, i, _)| {
+                    if i == usize::MAX {
+                        self.background
+                    } else {
+                        g.color(i, r.o)
+                    }
+                })
+                .sum();
+            sums[l] += (sum / slots as f32).as_dvec3();
+        }
     }
 }
 

@@ -203,8 +203,12 @@ fn tile_span(s: &[u32; 4]) -> (u32, u32, u32, u32) {
     (s[0] / TILE, s[1] / TILE, s[2] / TILE, s[3] / TILE)
 }
 
-/// Splats per chunk of the parallel binning.
-const BIN_CHUNK: usize = 8192;
+/// Splats per chunk of the parallel binning: about 64 chunks, so that a cache level's 5-20
+/// thousand splats still spread over many cores, but never under 1024 (each chunk keeps a
+/// count per tile) nor over 8192. It depends on the splat count alone, never on the threads.
+fn bin_chunk(splats: usize) -> usize {
+    (splats / 64).clamp(1024, 8192)
+}
 
 /// One chunk's splats binned into tiles: tile `t`'s list (splat indices, in order) is
 /// `entries[offsets[t]..offsets[t + 1]]`.
@@ -268,9 +272,9 @@ fn bin<F: Real>(
     // binning was a sixth of a 300k-Gaussian frame at 2 threads and bound the lookup's scaling:
     // issue 31.)
     let chunks: Vec<ChunkBins> = splats
-        .par_chunks(BIN_CHUNK)
+        .par_chunks(bin_chunk(splats.len()))
         .enumerate()
-        .map(|(c, chunk)| ChunkBins::new(chunk, c * BIN_CHUNK, tiles_x, n_tiles))
+        .map(|(c, chunk)| ChunkBins::new(chunk, c * bin_chunk(splats.len()), tiles_x, n_tiles))
         .collect();
     let sizes: Vec<u32> = (0..n_tiles)
         .into_par_iter()

@@ -84,9 +84,8 @@ pub fn trace_camera_image(
                 let list = grid.list(tx as u32, y / TILE);
                 let mut sums = [glam::DVec3::ZERO; LANES];
                 for s in 0..spp {
-                    let keys: [SampleKey; LANES] = std::array::from_fn(|l| {
-                        SampleKey::new(seed, y * width + x0 + l as u32, s)
-                    });
+                    let keys: [SampleKey; LANES] =
+                        std::array::from_fn(|l| SampleKey::new(seed, y * width + x0 + l as u32, s));
                     let walk = Walk {
                         g: gaussians,
                         random,

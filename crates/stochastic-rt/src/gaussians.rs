@@ -8,6 +8,7 @@
 //! BVH sees exactly the intersections that a brute-force loop accepts.
 
 use glam::Vec3;
+use rayon::prelude::*;
 use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
 use splat_raster::sh;
 use splat_raster::{ColorModel, GaussianCloud};
@@ -69,56 +70,25 @@ impl TraceGaussians {
             colors: Vec::new(),
             color_model: cloud.color_model,
         };
-        for g in 0..cloud.len() {
-            let mean = Vec3::from_slice(&cloud.means[3 * g..3 * g + 3]);
-            let q = &cloud.rotations[4 * g..4 * g + 4];
-            let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-            let s = Vec3::from_slice(&cloud.log_scales[3 * g..3 * g + 3]).exp();
-            let opacity = 1.0 / (1.0 + (-cloud.opacity_logits[g]).exp());
-            let color = &cloud.colors[g * stride..(g + 1) * stride];
-            // Written so that NaN fails.
-            let finite = qn > 0.0
-                && qn.is_finite()
-                && mean.is_finite()
-                && s.is_finite()
-                && s.min_element() > 0.0;
-            let visible = opacity >= ALPHA_MIN as f32 && color.iter().all(|c| c.is_finite());
-            if !(finite && visible) {
-                continue;
-            }
-            let r = glam::Mat3::from_quat(glam::Quat::from_xyzw(
-                q[1] / qn,
-                q[2] / qn,
-                q[3] / qn,
-                q[0] / qn,
-            ));
-            let inv_s = 1.0 / s;
-            // Rows of S^-1 R^T are the columns of R scaled by 1/s.
-            let canonical = [r.x_axis * inv_s.x, r.y_axis * inv_s.y, r.z_axis * inv_s.z];
-            if !canonical.iter().all(|v| v.is_finite()) {
-                continue;
-            }
-            let cutoff = 2.0 * (255.0 * opacity).ln();
-            // Exact box of the ellipsoid |S^-1 R^T (x - mu)| <= sqrt(cutoff): half-extent along
-            // world axis i is sqrt(cutoff) * |row i of R S|; a hair wider against rounding.
-            let m = glam::Mat3::from_cols(r.x_axis * s.x, r.y_axis * s.y, r.z_axis * s.z);
-            let rows = [m.row(0), m.row(1), m.row(2)];
-            let half = Vec3::new(rows[0].length(), rows[1].length(), rows[2].length())
-                * cutoff.sqrt()
-                * (1.0 + 1e-5)
-                + 1e-6 * (1.0 + mean.abs().max_element());
-            if !half.is_finite() {
-                continue;
-            }
+        // Each Gaussian's terms in parallel (the exponentials and the rotation are most of the
+        // cost), then gathered in Gaussian order: the same arrays on any thread count.
+        let prepared: Vec<Option<Prepared>> = (0..cloud.len())
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|g| prepare(cloud, g, stride))
+            .collect();
+        for (g, p) in prepared.into_iter().enumerate() {
+            let Some(p) = p else { continue };
             out.ids.push(g as u32);
-            out.means.push(mean);
-            out.canonical.push(canonical);
-            out.opacity.push(opacity);
-            out.cutoff.push(cutoff);
-            out.lower.push(mean - half);
-            out.upper.push(mean + half);
-            out.max_half_diagonal = out.max_half_diagonal.max(half.length());
-            out.colors.extend_from_slice(color);
+            out.means.push(p.mean);
+            out.canonical.push(p.canonical);
+            out.opacity.push(p.opacity);
+            out.cutoff.push(p.cutoff);
+            out.lower.push(p.mean - p.half);
+            out.upper.push(p.mean + p.half);
+            out.max_half_diagonal = out.max_half_diagonal.max(p.half.length());
+            out.colors
+                .extend_from_slice(&cloud.colors[g * stride..(g + 1) * stride]);
         }
         out
     }
@@ -222,4 +192,59 @@ impl TraceGaussians {
             }
         }
     }
+}
+
+/// One Gaussian's tracing terms ([`TraceGaussians::new`]).
+struct Prepared {
+    mean: Vec3,
+    canonical: [Vec3; 3],
+    opacity: f32,
+    cutoff: f32,
+    /// Half-extents of its box.
+    half: Vec3,
+}
+
+/// Gaussian `g`'s tracing terms; `None` when it is degenerate, not finite or below 1/255.
+fn prepare(cloud: &GaussianCloud<f32>, g: usize, stride: usize) -> Option<Prepared> {
+    let mean = Vec3::from_slice(&cloud.means[3 * g..3 * g + 3]);
+    let q = &cloud.rotations[4 * g..4 * g + 4];
+    let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let s = Vec3::from_slice(&cloud.log_scales[3 * g..3 * g + 3]).exp();
+    let opacity = 1.0 / (1.0 + (-cloud.opacity_logits[g]).exp());
+    let color = &cloud.colors[g * stride..(g + 1) * stride];
+    // Written so that NaN fails.
+    let finite =
+        qn > 0.0 && qn.is_finite() && mean.is_finite() && s.is_finite() && s.min_element() > 0.0;
+    let visible = opacity >= ALPHA_MIN as f32 && color.iter().all(|c| c.is_finite());
+    if !(finite && visible) {
+        return None;
+    }
+    let r = glam::Mat3::from_quat(glam::Quat::from_xyzw(
+        q[1] / qn,
+        q[2] / qn,
+        q[3] / qn,
+        q[0] / qn,
+    ));
+    let inv_s = 1.0 / s;
+    // Rows of S^-1 R^T are the columns of R scaled by 1/s.
+    let canonical = [r.x_axis * inv_s.x, r.y_axis * inv_s.y, r.z_axis * inv_s.z];
+    if !canonical.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let cutoff = 2.0 * (255.0 * opacity).ln();
+    // Exact box of the ellipsoid |S^-1 R^T (x - mu)| <= sqrt(cutoff): half-extent along
+    // world axis i is sqrt(cutoff) * |row i of R S|; a hair wider against rounding.
+    let m = glam::Mat3::from_cols(r.x_axis * s.x, r.y_axis * s.y, r.z_axis * s.z);
+    let rows = [m.row(0), m.row(1), m.row(2)];
+    let half = Vec3::new(rows[0].length(), rows[1].length(), rows[2].length())
+        * cutoff.sqrt()
+        * (1.0 + 1e-5)
+        + 1e-6 * (1.0 + mean.abs().max_element());
+    half.is_finite().then_some(Prepared {
+        mean,
+        canonical,
+        opacity,
+        cutoff,
+        half,
+    })
 }

@@ -54,8 +54,10 @@ pub struct CacheRecord {
     /// cache: one entry, its steps' mean relative L2 loss).
     pub level_mse: Vec<Vec<Option<f64>>>,
     /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting, or
-    /// the neural cache's inference and composition) and training. Frames after the handoff (plain path tracing) are counted in `handed_off`
-    /// instead, so the cache's per-frame cost is that of the frames that pay it.
+    /// the neural cache's inference and composition) and training (the neural cache's: what its
+    /// step adds beyond the inference it runs beside, `FrameReport::train_seconds`). Frames
+    /// after the handoff (plain path tracing) are counted in `handed_off` instead, so the
+    /// cache's per-frame cost is that of the frames that pay it.
     pub frame_seconds: Vec<[f64; 3]>,
     /// Measured frames traced without the cache after its handoff.
     pub handed_off: u32,

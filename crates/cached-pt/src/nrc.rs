@@ -269,8 +269,12 @@ pub struct NrcFrameStats {
     pub trace_seconds: f64,
     /// Inference and composition (IT).
     pub inference_seconds: f64,
-    /// Training (OT), gathering the tiles' records included.
+    /// Training's part of the frame (OT), gathering the tiles' records included: the frame's
+    /// time after tracing beyond inference. Inference runs beside the training step, so this
+    /// is less than the step when they overlap; the parts add up to the frame.
     pub train_seconds: f64,
+    /// The training step's own duration, overlap included.
+    pub train_step_seconds: f64,
     /// Making a film for a frame that keeps none (a warm-up frame's scratch film).
     pub film_seconds: f64,
     /// Paths that stopped into the cache.
@@ -324,55 +328,85 @@ pub fn render_nrc_frame(
     let start = std::time::Instant::now();
     let stops: usize = traced.records.iter().map(|(_, t)| t.stops.len()).sum();
     stats.queries = stops;
-    if has_film && stops > 0 {
-        // Gathered and composed by tile in parallel (a serial pass over the stops does not
-        // scale with the cores, issue 31); the film's sums are exact, so the order does not
-        // show in the image.
-        let queries: Vec<Query> = traced
-            .records
-            .par_iter()
-            .flat_map_iter(|(_, t)| t.stops.iter().map(|s| s.2))
-            .collect();
-        let values = cache.predict(&queries);
-        let mut first = Vec::with_capacity(traced.records.len());
-        let mut next = 0;
-        for (_, tile) in &traced.records {
-            first.push(next);
-            next += tile.stops.len();
-        }
-        let by_corner: std::collections::HashMap<(u32, u32), usize> = traced
+    stats.cancelled = traced.cancelled || control.cancelled();
+    let read = has_film && stops > 0;
+    let train = !stats.cancelled;
+    let records: Vec<TrainingRecord> = if train {
+        traced
             .records
             .iter()
-            .enumerate()
-            .map(|(i, (rect, _))| ((rect.x0, rect.y0), i))
-            .collect();
-        let (records, values, first) = (&traced.records, &values, &first);
-        film.add_deferred_by_tile(|rect| {
-            let i = by_corner.get(&(rect.x0, rect.y0)).copied();
-            i.into_iter().flat_map(move |i| {
-                let (_, tile) = &records[i];
-                tile.stops
-                    .iter()
-                    .zip(&values[first[i]..])
-                    .map(|(&(in_tile, throughput, _), &v)| (in_tile as usize, throughput * v))
-            })
-        });
+            .flat_map(|(_, t)| t.records.iter().copied())
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let shuffle = mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e));
+    let timed = |f: &mut dyn FnMut()| {
+        let start = std::time::Instant::now();
+        f();
+        start.elapsed().as_secs_f64()
+    };
+    let mut report = TrainReport::default();
+    if read && train {
+        // Inference reads a snapshot of the cache from before this frame's step while the step
+        // runs beside it: the same values as reading first, and at many cores the step's
+        // small, serial kernels no longer add to inference's time (issue 31).
+        let snapshot = cache.snapshot();
+        let (inference, step) = rayon::join(
+            || timed(&mut || compose(&traced.records, &|q| snapshot.predict(q), film)),
+            || timed(&mut || report = cache.train(&records, shuffle)),
+        );
+        stats.inference_seconds = inference;
+        stats.train_step_seconds = step;
+    } else if read {
+        stats.inference_seconds =
+            timed(&mut || compose(&traced.records, &|q| cache.predict(q), film));
+    } else if train {
+        stats.train_step_seconds = timed(&mut || report = cache.train(&records, shuffle));
     }
-    stats.inference_seconds = start.elapsed().as_secs_f64();
+    stats.train = report;
+    // Training's part of the frame: what it adds beyond inference (the whole step when they
+    // did not run side by side), so that the parts add up to the frame.
+    stats.train_seconds = (start.elapsed().as_secs_f64() - stats.inference_seconds).max(0.0);
     // The traced samples and the composed values that were refused.
     stats.nonfinite_samples = film.nonfinite_samples - nonfinite_before;
-
-    stats.cancelled = traced.cancelled || control.cancelled();
-    if !stats.cancelled {
-        let start = std::time::Instant::now();
-        let records: Vec<TrainingRecord> = traced
-            .records
-            .into_iter()
-            .flat_map(|(_, t)| t.records)
-            .collect();
-        let shuffle = mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e));
-        stats.train = cache.train(&records, shuffle);
-        stats.train_seconds = start.elapsed().as_secs_f64();
-    }
     stats
+}
+
+/// Reads the cache at every stop of the frame's tiles (`predict`) and composes each value,
+/// times its path's throughput, into `film`. Gathered and composed by tile in parallel (a
+/// serial pass over the stops does not scale with the cores, issue 31); the film's sums are
+/// exact, so the order does not show in the image.
+fn compose(
+    tiles: &[(TileRect, NrcTile)],
+    predict: &(dyn Fn(&[Query]) -> Vec<Vec3> + Sync),
+    film: &mut volume_pt::Film,
+) {
+    let queries: Vec<Query> = tiles
+        .par_iter()
+        .flat_map_iter(|(_, t)| t.stops.iter().map(|s| s.2))
+        .collect();
+    let values = predict(&queries);
+    let mut first = Vec::with_capacity(tiles.len());
+    let mut next = 0;
+    for (_, tile) in tiles {
+        first.push(next);
+        next += tile.stops.len();
+    }
+    let by_corner: std::collections::HashMap<(u32, u32), usize> = tiles
+        .iter()
+        .enumerate()
+        .map(|(i, (rect, _))| ((rect.x0, rect.y0), i))
+        .collect();
+    let (values, first) = (&values, &first);
+    film.add_deferred_by_tile(|rect| {
+        let i = by_corner.get(&(rect.x0, rect.y0)).copied();
+        i.into_iter().flat_map(move |i| {
+            let (_, tile) = &tiles[i];
+            tile.stops
+                .iter()
+                .zip(&values[first[i]..])
+                .map(|(&(in_tile, throughput, _), &v)| (in_tile as usize, throughput * v))
+        })
+    });
 }

@@ -139,65 +139,26 @@ impl NeuralCache {
         self.mlp.macs_per_row()
     }
 
-    /// The network's input rows for `n` queries.
+    /// The network's input rows for `queries`.
     fn inputs(&self, queries: &[Query], out: &mut Vec<f32>) {
-        let width = self.config.input_width();
-        let grid_width = self.grid.output_width();
-        out.clear();
-        out.resize(queries.len() * width, 0.0);
-        let (albedo, value, direction) = (
-            self.config.input_albedo,
-            self.config.input_value,
-            self.config.input_direction,
-        );
-        out.par_chunks_mut(width)
-            .zip(queries.par_iter())
-            .for_each(|(row, q)| {
-                self.grid.encode(q.position, &mut row[..grid_width]);
-                let mut k = grid_width;
-                if albedo {
-                    row[k..k + 3].copy_from_slice(&q.albedo.to_array());
-                    k += 3;
-                }
-                if value {
-                    row[k] = q.value;
-                    k += 1;
-                }
-                if direction {
-                    row[k..k + 9].copy_from_slice(&spherical_harmonics_2(q.direction));
-                }
-            });
+        encode_inputs(&self.config, &self.grid, queries, out);
     }
 
     /// The cached radiance at each query: never negative, never NaN (a NaN output reads as 0).
-    /// Chunks of queries run in parallel, each through the whole network: small matrices stay
-    /// in cache, which measured faster than one large product per layer (BENCHMARKS.md).
     pub fn predict(&self, queries: &[Query]) -> Vec<Vec3> {
-        let width = self.config.input_width();
-        let net = self.mlp.valid();
-        let device = Device::flex();
-        let parts: Vec<Vec<Vec3>> = queries
-            .par_chunks(INFERENCE_ROWS)
-            .map(|chunk| {
-                let mut rows = Vec::new();
-                self.inputs(chunk, &mut rows);
-                let x =
-                    Tensor::<2>::from_data(TensorData::new(rows, [chunk.len(), width]), &device);
-                let y: Vec<f32> = net
-                    .forward(x)
-                    .into_data()
-                    .try_to_vec::<f32>()
-                    .expect("the network outputs f32");
-                y.chunks_exact(3)
-                    .map(|c| {
-                        // `max` returns the other operand for NaN: a NaN channel becomes 0.
-                        Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0))
-                            .min(Vec3::splat(f32::MAX))
-                    })
-                    .collect()
-            })
-            .collect();
-        parts.concat()
+        predict_with(&self.config, &self.grid, &self.mlp.valid(), queries)
+    }
+
+    /// The cache as it stands, to read while the cache itself trains: a frame's inference can
+    /// then run beside its training step (issue 31), reading the weights from before the step
+    /// as it would if it ran first. The network's weights are shared (a step makes new ones),
+    /// the tables copied (a step changes them in place).
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            config: self.config,
+            grid: self.grid.clone(),
+            net: self.mlp.valid(),
+        }
     }
 
     /// Trains on `records` (a frame's training paths): draws up to `steps_per_frame *
@@ -325,6 +286,80 @@ impl std::fmt::Debug for NeuralCache {
             .field("steps", &self.steps)
             .finish_non_exhaustive()
     }
+}
+
+/// [`NeuralCache::snapshot`]: the cache frozen as it was, for reading.
+pub struct Snapshot {
+    config: NrcConfig,
+    grid: HashGrid,
+    net: Mlp,
+}
+
+impl Snapshot {
+    /// [`NeuralCache::predict`] as the cache stood when the snapshot was taken.
+    pub fn predict(&self, queries: &[Query]) -> Vec<Vec3> {
+        predict_with(&self.config, &self.grid, &self.net, queries)
+    }
+}
+
+/// The network's input rows for `queries`: the grid's encoding, then the optional inputs.
+fn encode_inputs(config: &NrcConfig, grid: &HashGrid, queries: &[Query], out: &mut Vec<f32>) {
+    let width = config.input_width();
+    let grid_width = grid.output_width();
+    out.clear();
+    out.resize(queries.len() * width, 0.0);
+    let (albedo, value, direction) = (
+        config.input_albedo,
+        config.input_value,
+        config.input_direction,
+    );
+    out.par_chunks_mut(width)
+        .zip(queries.par_iter())
+        .for_each(|(row, q)| {
+            grid.encode(q.position, &mut row[..grid_width]);
+            let mut k = grid_width;
+            if albedo {
+                row[k..k + 3].copy_from_slice(&q.albedo.to_array());
+                k += 3;
+            }
+            if value {
+                row[k] = q.value;
+                k += 1;
+            }
+            if direction {
+                row[k..k + 9].copy_from_slice(&spherical_harmonics_2(q.direction));
+            }
+        });
+}
+
+/// The radiance `net` and `grid` predict at each query: never negative, never NaN (a NaN output
+/// reads as 0). Chunks of queries run in parallel, each through the whole network: small
+/// matrices stay in cache, which measured faster than one large product per layer
+/// (BENCHMARKS.md).
+fn predict_with(config: &NrcConfig, grid: &HashGrid, net: &Mlp, queries: &[Query]) -> Vec<Vec3> {
+    let width = config.input_width();
+    let device = Device::flex();
+    let parts: Vec<Vec<Vec3>> = queries
+        .par_chunks(INFERENCE_ROWS)
+        .map(|chunk| {
+            let mut rows = Vec::new();
+            encode_inputs(config, grid, chunk, &mut rows);
+            let x = Tensor::<2>::from_data(TensorData::new(rows, [chunk.len(), width]), &device);
+            let y: Vec<f32> = net
+                .forward(x)
+                .into_data()
+                .try_to_vec::<f32>()
+                .expect("the network outputs f32");
+            y.chunks_exact(3)
+                .map(|c| {
+                    // `max` returns the other operand for NaN: a NaN channel becomes 0.
+                    Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0))
+                        .min(Vec3::splat(f32::MAX))
+                })
+                .collect()
+        })
+        .collect();
+    parts.concat()
 }
 
 /// Real spherical harmonics of bands 0 to 2 at a unit direction.

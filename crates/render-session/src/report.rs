@@ -16,8 +16,12 @@ pub struct FrameReport {
     /// Gathering the paths' training samples into the Gaussian cache's targets (the neural
     /// cache counts its gathering in training). Zero without a cache.
     pub targets_seconds: f64,
-    /// Training the cache (OT). Zero without a cache.
+    /// Training the cache (OT): its part of the frame's wall time. Zero without a cache.
     pub train_seconds: f64,
+    /// The training step's own duration. The neural cache runs its step beside its inference,
+    /// so its `train_seconds` is only what the step adds beyond inference, and this is more;
+    /// otherwise the two are equal.
+    pub train_step_seconds: f64,
     /// Making a scratch film for a frame that keeps none (a warm-up frame).
     pub film_seconds: f64,
     /// Wall-clock seconds of the whole frame, accumulation included.

@@ -611,8 +611,14 @@ fn print_frame_costs(session: &Session, what: &str, frames: &[FrameReport]) {
         .iter()
         .map(|(name, ms)| format!("{name} {ms:.1} ms"))
         .collect();
+    let step = mean(&|r| r.train_step_seconds);
+    let beside = if step > mean(&|r| r.train_seconds) + 0.05 {
+        format!(" (the training step, {step:.1} ms, runs beside the {read})")
+    } else {
+        String::new()
+    };
     eprintln!(
-        "{what}: {:.1} ms = {}",
+        "{what}: {:.1} ms = {}{beside}",
         mean(&|r| r.seconds),
         parts.join(" + ")
     );

@@ -3,6 +3,9 @@
 #
 #   bash tools/device/scaling.sh BINARY OUTDIR
 #
+# THREADS (default "16 8 4") lists the thread counts of the cache runs; PLAIN=0 skips the plain
+# tracing series and SPLAT=0 the rasteriser's bench, for a shorter call.
+#
 # BINARY is a release `gscache` built elsewhere (the device machine has no Rust); every run's
 # output goes to OUTDIR/log, and the lines that carry the figures are printed last. Each cache
 # run prints its per-frame parts, which sum to the frame's wall time; the 1-against-21-frame
@@ -32,12 +35,14 @@ run() { # label, then the render's arguments
 
 hd=(--width 1280 --height 720 --spp 1)
 # Plain tracing, 1 to all threads, about 2 s each.
-for ts in "1 2" "2 4" "4 8" "8 16" "16 32" "16 32"; do
-    set -- $ts
-    run "plain $1" --width 1280 --height 720 --spp "$2" --threads "$1"
-done
+if [ "${PLAIN:-1}" != 0 ]; then
+    for ts in "1 2" "2 4" "4 8" "8 16" "16 32" "16 32"; do
+        set -- $ts
+        run "plain $1" --width 1280 --height 720 --spp "$2" --threads "$1"
+    done
+fi
 # Both caches, both runs of the table.
-for t in 16 8 4; do
+for t in ${THREADS:-16 8 4}; do
     for c in --cache --nrc; do
         run "$c defaults $t" "$c" --warmup 40 --frames 20 "${hd[@]}" --threads "$t"
         run "$c cold $t" "$c" --warmup 0 --frames 60 --cache-handoff-frames 0 "${hd[@]}" --threads "$t"
@@ -53,5 +58,5 @@ for size in "1280 720" "320 180"; do
     run "rt lookup $1x$2" --cache --cache-lookup rt --warmup 40 --frames 20 --width "$1" --height "$2" --spp 1 --threads 16
 done
 # The rasteriser.
-"$bin" bench splat --max-gaussians 300000 --no-scalar --reps 5 --threads 16 -q 2>&1 | tee -a "$log" | grep -E "300k|Lanes8.*plant|AdamW"
+[ "${SPLAT:-1}" != 0 ] && "$bin" bench splat --max-gaussians 300000 --no-scalar --reps 5 --threads 16 -q 2>&1 | tee -a "$log" | grep -E "300k|Lanes8.*plant|AdamW"
 rm -rf "$img"

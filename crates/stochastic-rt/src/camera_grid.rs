@@ -2,23 +2,27 @@
 //!
 //! The cache's ray-traced lookup traces one ray per cache pixel, all from the camera's centre,
 //! in `Center` depth (each hit at its Gaussian's centre depth along the camera's forward axis).
-//! Through the BVH such a ray costs about 7,000 instructions (BENCHMARKS.md): the cache's
-//! Gaussians are large and overlap by design, so a ray's boxes overlap many others, and the
-//! traversal must look a whole box's half-diagonal past the farthest slot's hit before it may
-//! stop. Rays that share an origin need no BVH: the Gaussians whose boxes a pixel's ray can meet
-//! are those whose boxes' screen projections cover the pixel, and in `Center` depth every ray of
-//! the camera meets them in one order, their centres' depth. So each Gaussian is listed in the
-//! screen tiles its projected box covers, each tile's list is sorted by centre depth once, and a
-//! pixel's ray walks its tile's list front to back, stopping at the first Gaussian behind its
+//! Through the BVH such a ray cost about 7,000 instructions on clouds of a thousand Gaussians
+//! (BENCHMARKS.md): the cache's Gaussians are large and overlap by design, so a ray's boxes
+//! overlap many others, and the traversal must look a whole box's half-diagonal past the
+//! farthest slot's hit before it may stop. Rays that share an origin need no BVH: the Gaussians
+//! a pixel's ray can meet are those whose silhouettes (the screen ellipse of the alpha >= 1/255
+//! ellipsoid seen from the camera) cover the pixel, and in `Center` depth every ray of the
+//! camera meets them in one order, their centres' depth. So each Gaussian is listed in the
+//! screen tiles its silhouette covers, each tile's list is sorted by centre depth once, and the
+//! rays of a tile's row walk its list front to back together, each ray testing only the
+//! Gaussians whose silhouette holds its pixel and stopping at the first Gaussian behind its
 //! farthest slot: nothing behind it can replace a slot's hit.
 //!
 //! The estimate is the BVH's ([`crate::estimators::trace_stochastic`]) bit for bit: the same
-//! intersections (every Gaussian the BVH would visit is in the pixel's list; the response is
+//! intersections (every Gaussian the BVH would find is in the pixel's list; the response is
 //! [`TraceGaussians::intersect`]'s), the same acceptance numbers, and the same closest accepted
-//! hit per slot, which does not depend on the order hits are met, except between two Gaussians
-//! at exactly the same depth (the BVH keeps the one it meets first, the grid the lower index).
-//! A box that reaches behind the camera's plane has no bounded projection: it is listed in every
-//! tile, and a pixel's ray takes it only where the BVH would, where the ray meets the box.
+//! hit per slot, which does not depend on the order hits are met. Two cases can differ: two
+//! Gaussians at exactly the same depth (the BVH keeps the one it meets first, the grid the
+//! lower index), and a box that reaches behind the camera's plane. Such a box has no bounded
+//! silhouette: it is listed in every tile, and a ray takes it where it meets the box at or after
+//! its origin; the BVH also visits it as a leaf-mate of a box the ray meets, where its ellipsoid
+//! can lie behind the camera.
 
 use crate::gaussians::{DepthMode, TraceGaussians};
 use crate::random::{RandomKind, SampleKey, acceptance};

@@ -262,22 +262,14 @@ struct ScreenGrid {
     entries: Vec<Entry>,
 }
 
-/// Where a Gaussian goes in the grid.
+/// Where a Gaussian goes in the grid: tiles `x0..=x1` by `y0..=y1`.
 #[derive(Clone, Copy)]
-enum Cover {
-    /// Its centre is not in front of the camera (`intersect` never places a hit there), or
-    /// it is off the screen.
-    Nowhere,
-    /// Tiles `x0..=x1` by `y0..=y1`.
-    Tiles {
-        x0: u32,
-        x1: u32,
-        y0: u32,
-        y1: u32,
-        entry: Entry,
-    },
-    /// Its box reaches behind the camera's plane.
-    Everywhere(Entry),
+struct Cover {
+    x0: u32,
+    x1: u32,
+    y0: u32,
+    y1: u32,
+    entry: Entry,
 }
 
 /// The camera's constants for placing Gaussians on its screen.
@@ -301,12 +293,16 @@ impl Screen {
         }
     }
 
-    /// Where Gaussian `i` (centre depth `depth`) goes: the screen rectangle of its box's
-    /// corners, narrowed to its silhouette's.
-    fn cover(&self, g: &TraceGaussians, i: usize, depth: f32) -> Cover {
+    /// Where Gaussian `i` (centre depth `depth`) goes: the tiles of the screen rectangle of its
+    /// box's corners, narrowed to its silhouette's; every tile when its box reaches behind the
+    /// camera's plane; `None` when its centre is not in front of the camera (`intersect` never
+    /// places a hit there) or it is off the screen.
+    fn cover(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<Cover> {
         if !(depth > 0.0) {
-            return Cover::Nowhere;
+            return None;
         }
+        let [w, h] = self.size;
+        let tile = |p: f64, n: f64| (p.clamp(0.0, n - 1.0) as u32) / TILE;
         let everywhere = Entry {
             depth,
             index: i as u32,
@@ -329,7 +325,13 @@ impl Screen {
             );
             let c = self.to_camera * (corner - self.position);
             if !(c.z > NEAR as f64) {
-                return Cover::Everywhere(everywhere);
+                return Some(Cover {
+                    x0: 0,
+                    x1: tile(w, w),
+                    y0: 0,
+                    y1: tile(h, h),
+                    entry: everywhere,
+                });
             }
             let (u, v) = (
                 self.half[0] + self.focal * c.x / c.z,
@@ -352,18 +354,16 @@ impl Screen {
         // The pixels whose centres the rectangle covers, a pixel wider each way for rounding.
         let (x0, x1) = ((u0 - 1.5).floor(), (u1 + 0.5).ceil());
         let (y0, y1) = ((v0 - 1.5).floor(), (v1 + 0.5).ceil());
-        let [w, h] = self.size;
         if !(x1 >= 0.0 && y1 >= 0.0 && x0 < w && y0 < h && x0 <= x1 && y0 <= y1) {
-            return Cover::Nowhere;
+            return None;
         }
-        let tile = |p: f64, n: f64| (p.clamp(0.0, n - 1.0) as u32) / TILE;
-        Cover::Tiles {
+        Some(Cover {
             x0: tile(x0, w),
             x1: tile(x1, w),
             y0: tile(y0, h),
             y1: tile(y1, h),
             entry,
-        }
+        })
     }
 
     /// Gaussian `i`'s silhouette on the screen, in f64: its centre, its quadratic form
@@ -429,26 +429,20 @@ impl ScreenGrid {
         let screen = Screen::new(camera);
         let covers: Vec<Cover> = (0..g.len())
             .into_par_iter()
-            .map(|i| {
+            .filter_map(|i| {
                 // As `intersect` computes it, so that the walk's stop is exact.
                 let depth = (g.means[i] - camera.position).dot(forward);
                 screen.cover(g, i, depth)
             })
             .collect();
         // A counting sort by tile: counts, starts, then each Gaussian's entries in index order.
-        let everywhere: usize = covers
-            .iter()
-            .filter(|c| matches!(c, Cover::Everywhere(_)))
-            .count();
-        let mut counts = vec![everywhere; tiles];
-        for cover in &covers {
-            if let Cover::Tiles { x0, x1, y0, y1, .. } = *cover {
-                for ty in y0..=y1 {
-                    for tx in x0..=x1 {
-                        counts[(ty * tiles_x + tx) as usize] += 1;
-                    }
-                }
-            }
+        let tiles_of = |c: Cover| {
+            let Cover { x0, x1, y0, y1, .. } = c;
+            (y0..=y1).flat_map(move |ty| (x0..=x1).map(move |tx| (ty * tiles_x + tx) as usize))
+        };
+        let mut counts = vec![0usize; tiles];
+        for t in covers.iter().copied().flat_map(tiles_of) {
+            counts[t] += 1;
         }
         let mut starts = Vec::with_capacity(tiles + 1);
         starts.push(0);
@@ -458,29 +452,9 @@ impl ScreenGrid {
         let mut entries = vec![Entry::default(); starts[tiles]];
         let mut next = starts[..tiles].to_vec();
         for cover in &covers {
-            match *cover {
-                Cover::Nowhere => {}
-                Cover::Everywhere(entry) => {
-                    for t in 0..tiles {
-                        entries[next[t]] = entry;
-                        next[t] += 1;
-                    }
-                }
-                Cover::Tiles {
-                    x0,
-                    x1,
-                    y0,
-                    y1,
-                    entry,
-                } => {
-                    for ty in y0..=y1 {
-                        for tx in x0..=x1 {
-                            let t = (ty * tiles_x + tx) as usize;
-                            entries[next[t]] = entry;
-                            next[t] += 1;
-                        }
-                    }
-                }
+            for t in tiles_of(*cover) {
+                entries[next[t]] = cover.entry;
+                next[t] += 1;
             }
         }
         // Each tile's list by centre depth, ties by index: one order on any thread count.

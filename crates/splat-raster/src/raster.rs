@@ -11,12 +11,12 @@
 //! the gradient tests); the lane kernels of [`crate::simd`] take a row's pixels 8 or 4 at a time
 //! (f32 only). [`RasterConfig::kernel`] chooses; the default is the widest this CPU runs.
 //!
-//! Where the time goes (2 cores, 300k Gaussians at 1280x720, lane kernel): projection about a
-//! quarter, binning and the per-tile depth sort a sixth, the tile kernels half, the tile-major to
-//! row-major copy the rest (`BENCHMARKS.md`).
+//! Where the time goes (2 cores, 300k Gaussians at 1280x720, lane kernel): projection and
+//! binning (one pass over fixed chunks of the cloud) a quarter, the per-tile depth sort a
+//! sixth, the tile kernels half (`BENCHMARKS.md`).
 //!
-//! Determinism: the backward pass writes one gradient record per (tile, splat) entry, each tile's
-//! pixels in a fixed order, and sums every Gaussian's records in tile order; no atomics, so
+//! Determinism: the backward pass writes one gradient record per (tile, splat) entry up to the
+//! tile's last contributor, each tile's pixels in a fixed order, and sums every Gaussian's records in tile order; no atomics, so
 //! gradients are bit-identical for any thread count.
 
 use crate::camera::Camera;
@@ -79,6 +79,11 @@ pub struct ForwardState<F: Real> {
     tile_ranges: Vec<(u32, u32)>,
     /// Per pixel, entries processed in its tile list (the last contributor + 1), tile-major.
     n_contrib: Vec<u32>,
+    /// Per tile, the range of its live entries' gradient records: one record for each entry up
+    /// to the tile's last contributor, tiles end to end. The entries after it (most of them
+    /// where tiles saturate: 70% for 300k dense Gaussians) reach no pixel, so the backward
+    /// pass neither writes nor sums records for them.
+    live_ranges: Vec<(u32, u32)>,
     /// Per pixel final transmittance, tile-major.
     final_t: Vec<F>,
     tiles_x: u32,
@@ -92,9 +97,9 @@ pub struct ForwardState<F: Real> {
     index: OnceLock<SplatIndex>,
 }
 
-/// Per splat, the positions of its entries in tile order (a counting sort of `entries`: its
-/// records are `slots[starts[s]..starts[s + 1]]`), and per Gaussian its splat (`u32::MAX`:
-/// culled). It depends on the forward pass alone, not on the gradients.
+/// Per splat, the positions of its live records in tile order (a counting sort of the live
+/// entries: its records are `slots[starts[s]..starts[s + 1]]`), and per Gaussian its splat
+/// (`u32::MAX`: culled). It depends on the forward pass alone, not on the gradients.
 #[derive(Debug, Clone)]
 struct SplatIndex {
     starts: Vec<u32>,
@@ -103,18 +108,35 @@ struct SplatIndex {
 }
 
 impl SplatIndex {
-    fn build(entries: &[u32], ids: &[u32], n_splats: usize, gaussians: usize) -> Self {
+    fn build(
+        entries: &[u32],
+        tile_ranges: &[(u32, u32)],
+        live_ranges: &[(u32, u32)],
+        ids: &[u32],
+        n_splats: usize,
+        gaussians: usize,
+    ) -> Self {
+        // The live entries of each tile, with their record positions.
+        let live = || {
+            tile_ranges
+                .iter()
+                .zip(live_ranges)
+                .flat_map(|(&(a, _), &(la, lb))| {
+                    let list = &entries[a as usize..(a + lb - la) as usize];
+                    list.iter().zip(la..lb)
+                })
+        };
         let mut starts = vec![0u32; n_splats + 1];
-        for &e in entries {
+        for (&e, _) in live() {
             starts[e as usize + 1] += 1;
         }
         for i in 0..n_splats {
             starts[i + 1] += starts[i];
         }
-        let mut slots = vec![0u32; entries.len()];
+        let mut slots = vec![0u32; starts[n_splats] as usize];
         let mut cursor = starts.clone();
-        for (pos, &e) in entries.iter().enumerate() {
-            slots[cursor[e as usize] as usize] = pos as u32;
+        for (&e, pos) in live() {
+            slots[cursor[e as usize] as usize] = pos;
             cursor[e as usize] += 1;
         }
         let mut splat_of = vec![u32::MAX; gaussians];
@@ -185,42 +207,32 @@ struct Bins<F: Real> {
     tile_ranges: Vec<(u32, u32)>,
 }
 
-fn project_all<F: Real>(
-    cloud: &GaussianCloud<F>,
-    cam: &CameraTerms<F>,
-    config: &RasterConfig,
-) -> (Vec<Splat<F>>, Vec<u32>) {
-    let near = F::c(config.near as f64);
-    // Parallel, and in Gaussian order (rayon keeps the order of a filtered collect).
-    (0..cloud.len())
-        .into_par_iter()
-        .with_min_len(1024)
-        .filter_map(|g| project(cloud, g, cam, config.low_pass, near).map(|s| (s, g as u32)))
-        .unzip()
-}
-
 fn tile_span(s: &[u32; 4]) -> (u32, u32, u32, u32) {
     (s[0] / TILE, s[1] / TILE, s[2] / TILE, s[3] / TILE)
 }
 
-/// Splats per chunk of the parallel binning: about 64 chunks, so that a cache level's 5-20
-/// thousand splats still spread over many cores, but never under 1024 (each chunk keeps a
-/// count per tile) nor over 8192. It depends on the splat count alone, never on the threads.
-fn bin_chunk(splats: usize) -> usize {
-    (splats / 64).clamp(1024, 8192)
+/// Gaussians per chunk of the parallel projection and binning: about 64 chunks, so that a
+/// cache level's 5-20 thousand Gaussians still spread over many cores, but never under 1024
+/// (each chunk keeps a count per tile) nor over 8192. It depends on the cloud's size alone,
+/// never on the threads.
+fn chunk_size(gaussians: usize) -> usize {
+    (gaussians / 64).clamp(1024, 8192)
 }
 
-/// One chunk's splats binned into tiles: tile `t`'s list (splat indices, in order) is
-/// `entries[offsets[t]..offsets[t + 1]]`.
+/// One chunk's splats binned into tiles: tile `t`'s list is `keys[offsets[t]..offsets[t + 1]]`,
+/// in splat order. A key holds the splat's index within the chunk in its low 32 bits and, when the lists are to
+/// be depth sorted, the f32 bits of its depth above them (positive floats order as their bits,
+/// so sorting the keys sorts by depth, ties to the lower index). The keys are made here, where
+/// the splats are read in order, and not by a later pass that would look every entry's splat up
+/// again in scattered order.
 struct ChunkBins {
     offsets: Vec<u32>,
-    entries: Vec<u32>,
+    keys: Vec<u64>,
 }
 
 impl ChunkBins {
-    /// Bins `splats`, the first of which is splat `first`, into `n_tiles` tiles of a grid
-    /// `tiles_x` wide (a counting sort).
-    fn new<F: Real>(splats: &[Splat<F>], first: usize, tiles_x: u32, n_tiles: usize) -> Self {
+    /// Bins `splats` into `n_tiles` tiles of a grid `tiles_x` wide (a counting sort).
+    fn new<F: Real>(splats: &[Splat<F>], tiles_x: u32, n_tiles: usize, depth_keys: bool) -> Self {
         let mut offsets = vec![0u32; n_tiles + 1];
         for s in splats {
             let (tx0, ty0, tx1, ty1) = tile_span(&s.rect);
@@ -234,51 +246,101 @@ impl ChunkBins {
             offsets[t + 1] += offsets[t];
         }
         let mut cursor = offsets.clone();
-        let mut entries = vec![0u32; offsets[n_tiles] as usize];
+        let mut keys = vec![0u64; offsets[n_tiles] as usize];
         for (i, s) in splats.iter().enumerate() {
+            let depth_bits = if depth_keys {
+                ((s.depth.as_f64() as f32).to_bits() as u64) << 32
+            } else {
+                0
+            };
+            let key = depth_bits | i as u64;
             let (tx0, ty0, tx1, ty1) = tile_span(&s.rect);
             for ty in ty0..=ty1 {
                 for tx in tx0..=tx1 {
                     let t = (ty * tiles_x + tx) as usize;
-                    entries[cursor[t] as usize] = (first + i) as u32;
+                    keys[cursor[t] as usize] = key;
                     cursor[t] += 1;
                 }
             }
         }
-        Self { offsets, entries }
+        Self { offsets, keys }
     }
 
     fn len(&self, tile: usize) -> u32 {
         self.offsets[tile + 1] - self.offsets[tile]
     }
 
-    fn list(&self, tile: usize) -> &[u32] {
-        &self.entries[self.offsets[tile] as usize..self.offsets[tile + 1] as usize]
+    fn list(&self, tile: usize) -> &[u64] {
+        &self.keys[self.offsets[tile] as usize..self.offsets[tile + 1] as usize]
     }
 }
 
-/// Bins splats into tiles; each tile's list is sorted by (depth, Gaussian id) when `sort`.
-fn bin<F: Real>(
-    splats: Vec<Splat<F>>,
-    ids: Vec<u32>,
-    tiles_x: u32,
-    tiles_y: u32,
+/// Projects the cloud and bins its splats into tiles; each tile's list is sorted by (depth,
+/// Gaussian id) when `sort`.
+///
+/// In parallel, and as a serial pass would: fixed chunks of Gaussians are projected and binned
+/// on their own, each while its splats are still in cache; then the splats are laid end to end
+/// in Gaussian order and each tile concatenates its chunks' lists, every key moved by its
+/// chunk's first splat. The chunks depend on the cloud's size alone, so the lists do not depend
+/// on the thread count. (Serial, the binning was a sixth of a 300k-Gaussian frame at 2 threads
+/// and bound the lookup's scaling: issue 31.)
+fn project_and_bin<F: Real>(
+    cloud: &GaussianCloud<F>,
+    cam: &CameraTerms<F>,
+    config: &RasterConfig,
     sort: bool,
 ) -> Bins<F> {
-    let n_tiles = (tiles_x * tiles_y) as usize;
-    // In parallel, and as the serial counting sort would (each tile's splats in splat order):
-    // chunks of splats are binned on their own, then each tile concatenates its chunks' lists.
-    // The chunk size is fixed, so the lists do not depend on the thread count. (Serial, the
-    // binning was a sixth of a 300k-Gaussian frame at 2 threads and bound the lookup's scaling:
-    // issue 31.)
-    let chunks: Vec<ChunkBins> = splats
-        .par_chunks(bin_chunk(splats.len()))
-        .enumerate()
-        .map(|(c, chunk)| ChunkBins::new(chunk, c * bin_chunk(splats.len()), tiles_x, n_tiles))
+    let near = F::c(config.near as f64);
+    let tiles_x = cam.width.div_ceil(TILE);
+    let n_tiles = (tiles_x * cam.height.div_ceil(TILE)) as usize;
+    let chunk = chunk_size(cloud.len());
+    let chunks: Vec<(Vec<Splat<F>>, Vec<u32>, ChunkBins)> = (0..cloud.len().div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| {
+            let gaussians = c * chunk..((c + 1) * chunk).min(cloud.len());
+            let mut splats = Vec::with_capacity(gaussians.len());
+            let mut ids = Vec::with_capacity(gaussians.len());
+            for g in gaussians {
+                if let Some(s) = project(cloud, g, cam, config.low_pass, near) {
+                    splats.push(s);
+                    ids.push(g as u32);
+                }
+            }
+            let bins = ChunkBins::new(&splats, tiles_x, n_tiles, sort);
+            (splats, ids, bins)
+        })
         .collect();
+    // Each chunk's first splat, and the splats and their Gaussians end to end.
+    let mut firsts = Vec::with_capacity(chunks.len());
+    let mut n_splats = 0u64;
+    for (splats, _, _) in &chunks {
+        firsts.push(n_splats);
+        n_splats += splats.len() as u64;
+    }
+    let mut splats = vec![Splat::<F>::default(); n_splats as usize];
+    let mut ids = vec![0u32; n_splats as usize];
+    {
+        let mut splat_parts = Vec::with_capacity(chunks.len());
+        let mut id_parts = Vec::with_capacity(chunks.len());
+        let (mut splat_rest, mut id_rest) = (&mut splats[..], &mut ids[..]);
+        for (part, _, _) in &chunks {
+            let (head, tail) = splat_rest.split_at_mut(part.len());
+            splat_parts.push(head);
+            splat_rest = tail;
+            let (head, tail) = id_rest.split_at_mut(part.len());
+            id_parts.push(head);
+            id_rest = tail;
+        }
+        (splat_parts, id_parts, &chunks).into_par_iter().for_each(
+            |(splat_out, id_out, (part, part_ids, _))| {
+                splat_out.copy_from_slice(part);
+                id_out.copy_from_slice(part_ids);
+            },
+        );
+    }
     let sizes: Vec<u32> = (0..n_tiles)
         .into_par_iter()
-        .map(|t| chunks.iter().map(|c| c.len(t)).sum())
+        .map(|t| chunks.iter().map(|(_, _, c)| c.len(t)).sum())
         .collect();
     let mut tile_ranges = Vec::with_capacity(n_tiles);
     let mut end = 0u32;
@@ -286,38 +348,30 @@ fn bin<F: Real>(
         tile_ranges.push((end, end + n));
         end += n;
     }
+    let mut keys = vec![0u64; end as usize];
     let mut entries = vec![0u32; end as usize];
-    split_by_tile(&mut entries, &tile_ranges)
+    let exact_f32 = std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>();
+    let key_lists = split_by_tile(&mut keys, &tile_ranges);
+    let lists = split_by_tile(&mut entries, &tile_ranges);
+    (key_lists, lists)
         .into_par_iter()
         .enumerate()
-        .for_each(|(t, out)| {
+        .for_each(|(t, (keys, list))| {
             let mut k = 0;
-            for c in &chunks {
-                let list = c.list(t);
-                out[k..k + list.len()].copy_from_slice(list);
-                k += list.len();
+            for ((_, _, c), &first) in chunks.iter().zip(&firsts) {
+                let part = c.list(t);
+                for (out, &key) in keys[k..k + part.len()].iter_mut().zip(part) {
+                    *out = key + first;
+                }
+                k += part.len();
             }
-        });
-    if sort {
-        // Per tile, sort 64-bit keys (the depth's f32 bits above the splat's index: positive
-        // floats order as their bits, and splats are in Gaussian order, so ties go to the lower
-        // id) with no indirection in the comparisons.
-        let mut keys: Vec<u64> = entries
-            .par_iter()
-            .with_min_len(4096)
-            .map(|&i| {
-                ((splats[i as usize].depth.as_f64() as f32).to_bits() as u64) << 32 | i as u64
-            })
-            .collect();
-        let exact_f32 = std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>();
-        let key_lists = split_by_tile(&mut keys, &tile_ranges);
-        let lists = split_by_tile(&mut entries, &tile_ranges);
-        (key_lists, lists).into_par_iter().for_each(|(keys, list)| {
-            keys.sort_unstable();
+            if sort {
+                keys.sort_unstable();
+            }
             for (e, k) in list.iter_mut().zip(keys.iter()) {
                 *e = *k as u32;
             }
-            if !exact_f32 {
+            if sort && !exact_f32 {
                 // Wider floats: order by the exact depth (the f32 keys have put it nearly there).
                 list.sort_by(|&x, &y| {
                     let (sx, sy) = (&splats[x as usize], &splats[y as usize]);
@@ -328,7 +382,6 @@ fn bin<F: Real>(
                 });
             }
         });
-    }
     Bins {
         splats,
         ids,
@@ -358,11 +411,14 @@ pub(crate) fn bin_for_stochastic(
     config: &RasterConfig,
 ) -> (Vec<Splat<f32>>, Vec<u32>, Vec<u32>, Vec<(u32, u32)>, u32) {
     let cam = CameraTerms::<f32>::new(camera);
-    let tiles_x = camera.width.div_ceil(TILE);
-    let tiles_y = camera.height.div_ceil(TILE);
-    let (splats, ids) = project_all(cloud, &cam, config);
-    let b = bin(splats, ids, tiles_x, tiles_y, false);
-    (b.splats, b.ids, b.entries, b.tile_ranges, tiles_x)
+    let b = project_and_bin(cloud, &cam, config, false);
+    (
+        b.splats,
+        b.ids,
+        b.entries,
+        b.tile_ranges,
+        camera.width.div_ceil(TILE),
+    )
 }
 
 /// The pixels of tile `ti` inside the image: (x, y, index within the tile).
@@ -496,17 +552,18 @@ fn forward_tile_scalar<F: Real>(
 }
 
 /// A row-major `w` x `h` image from tile-major values (each tile's 16x16 pixels in a run,
-/// tiles row by row), a row at a time in parallel.
+/// tiles row by row), a row at a time in parallel, each tile's stretch of the row copied whole.
 fn tile_major_to_rows<T: Copy + Default + Send + Sync>(tile_major: &[T], w: u32, h: u32) -> Vec<T> {
-    let (tile, tiles_x) = (TILE as usize, w.div_ceil(TILE) as usize);
+    let tile = TILE as usize;
+    let tiles_x = w.div_ceil(TILE) as usize;
     let mut img = vec![T::default(); (w * h) as usize];
     img.par_chunks_mut(w as usize)
         .enumerate()
         .for_each(|(y, row)| {
             let (ty, py) = (y / tile, y % tile);
-            for (x, v) in row.iter_mut().enumerate() {
-                let ti = ty * tiles_x + x / tile;
-                *v = tile_major[ti * TILE_PIXELS + py * tile + x % tile];
+            for (tx, run) in row.chunks_mut(tile).enumerate() {
+                let from = (ty * tiles_x + tx) * TILE_PIXELS + py * tile;
+                run.copy_from_slice(&tile_major[from..from + run.len()]);
             }
         });
     img
@@ -522,8 +579,7 @@ pub fn render<F: Real>(
     let (w, h) = (camera.width, camera.height);
     let tiles_x = w.div_ceil(TILE);
     let tiles_y = h.div_ceil(TILE);
-    let (splats, ids) = project_all(cloud, &cam, config);
-    let bins = bin(splats, ids, tiles_x, tiles_y, true);
+    let bins = project_and_bin(cloud, &cam, config, true);
     let bg = config.background.map(|v| F::c(v as f64));
     let tile_px = TILE_PIXELS;
     let n_tiles = (tiles_x * tiles_y) as usize;
@@ -577,6 +633,17 @@ pub fn render<F: Real>(
         })
         .sum();
 
+    // Each tile's live entries: up to its last contributor.
+    let live_counts: Vec<u32> = n_contrib
+        .par_chunks(tile_px)
+        .map(|n| n.iter().copied().max().unwrap_or(0))
+        .collect();
+    let mut live_ranges = Vec::with_capacity(n_tiles);
+    let mut live_end = 0u32;
+    for &n in &live_counts {
+        live_ranges.push((live_end, live_end + n));
+        live_end += n;
+    }
     let color = tile_major_to_rows(&color_tm, w, h);
     let transmittance = tile_major_to_rows(&final_t, w, h);
     let depth = config.depth.then(|| tile_major_to_rows(&depth_tm, w, h));
@@ -586,6 +653,7 @@ pub fn render<F: Real>(
         entries: bins.entries,
         tile_ranges: bins.tile_ranges,
         n_contrib,
+        live_ranges,
         final_t,
         tiles_x,
         lane_evaluations,
@@ -628,12 +696,13 @@ pub fn backward<F: Real>(
 
     let isa = Isa::of(state.config.kernel);
     let splats_f32 = as_f32::<_, Vec<Splat<f32>>>(&state.splats);
-    // One record per entry (tile-major, like `entries`), written tile by tile.
-    let mut records = vec![SplatGrad::<F>::default(); state.entries.len()];
-    let per_tile = split_by_tile(&mut records, &state.tile_ranges);
+    // One record per live entry (tile-major, like `entries`), written tile by tile.
+    let live_records = state.live_ranges.last().map_or(0, |r| r.1) as usize;
+    let mut records = vec![SplatGrad::<F>::default(); live_records];
+    let per_tile = split_by_tile(&mut records, &state.live_ranges);
     per_tile.into_par_iter().enumerate().for_each(|(ti, rec)| {
-        let (a, b) = state.tile_ranges[ti];
-        let list = &state.entries[a as usize..b as usize];
+        let a = state.tile_ranges[ti].0 as usize;
+        let list = &state.entries[a..a + rec.len()];
         if list.is_empty() {
             return;
         }
@@ -684,7 +753,14 @@ pub fn backward<F: Real>(
         slots,
         splat_of,
     } = state.index.get_or_init(|| {
-        SplatIndex::build(&state.entries, &state.ids, state.splats.len(), cloud.len())
+        SplatIndex::build(
+            &state.entries,
+            &state.tile_ranges,
+            &state.live_ranges,
+            &state.ids,
+            state.splats.len(),
+            cloud.len(),
+        )
     });
     assert_eq!(
         splat_of.len(),

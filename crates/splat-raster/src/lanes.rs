@@ -71,6 +71,12 @@ pub trait Lanes:
     fn mask_from_fn(token: Self::Token, f: impl Fn(usize) -> bool) -> Self::Mask;
     /// The float whose bits are `(bits(self) - k) << 23`, lane by lane (integer wrap-around).
     fn exponent_bits(self, k: u32) -> Self;
+    /// The square root, correctly rounded (IEEE 754; NaN for negative lanes).
+    fn sqrt(self) -> Self;
+    /// `(m, e)` with `self = m 2^e` and `m` in `[1, 2)`, for a positive normal float: the
+    /// mantissa bits under the exponent of 1, and the unbiased exponent as a float. Other lanes
+    /// give some finite `m` and `e` (callers mask them out).
+    fn split_exponent(self) -> (Self, Self);
 
     /// Each vector's lane sum, in a fixed order (so the same on every run): the per-splat
     /// gradient sums of a tile, eight at a time. The vector widths override it with shuffles
@@ -139,6 +145,40 @@ pub fn exp<L: Lanes>(token: L::Token, x: L) -> L {
     }
     // The low bits of `shifted` hold n + 0x400000; 2^n has the biased exponent n + 127.
     p * shifted.exponent_bits(ROUND.to_bits() - 127)
+}
+
+/// Bound on [`ln`]'s error on positive normal floats: relative to the exact value, or absolute
+/// where that is below 1 (near `x = 1`, where `ln` crosses 0). The series below is truncated
+/// after `s^9`; the first term left out is below `2 s^11 / 11 < 1.4e-9` relative to `2 s`
+/// (`|s| <= 0.172`); the rest is the rounding of the division, of Horner's steps and of
+/// `e ln 2`. The tests check it against f64 on a dense sweep.
+pub const LN_MAX_ERROR: f32 = 3.0e-7;
+
+/// The bits of an f32's mantissa, and of 1.0.
+const MANTISSA_BITS: u32 = 0x007f_ffff;
+const ONE_BITS: u32 = 0x3f80_0000;
+
+/// `ln x` per lane, for positive normal `x` (other lanes give some finite value or NaN: callers
+/// mask them out).
+///
+/// `x = m 2^e` with `m` in `[1, 2)`, moved to `[sqrt(1/2), sqrt(2))` (and `e` up by one) so that
+/// `f = m - 1` is small and exact; then `ln m = 2 atanh(s)` with `s = f / (2 + f)`, `|s| <=
+/// 0.172`, by its odd series `2 (s + s^3/3 + ... + s^9/9)`; and `ln x = e ln 2 + ln m`.
+#[inline(always)]
+pub fn ln<L: Lanes>(token: L::Token, x: L) -> L {
+    let s = |v: f32| L::splat(token, v);
+    let (m, e) = x.split_exponent();
+    let high = m.gt(s(std::f32::consts::SQRT_2));
+    let m = L::select(high, m * s(0.5), m);
+    let e = L::select(high, e + s(1.0), e);
+    let f = m - s(1.0);
+    let z = f / (s(2.0) + f);
+    let z2 = z * z;
+    let mut p = s(2.0 / 9.0);
+    for c in [2.0 / 7.0, 2.0 / 5.0, 2.0 / 3.0, 2.0] {
+        p = p.mul_add(z2, s(c));
+    }
+    e.mul_add(s(std::f32::consts::LN_2), p * z)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -306,6 +346,16 @@ impl Lanes for Portable {
                 .map(|x| f32::from_bits(x.to_bits().wrapping_sub(k) << 23)),
         )
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Self(self.0.map(f32::sqrt))
+    }
+    #[inline(always)]
+    fn split_exponent(self) -> (Self, Self) {
+        let m = self.0.map(|x| f32::from_bits(x.to_bits() & MANTISSA_BITS | ONE_BITS));
+        let e = self.0.map(|x| ((x.to_bits() >> 23) & 0xff) as i32 as f32 - 127.0);
+        (Self(m), Self(e))
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -317,6 +367,7 @@ pub use x86::{Avx2, Avx2Mask, Avx2Token, Sse2, Sse2Mask};
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use super::Lanes;
+    use super::{MANTISSA_BITS, ONE_BITS};
     use std::arch::x86_64::*;
     use std::ops::{Add, BitAnd, BitOr, Div, Mul, Sub};
 
@@ -499,6 +550,23 @@ mod x86 {
                 _mm_castsi128_ps(_mm_slli_epi32::<23>(i))
             })
         }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            Self(unsafe { _mm_sqrt_ps(self.0) })
+        }
+        #[inline(always)]
+        fn split_exponent(self) -> (Self, Self) {
+            unsafe {
+                let bits = _mm_castps_si128(self.0);
+                let m = _mm_or_si128(
+                    _mm_and_si128(bits, _mm_set1_epi32(MANTISSA_BITS as i32)),
+                    _mm_set1_epi32(ONE_BITS as i32),
+                );
+                let e = _mm_and_si128(_mm_srli_epi32::<23>(bits), _mm_set1_epi32(0xff));
+                let e = _mm_sub_ps(_mm_cvtepi32_ps(e), _mm_set1_ps(127.0));
+                (Self(_mm_castsi128_ps(m)), Self(e))
+            }
+        }
     }
 
     impl Lanes for Avx2 {
@@ -622,6 +690,23 @@ mod x86 {
                 _mm256_castsi256_ps(_mm256_slli_epi32::<23>(i))
             })
         }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            Self(unsafe { _mm256_sqrt_ps(self.0) })
+        }
+        #[inline(always)]
+        fn split_exponent(self) -> (Self, Self) {
+            unsafe {
+                let bits = _mm256_castps_si256(self.0);
+                let m = _mm256_or_si256(
+                    _mm256_and_si256(bits, _mm256_set1_epi32(MANTISSA_BITS as i32)),
+                    _mm256_set1_epi32(ONE_BITS as i32),
+                );
+                let e = _mm256_and_si256(_mm256_srli_epi32::<23>(bits), _mm256_set1_epi32(0xff));
+                let e = _mm256_sub_ps(_mm256_cvtepi32_ps(e), _mm256_set1_ps(127.0));
+                (Self(_mm256_castsi256_ps(m)), Self(e))
+            }
+        }
     }
 }
 
@@ -667,6 +752,41 @@ mod tests {
         exp(token, L::load(token, &inputs)).store(&mut out);
         assert_eq!(out[0], 1.0, "{name}");
         assert!(out[..4].iter().all(|v| v.is_finite()), "{name}: {out:?}");
+    }
+
+    /// `ln` against f64 on a geometric sweep of the positive normal floats and a dense one
+    /// around 1 (where the error bound is absolute); `sqrt` against `f32::sqrt` exactly.
+    fn check_ln_sqrt<L: Lanes>(token: L::Token, name: &str) {
+        let geometric = (0..200_000).map(|k| 2f64.powf(-125.0 + 252.0 * k as f64 / 200_000.0));
+        let near_one = (0..200_000).map(|k| 0.5 + 1.5 * k as f64 / 200_000.0);
+        let xs: Vec<f32> = geometric
+            .chain(near_one)
+            .map(|x| x as f32)
+            .chain([f32::MIN_POSITIVE, 1.0, std::f32::consts::SQRT_2, f32::MAX])
+            .collect();
+        let (mut worst, mut at) = (0.0f64, 0.0f32);
+        let mut out = [0.0f32; 16];
+        let mut roots = [0.0f32; 16];
+        for chunk in xs.chunks_exact(L::N) {
+            let x = L::load(token, chunk);
+            ln(token, x).store(&mut out);
+            x.sqrt().store(&mut roots);
+            for (i, &v) in chunk.iter().enumerate() {
+                let exact = (v as f64).ln();
+                let err = (out[i] as f64 - exact).abs() / exact.abs().max(1.0);
+                // Written so that a NaN result fails.
+                if !(err <= worst) {
+                    (worst, at) = (err, v);
+                }
+                assert_eq!(roots[i], v.sqrt(), "{name}: sqrt({v})");
+            }
+        }
+        assert!(
+            worst <= LN_MAX_ERROR as f64,
+            "{name}: ln error {worst:e} at {at} over the bound {LN_MAX_ERROR:e}"
+        );
+        // The bound is not loose by orders of magnitude: the worst error is within 8x of it.
+        assert!(worst > LN_MAX_ERROR as f64 / 8.0, "{name}: {worst:e}");
     }
 
     fn check_masks<L: Lanes>(token: L::Token, name: &str) {
@@ -721,6 +841,7 @@ mod tests {
     fn portable_lanes() {
         check_exp::<Portable>((), "portable");
         check_masks::<Portable>((), "portable");
+        check_ln_sqrt::<Portable>((), "portable");
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -728,6 +849,7 @@ mod tests {
     fn sse2_lanes() {
         check_exp::<Sse2>((), "sse2");
         check_masks::<Sse2>((), "sse2");
+        check_ln_sqrt::<Sse2>((), "sse2");
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -739,5 +861,6 @@ mod tests {
         };
         check_exp::<Avx2>(token, "avx2");
         check_masks::<Avx2>(token, "avx2");
+        check_ln_sqrt::<Avx2>(token, "avx2");
     }
 }

@@ -35,7 +35,7 @@ pub enum LowPass {
 }
 
 impl LowPass {
-    fn variance(self) -> f64 {
+    pub(crate) fn variance(self) -> f64 {
         match self {
             LowPass::Classic => 0.3,
             LowPass::Mip => 0.1,
@@ -98,7 +98,7 @@ impl<F: Real> CameraTerms<F> {
 
 /// Colour of Gaussian `g` seen from `cam_pos`, before the clamp at 0.
 #[inline]
-fn raw_color<F: Real>(
+pub(crate) fn raw_color<F: Real>(
     cloud: &GaussianCloud<F>,
     g: usize,
     mean: V3<F>,

@@ -291,19 +291,30 @@ fn project_and_bin<F: Real>(
     sort: bool,
 ) -> Bins<F> {
     let near = F::c(config.near as f64);
+    let near_f32 = config.near;
     let tiles_x = cam.width.div_ceil(TILE);
     let n_tiles = (tiles_x * cam.height.div_ceil(TILE)) as usize;
     let chunk = chunk_size(cloud.len());
+    // The lane kernels' instruction set projects f32 clouds in lanes too.
+    let isa = Isa::of(resolved_kernel::<F>(config.kernel));
+    let lanes = (isa, as_f32(cloud), as_f32(cam));
     let chunks: Vec<(Vec<Splat<F>>, Vec<u32>, ChunkBins)> = (0..cloud.len().div_ceil(chunk))
         .into_par_iter()
         .map(|c| {
             let gaussians = c * chunk..((c + 1) * chunk).min(cloud.len());
             let mut splats = Vec::with_capacity(gaussians.len());
             let mut ids = Vec::with_capacity(gaussians.len());
-            for g in gaussians {
-                if let Some(s) = project(cloud, g, cam, config.low_pass, near) {
-                    splats.push(s);
-                    ids.push(g as u32);
+            match (lanes, as_f32_mut(&mut splats)) {
+                ((Some(isa), Some(cloud), Some(cam)), Some(splats)) => {
+                    isa.project_range(cloud, gaussians, cam, config.low_pass, near_f32, splats, &mut ids)
+                }
+                _ => {
+                    for g in gaussians {
+                        if let Some(s) = project(cloud, g, cam, config.low_pass, near) {
+                            splats.push(s);
+                            ids.push(g as u32);
+                        }
+                    }
                 }
             }
             let bins = ChunkBins::new(&splats, tiles_x, n_tiles, sort);

@@ -19,9 +19,12 @@
 #[cfg(target_arch = "x86_64")]
 use crate::lanes::{Avx2, Avx2Token};
 use crate::lanes::{Lanes, exp};
-use crate::project::{ALPHA_MAX, ALPHA_MIN, Splat, T_MIN};
+use crate::cloud::GaussianCloud;
+use crate::project::{ALPHA_MAX, ALPHA_MIN, CameraTerms, LowPass, Splat, T_MIN};
+use crate::project_lanes;
 use crate::real::SplatGrad;
 use crate::tile::{TILE, TileOut, TilePixels};
+use std::ops::Range;
 
 /// Which per-pixel kernel composites the tiles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -140,6 +143,38 @@ impl Isa {
         }
     }
 
+    /// Projects Gaussians `range` of `cloud` in lanes (`project_lanes`), appending each
+    /// survivor's splat and index in order.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn project_range(
+        self,
+        cloud: &GaussianCloud<f32>,
+        range: Range<usize>,
+        cam: &CameraTerms<f32>,
+        low_pass: LowPass,
+        near: f32,
+        splats: &mut Vec<Splat<f32>>,
+        ids: &mut Vec<u32>,
+    ) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `forward_tile`, the token proves AVX2 and FMA are there.
+            Isa::Avx2Fma(token) => unsafe {
+                project_avx2_fma(token, cloud, range, cam, low_pass, near, splats, ids)
+            },
+            Isa::Baseline => project_lanes::project_range::<BaselineLanes>(
+                (),
+                cloud,
+                range,
+                cam,
+                low_pass,
+                near,
+                splats,
+                ids,
+            ),
+        }
+    }
+
     /// Back-propagates one tile, back to front; one record per splat of the tile's list.
     pub(crate) fn backward_tile(
         self,
@@ -197,6 +232,22 @@ fn backward_avx2_fma(
     } else {
         backward::<Avx2, false>(token, splats, list, input, records)
     }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+fn project_avx2_fma(
+    token: Avx2Token,
+    cloud: &GaussianCloud<f32>,
+    range: Range<usize>,
+    cam: &CameraTerms<f32>,
+    low_pass: LowPass,
+    near: f32,
+    splats: &mut Vec<Splat<f32>>,
+    ids: &mut Vec<u32>,
+) {
+    project_lanes::project_range::<Avx2>(token, cloud, range, cam, low_pass, near, splats, ids)
 }
 
 fn forward_baseline(

@@ -34,37 +34,53 @@ pub(crate) fn project_range<L: Lanes>(
     splats: &mut Vec<Splat<f32>>,
     ids: &mut Vec<u32>,
 ) {
+    // No lane value passes through a generic helper here (`array::map`, iterators): those are
+    // compiled without the caller's AVX2, so a closure over lanes inside them would become a
+    // call per element.
     let n = L::N;
     let s = |v: f32| L::splat(token, v);
     let zero = s(0.0);
     // Written so that NaN and infinities fail: `x - x` is 0 only for finite `x`.
     let finite = |x: L| (x - x).ge(zero);
-    let w = cam.w.map(|row| row.map(s));
-    let position = cam.position.map(s);
+    let cw = cam.w;
+    let w = [
+        [s(cw[0][0]), s(cw[0][1]), s(cw[0][2])],
+        [s(cw[1][0]), s(cw[1][1]), s(cw[1][2])],
+        [s(cw[2][0]), s(cw[2][1]), s(cw[2][2])],
+    ];
+    let position = [s(cam.position[0]), s(cam.position[1]), s(cam.position[2])];
     let focal = s(cam.focal);
     let variance = s(low_pass.variance() as f32);
+    let (one, two) = (s(1.0), s(2.0));
+    let dot = |a: &[L; 3], b: &[L; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let mut g0 = range.start;
     while g0 + n <= range.end {
         // One field's component `k` of Gaussians g0..g0 + N, as lanes.
         let field = |values: &[f32], stride: usize, k: usize| {
             let mut lane = [0.0f32; 16];
-            for (i, v) in lane.iter_mut().take(n).enumerate() {
-                *v = values[(g0 + i) * stride + k];
+            for i in 0..n {
+                lane[i] = values[(g0 + i) * stride + k];
             }
             L::load(token, &lane)
         };
-        let p = [0, 1, 2].map(|k| field(&cloud.means, 3, k));
-        let q = [0, 1, 2, 3].map(|k| field(&cloud.rotations, 4, k));
-        let scale = [0, 1, 2].map(|k| lanes::exp(token, field(&cloud.log_scales, 3, k)));
+        let means = &cloud.means;
+        let p = [field(means, 3, 0), field(means, 3, 1), field(means, 3, 2)];
+        let rot = &cloud.rotations;
+        let q = [field(rot, 4, 0), field(rot, 4, 1), field(rot, 4, 2), field(rot, 4, 3)];
+        let ls = &cloud.log_scales;
+        let scale = [
+            lanes::exp(token, field(ls, 3, 0)),
+            lanes::exp(token, field(ls, 3, 1)),
+            lanes::exp(token, field(ls, 3, 2)),
+        ];
         let logit = field(&cloud.opacity_logits, 1, 0);
 
         // Camera-space mean: t = W (p - c).
         let d = [p[0] - position[0], p[1] - position[1], p[2] - position[2]];
-        let t = w.map(|row| row[0] * d[0] + row[1] * d[1] + row[2] * d[2]);
+        let t = [dot(&w[0], &d), dot(&w[1], &d), dot(&w[2], &d)];
         // Sigma = M M^T with M = R(q / |q|) S.
         let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-        let [qw, qx, qy, qz] = q.map(|c| c / qn);
-        let (one, two) = (s(1.0), s(2.0));
+        let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
         let r = [
             [
                 one - two * (qy * qy + qz * qz),
@@ -82,9 +98,13 @@ pub(crate) fn project_range<L: Lanes>(
                 one - two * (qx * qx + qy * qy),
             ],
         ];
-        let m = r.map(|row| [row[0] * scale[0], row[1] * scale[1], row[2] * scale[2]]);
-        let dot = |a: [L; 3], b: [L; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-        let sigma = [0, 1, 2].map(|i| [0, 1, 2].map(|k| dot(m[i], m[k])));
+        let m = [
+            [r[0][0] * scale[0], r[0][1] * scale[1], r[0][2] * scale[2]],
+            [r[1][0] * scale[0], r[1][1] * scale[1], r[1][2] * scale[2]],
+            [r[2][0] * scale[0], r[2][1] * scale[1], r[2][2] * scale[2]],
+        ];
+        let (s00, s01, s02) = (dot(&m[0], &m[0]), dot(&m[0], &m[1]), dot(&m[0], &m[2]));
+        let (s11, s12, s22) = (dot(&m[1], &m[1]), dot(&m[1], &m[2]), dot(&m[2], &m[2]));
         // The perspective Jacobian at the guard-band-clamped mean, and T = J W.
         let (tx, ty, tz) = (t[0], t[1], t[2]);
         let (lim_x, lim_y) = (s(cam.lim_x), s(cam.lim_y));
@@ -92,16 +112,28 @@ pub(crate) fn project_range<L: Lanes>(
         let tyc = (ty / tz).max(zero - lim_y).min(lim_y) * tz;
         let (j_diag, tz2) = (focal / tz, tz * tz);
         let (j02, j12) = (zero - focal * txc / tz2, zero - focal * tyc / tz2);
-        let tm = [
-            [0, 1, 2].map(|k| j_diag * w[0][k] + j02 * w[2][k]),
-            [0, 1, 2].map(|k| j_diag * w[1][k] + j12 * w[2][k]),
+        let tm0 = [
+            j_diag * w[0][0] + j02 * w[2][0],
+            j_diag * w[0][1] + j02 * w[2][1],
+            j_diag * w[0][2] + j02 * w[2][2],
         ];
-        // Sigma is symmetric, so Sigma^T T_i = Sigma T_i (its columns are its rows).
-        let sigma_t = |v: [L; 3]| {
-            [0, 1, 2].map(|k| sigma[0][k] * v[0] + sigma[1][k] * v[1] + sigma[2][k] * v[2])
-        };
-        let ts = [sigma_t(tm[0]), sigma_t(tm[1])];
-        let (a0, b0, c0) = (dot(tm[0], ts[0]), dot(tm[0], ts[1]), dot(tm[1], ts[1]));
+        let tm1 = [
+            j_diag * w[1][0] + j12 * w[2][0],
+            j_diag * w[1][1] + j12 * w[2][1],
+            j_diag * w[1][2] + j12 * w[2][2],
+        ];
+        // Sigma T_i, in the scalar code's order (Sigma^T T_i: Sigma is symmetric).
+        let ts0 = [
+            s00 * tm0[0] + s01 * tm0[1] + s02 * tm0[2],
+            s01 * tm0[0] + s11 * tm0[1] + s12 * tm0[2],
+            s02 * tm0[0] + s12 * tm0[1] + s22 * tm0[2],
+        ];
+        let ts1 = [
+            s00 * tm1[0] + s01 * tm1[1] + s02 * tm1[2],
+            s01 * tm1[0] + s11 * tm1[1] + s12 * tm1[2],
+            s02 * tm1[0] + s12 * tm1[1] + s22 * tm1[2],
+        ];
+        let (a0, b0, c0) = (dot(&tm0, &ts0), dot(&tm0, &ts1), dot(&tm1, &ts1));
         let (a, c) = (a0 + variance, c0 + variance);
         let det = a * c - b0 * b0;
         // The sigmoid as the scalar code takes it: 1 / (1 + e^-x) for x >= 0, e^x / (1 + e^x)
@@ -131,22 +163,17 @@ pub(crate) fn project_range<L: Lanes>(
             let k2 = two * log_reach;
             let ex = (k2 * a).sqrt() * s(1.0 + 1e-5) + s(1e-3);
             let ey = (k2 * c).sqrt() * s(1.0 + 1e-5) + s(1e-3);
-            let lanes_out = [
-                u,
-                v,
-                ex,
-                ey,
-                c / det,
-                zero - b0 / det,
-                a / det,
-                opacity,
-                tz,
-                zero - log_reach,
-            ];
             let mut out = [[0.0f32; 16]; 10];
-            for (o, l) in out.iter_mut().zip(lanes_out) {
-                l.store(o);
-            }
+            u.store(&mut out[0]);
+            v.store(&mut out[1]);
+            ex.store(&mut out[2]);
+            ey.store(&mut out[3]);
+            (c / det).store(&mut out[4]);
+            (zero - b0 / det).store(&mut out[5]);
+            (a / det).store(&mut out[6]);
+            opacity.store(&mut out[7]);
+            tz.store(&mut out[8]);
+            (zero - log_reach).store(&mut out[9]);
             let mut alive_bits = [0u32; 16];
             L::select(alive, s(1.0), zero).store_bits(&mut alive_bits);
             for i in 0..n {

@@ -352,8 +352,12 @@ impl Lanes for Portable {
     }
     #[inline(always)]
     fn split_exponent(self) -> (Self, Self) {
-        let m = self.0.map(|x| f32::from_bits(x.to_bits() & MANTISSA_BITS | ONE_BITS));
-        let e = self.0.map(|x| ((x.to_bits() >> 23) & 0xff) as i32 as f32 - 127.0);
+        let m = self
+            .0
+            .map(|x| f32::from_bits(x.to_bits() & MANTISSA_BITS | ONE_BITS));
+        let e = self
+            .0
+            .map(|x| ((x.to_bits() >> 23) & 0xff) as i32 as f32 - 127.0);
         (Self(m), Self(e))
     }
 }

@@ -40,8 +40,9 @@ pub(crate) fn project_range<L: Lanes>(
     let n = L::N;
     let s = |v: f32| L::splat(token, v);
     let zero = s(0.0);
-    // Written so that NaN and infinities fail: `x - x` is 0 only for finite `x`.
-    let finite = |x: L| (x - x).ge(zero);
+    // Written so that NaN and infinities fail.
+    let (lowest, highest) = (s(f32::MIN), s(f32::MAX));
+    let finite = |x: L| x.ge(lowest) & x.le(highest);
     let cw = cam.w;
     let w = [
         [s(cw[0][0]), s(cw[0][1]), s(cw[0][2])],
@@ -66,7 +67,12 @@ pub(crate) fn project_range<L: Lanes>(
         let means = &cloud.means;
         let p = [field(means, 3, 0), field(means, 3, 1), field(means, 3, 2)];
         let rot = &cloud.rotations;
-        let q = [field(rot, 4, 0), field(rot, 4, 1), field(rot, 4, 2), field(rot, 4, 3)];
+        let q = [
+            field(rot, 4, 0),
+            field(rot, 4, 1),
+            field(rot, 4, 2),
+            field(rot, 4, 3),
+        ];
         let ls = &cloud.log_scales;
         let scale = [
             lanes::exp(token, field(ls, 3, 0)),
@@ -328,7 +334,11 @@ mod tests {
                     .filter_map(|g| project(&cloud, g, &cam, low_pass, 0.01).map(|s| (g as u32, s)))
                     .collect();
                 let case = format!("{name}, {model:?}, {low_pass:?}");
-                assert!(want.len() > 1000 && want.len() < cloud.len() * 3 / 4, "{case}: {} survive", want.len());
+                assert!(
+                    want.len() > 1000 && want.len() < cloud.len() * 3 / 4,
+                    "{case}: {} survive",
+                    want.len()
+                );
                 let want_ids: Vec<u32> = want.iter().map(|w| w.0).collect();
                 assert_eq!(ids, want_ids, "{case}: the survivors differ");
                 for ((got, (g, want)), _) in splats.iter().zip(&want).zip(&ids) {

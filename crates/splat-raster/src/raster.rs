@@ -305,9 +305,15 @@ fn project_and_bin<F: Real>(
             let mut splats = Vec::with_capacity(gaussians.len());
             let mut ids = Vec::with_capacity(gaussians.len());
             match (lanes, as_f32_mut(&mut splats)) {
-                ((Some(isa), Some(cloud), Some(cam)), Some(splats)) => {
-                    isa.project_range(cloud, gaussians, cam, config.low_pass, near_f32, splats, &mut ids)
-                }
+                ((Some(isa), Some(cloud), Some(cam)), Some(splats)) => isa.project_range(
+                    cloud,
+                    gaussians,
+                    cam,
+                    config.low_pass,
+                    near_f32,
+                    splats,
+                    &mut ids,
+                ),
                 _ => {
                     for g in gaussians {
                         if let Some(s) = project(cloud, g, cam, config.low_pass, near) {

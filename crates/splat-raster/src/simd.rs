@@ -16,10 +16,10 @@
 //! `ForwardState` records the one that ran. Per-splat sums over a tile's lanes are reduced in a
 //! fixed order, so gradients stay bit-identical for any thread count.
 
+use crate::cloud::GaussianCloud;
 #[cfg(target_arch = "x86_64")]
 use crate::lanes::{Avx2, Avx2Token};
 use crate::lanes::{Lanes, exp};
-use crate::cloud::GaussianCloud;
 use crate::project::{ALPHA_MAX, ALPHA_MIN, CameraTerms, LowPass, Splat, T_MIN};
 use crate::project_lanes;
 use crate::real::SplatGrad;

@@ -16,8 +16,8 @@
 //! sixth, the tile kernels half (`BENCHMARKS.md`).
 //!
 //! Determinism: the backward pass writes one gradient record per (tile, splat) entry up to the
-//! tile's last contributor, each tile's pixels in a fixed order, and sums every Gaussian's records in tile order; no atomics, so
-//! gradients are bit-identical for any thread count.
+//! tile's last contributor, each tile's pixels in a fixed order, and sums every Gaussian's
+//! records in tile order; no atomics, so gradients are bit-identical for any thread count.
 
 use crate::camera::Camera;
 use crate::cloud::{CloudGradients, GaussianCloud};

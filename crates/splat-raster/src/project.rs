@@ -316,7 +316,6 @@ pub fn project_backward<F: Real>(
     let two = F::c(2.0);
     let geo = geometry(cloud, g, cam);
     let Geometry {
-        p,
         t,
         qn,
         qh,
@@ -456,10 +455,31 @@ pub fn project_backward<F: Real>(
         d_rotation[i] = d_rotation[i] + (dqh[i] - qh[i] * proj) / qn;
     }
 
-    // Colour, through the clamp at 0 (and for SH, through the view direction into the mean).
+    color_backward(cloud, g, cam, dg.color, d_mean, d_color);
+}
+
+
+/// The colour part of [`project_backward`]: through the clamp at 0, and for SH through the
+/// view direction into the mean (added into `d_mean`). The lanes' adjoint
+/// (`project_lanes.rs`) calls it per Gaussian, so both share one colour code.
+#[inline]
+pub(crate) fn color_backward<F: Real>(
+    cloud: &GaussianCloud<F>,
+    g: usize,
+    cam: &CameraTerms<F>,
+    dg_color: [F; 3],
+    d_mean: &mut [F],
+    d_color: &mut [F],
+) {
+    let zero = F::zero();
+    let p = [
+        cloud.means[3 * g],
+        cloud.means[3 * g + 1],
+        cloud.means[3 * g + 2],
+    ];
     let mut basis = [zero; 16];
     let rc = raw_color(cloud, g, p, cam.position, &mut basis);
-    let dc = [0, 1, 2].map(|ch| if rc[ch] > zero { dg.color[ch] } else { zero });
+    let dc = [0, 1, 2].map(|ch| if rc[ch] > zero { dg_color[ch] } else { zero });
     match cloud.color_model {
         ColorModel::Rgb => {
             for ch in 0..3 {

@@ -18,8 +18,205 @@
 
 use crate::cloud::GaussianCloud;
 use crate::lanes::{self, Lanes};
-use crate::project::{ALPHA_MIN, CameraTerms, LowPass, Splat, project, raw_color};
+use crate::project::{
+    ALPHA_MIN, CameraTerms, LowPass, Splat, color_backward, project, project_backward, raw_color,
+};
+use crate::real::SplatGrad;
 use std::ops::Range;
+
+// No lane value in this module passes through a generic helper (`array::map`, iterators):
+// those are compiled without the caller's AVX2, so a closure over lanes inside them would
+// become a call per element. Hence the spelled-out arrays.
+
+/// The camera's terms as lanes, made once per range.
+struct LaneCamera<L: Lanes> {
+    w: [[L; 3]; 3],
+    position: [L; 3],
+    focal: L,
+    lim_x: L,
+    lim_y: L,
+    variance: L,
+}
+
+impl<L: Lanes> LaneCamera<L> {
+    #[inline(always)]
+    fn new(token: L::Token, cam: &CameraTerms<f32>, low_pass: LowPass) -> Self {
+        let s = |v: f32| L::splat(token, v);
+        let w = cam.w;
+        Self {
+            w: [
+                [s(w[0][0]), s(w[0][1]), s(w[0][2])],
+                [s(w[1][0]), s(w[1][1]), s(w[1][2])],
+                [s(w[2][0]), s(w[2][1]), s(w[2][2])],
+            ],
+            position: [s(cam.position[0]), s(cam.position[1]), s(cam.position[2])],
+            focal: s(cam.focal),
+            lim_x: s(cam.lim_x),
+            lim_y: s(cam.lim_y),
+            variance: s(low_pass.variance() as f32),
+        }
+    }
+}
+
+/// Component `k` of a field with `stride` values per Gaussian, for Gaussians `g0..g0 + N`.
+#[inline(always)]
+fn gather<L: Lanes>(token: L::Token, values: &[f32], stride: usize, k: usize, g0: usize) -> L {
+    let mut lane = [0.0f32; 16];
+    for i in 0..L::N {
+        lane[i] = values[(g0 + i) * stride + k];
+    }
+    L::load(token, &lane)
+}
+
+#[inline(always)]
+fn dot<L: Lanes>(a: &[L; 3], b: &[L; 3]) -> L {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// `project::geometry` for Gaussians `g0..g0 + N`: what the projection and its adjoint share.
+struct LaneGeometry<L: Lanes> {
+    /// Camera-space mean.
+    t: [L; 3],
+    /// Norm of the stored quaternion, and the unit quaternion (w, x, y, z).
+    qn: L,
+    qh: [L; 4],
+    /// Standard deviations, rotation, and `M = R S`.
+    scale: [L; 3],
+    r: [[L; 3]; 3],
+    m: [[L; 3]; 3],
+    /// Camera-space x and y after the guard-band clamp, and where the clamp did not act.
+    txc: L,
+    tyc: L,
+    x_inside: L::Mask,
+    y_inside: L::Mask,
+    /// `T = J W` (rows) and `Sigma T_i`.
+    tm: [[L; 3]; 2],
+    ts: [[L; 3]; 2],
+    /// The projected covariance before the low-pass: [[a0, b0], [b0, c0]].
+    a0: L,
+    b0: L,
+    c0: L,
+}
+
+#[inline(always)]
+fn geometry<L: Lanes>(
+    token: L::Token,
+    cloud: &GaussianCloud<f32>,
+    g0: usize,
+    cam: &LaneCamera<L>,
+) -> LaneGeometry<L> {
+    let s = |v: f32| L::splat(token, v);
+    let (zero, one, two) = (s(0.0), s(1.0), s(2.0));
+    let field = |values: &[f32], stride: usize, k: usize| gather::<L>(token, values, stride, k, g0);
+    let means = &cloud.means;
+    let p = [field(means, 3, 0), field(means, 3, 1), field(means, 3, 2)];
+    let rot = &cloud.rotations;
+    let q = [
+        field(rot, 4, 0),
+        field(rot, 4, 1),
+        field(rot, 4, 2),
+        field(rot, 4, 3),
+    ];
+    let ls = &cloud.log_scales;
+    let scale = [
+        lanes::exp(token, field(ls, 3, 0)),
+        lanes::exp(token, field(ls, 3, 1)),
+        lanes::exp(token, field(ls, 3, 2)),
+    ];
+    let w = &cam.w;
+    // Camera-space mean: t = W (p - c).
+    let d = [
+        p[0] - cam.position[0],
+        p[1] - cam.position[1],
+        p[2] - cam.position[2],
+    ];
+    let t = [dot(&w[0], &d), dot(&w[1], &d), dot(&w[2], &d)];
+    // Sigma = M M^T with M = R(q / |q|) S.
+    let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
+    let r = [
+        [
+            one - two * (qy * qy + qz * qz),
+            two * (qx * qy - qw * qz),
+            two * (qx * qz + qw * qy),
+        ],
+        [
+            two * (qx * qy + qw * qz),
+            one - two * (qx * qx + qz * qz),
+            two * (qy * qz - qw * qx),
+        ],
+        [
+            two * (qx * qz - qw * qy),
+            two * (qy * qz + qw * qx),
+            one - two * (qx * qx + qy * qy),
+        ],
+    ];
+    let m = [
+        [r[0][0] * scale[0], r[0][1] * scale[1], r[0][2] * scale[2]],
+        [r[1][0] * scale[0], r[1][1] * scale[1], r[1][2] * scale[2]],
+        [r[2][0] * scale[0], r[2][1] * scale[1], r[2][2] * scale[2]],
+    ];
+    let (s00, s01, s02) = (dot(&m[0], &m[0]), dot(&m[0], &m[1]), dot(&m[0], &m[2]));
+    let (s11, s12, s22) = (dot(&m[1], &m[1]), dot(&m[1], &m[2]), dot(&m[2], &m[2]));
+    // The perspective Jacobian at the guard-band-clamped mean, and T = J W.
+    let (tx, ty, tz) = (t[0], t[1], t[2]);
+    let (rx, ry) = (tx / tz, ty / tz);
+    let x_inside = rx.ge(zero - cam.lim_x) & rx.le(cam.lim_x);
+    let y_inside = ry.ge(zero - cam.lim_y) & ry.le(cam.lim_y);
+    let txc = rx.max(zero - cam.lim_x).min(cam.lim_x) * tz;
+    let tyc = ry.max(zero - cam.lim_y).min(cam.lim_y) * tz;
+    let f = cam.focal;
+    let (j_diag, tz2) = (f / tz, tz * tz);
+    let (j02, j12) = (zero - f * txc / tz2, zero - f * tyc / tz2);
+    let tm = [
+        [
+            j_diag * w[0][0] + j02 * w[2][0],
+            j_diag * w[0][1] + j02 * w[2][1],
+            j_diag * w[0][2] + j02 * w[2][2],
+        ],
+        [
+            j_diag * w[1][0] + j12 * w[2][0],
+            j_diag * w[1][1] + j12 * w[2][1],
+            j_diag * w[1][2] + j12 * w[2][2],
+        ],
+    ];
+    // Sigma T_i, in the scalar code's order (Sigma^T T_i: Sigma is symmetric).
+    let sigma_t = |v: &[L; 3]| {
+        [
+            s00 * v[0] + s01 * v[1] + s02 * v[2],
+            s01 * v[0] + s11 * v[1] + s12 * v[2],
+            s02 * v[0] + s12 * v[1] + s22 * v[2],
+        ]
+    };
+    let ts = [sigma_t(&tm[0]), sigma_t(&tm[1])];
+    LaneGeometry {
+        t,
+        qn,
+        qh: [qw, qx, qy, qz],
+        scale,
+        r,
+        m,
+        txc,
+        tyc,
+        x_inside,
+        y_inside,
+        a0: dot(&tm[0], &ts[0]),
+        b0: dot(&tm[0], &ts[1]),
+        c0: dot(&tm[1], &ts[1]),
+        tm,
+        ts,
+    }
+}
+
+/// The sigmoid as `project::sigmoid` takes it: 1 / (1 + e^-x) for x >= 0, e^x / (1 + e^x)
+/// below, both from e = e^-|x|.
+#[inline(always)]
+fn sigmoid<L: Lanes>(token: L::Token, x: L) -> L {
+    let (zero, one) = (L::splat(token, 0.0), L::splat(token, 1.0));
+    let positive = x.ge(zero);
+    let e = lanes::exp(token, L::select(positive, zero - x, x));
+    L::select(positive, one / (one + e), e / (one + e))
+}
 
 /// Projects Gaussians `range` of `cloud`, appending each survivor's splat and index in order.
 #[allow(clippy::too_many_arguments)]
@@ -34,128 +231,32 @@ pub(crate) fn project_range<L: Lanes>(
     splats: &mut Vec<Splat<f32>>,
     ids: &mut Vec<u32>,
 ) {
-    // No lane value passes through a generic helper here (`array::map`, iterators): those are
-    // compiled without the caller's AVX2, so a closure over lanes inside them would become a
-    // call per element.
     let n = L::N;
     let s = |v: f32| L::splat(token, v);
-    let zero = s(0.0);
+    let (zero, two) = (s(0.0), s(2.0));
     // Written so that NaN and infinities fail.
     let (lowest, highest) = (s(f32::MIN), s(f32::MAX));
     let finite = |x: L| x.ge(lowest) & x.le(highest);
-    let cw = cam.w;
-    let w = [
-        [s(cw[0][0]), s(cw[0][1]), s(cw[0][2])],
-        [s(cw[1][0]), s(cw[1][1]), s(cw[1][2])],
-        [s(cw[2][0]), s(cw[2][1]), s(cw[2][2])],
-    ];
-    let position = [s(cam.position[0]), s(cam.position[1]), s(cam.position[2])];
-    let focal = s(cam.focal);
-    let variance = s(low_pass.variance() as f32);
-    let (one, two) = (s(1.0), s(2.0));
-    let dot = |a: &[L; 3], b: &[L; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let lane_cam = LaneCamera::<L>::new(token, cam, low_pass);
+    let focal = lane_cam.focal;
     let mut g0 = range.start;
     while g0 + n <= range.end {
-        // One field's component `k` of Gaussians g0..g0 + N, as lanes.
-        let field = |values: &[f32], stride: usize, k: usize| {
-            let mut lane = [0.0f32; 16];
-            for i in 0..n {
-                lane[i] = values[(g0 + i) * stride + k];
-            }
-            L::load(token, &lane)
-        };
-        let means = &cloud.means;
-        let p = [field(means, 3, 0), field(means, 3, 1), field(means, 3, 2)];
-        let rot = &cloud.rotations;
-        let q = [
-            field(rot, 4, 0),
-            field(rot, 4, 1),
-            field(rot, 4, 2),
-            field(rot, 4, 3),
-        ];
-        let ls = &cloud.log_scales;
-        let scale = [
-            lanes::exp(token, field(ls, 3, 0)),
-            lanes::exp(token, field(ls, 3, 1)),
-            lanes::exp(token, field(ls, 3, 2)),
-        ];
-        let logit = field(&cloud.opacity_logits, 1, 0);
-
-        // Camera-space mean: t = W (p - c).
-        let d = [p[0] - position[0], p[1] - position[1], p[2] - position[2]];
-        let t = [dot(&w[0], &d), dot(&w[1], &d), dot(&w[2], &d)];
-        // Sigma = M M^T with M = R(q / |q|) S.
-        let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-        let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
-        let r = [
-            [
-                one - two * (qy * qy + qz * qz),
-                two * (qx * qy - qw * qz),
-                two * (qx * qz + qw * qy),
-            ],
-            [
-                two * (qx * qy + qw * qz),
-                one - two * (qx * qx + qz * qz),
-                two * (qy * qz - qw * qx),
-            ],
-            [
-                two * (qx * qz - qw * qy),
-                two * (qy * qz + qw * qx),
-                one - two * (qx * qx + qy * qy),
-            ],
-        ];
-        let m = [
-            [r[0][0] * scale[0], r[0][1] * scale[1], r[0][2] * scale[2]],
-            [r[1][0] * scale[0], r[1][1] * scale[1], r[1][2] * scale[2]],
-            [r[2][0] * scale[0], r[2][1] * scale[1], r[2][2] * scale[2]],
-        ];
-        let (s00, s01, s02) = (dot(&m[0], &m[0]), dot(&m[0], &m[1]), dot(&m[0], &m[2]));
-        let (s11, s12, s22) = (dot(&m[1], &m[1]), dot(&m[1], &m[2]), dot(&m[2], &m[2]));
-        // The perspective Jacobian at the guard-band-clamped mean, and T = J W.
-        let (tx, ty, tz) = (t[0], t[1], t[2]);
-        let (lim_x, lim_y) = (s(cam.lim_x), s(cam.lim_y));
-        let txc = (tx / tz).max(zero - lim_x).min(lim_x) * tz;
-        let tyc = (ty / tz).max(zero - lim_y).min(lim_y) * tz;
-        let (j_diag, tz2) = (focal / tz, tz * tz);
-        let (j02, j12) = (zero - focal * txc / tz2, zero - focal * tyc / tz2);
-        let tm0 = [
-            j_diag * w[0][0] + j02 * w[2][0],
-            j_diag * w[0][1] + j02 * w[2][1],
-            j_diag * w[0][2] + j02 * w[2][2],
-        ];
-        let tm1 = [
-            j_diag * w[1][0] + j12 * w[2][0],
-            j_diag * w[1][1] + j12 * w[2][1],
-            j_diag * w[1][2] + j12 * w[2][2],
-        ];
-        // Sigma T_i, in the scalar code's order (Sigma^T T_i: Sigma is symmetric).
-        let ts0 = [
-            s00 * tm0[0] + s01 * tm0[1] + s02 * tm0[2],
-            s01 * tm0[0] + s11 * tm0[1] + s12 * tm0[2],
-            s02 * tm0[0] + s12 * tm0[1] + s22 * tm0[2],
-        ];
-        let ts1 = [
-            s00 * tm1[0] + s01 * tm1[1] + s02 * tm1[2],
-            s01 * tm1[0] + s11 * tm1[1] + s12 * tm1[2],
-            s02 * tm1[0] + s12 * tm1[1] + s22 * tm1[2],
-        ];
-        let (a0, b0, c0) = (dot(&tm0, &ts0), dot(&tm0, &ts1), dot(&tm1, &ts1));
-        let (a, c) = (a0 + variance, c0 + variance);
+        let geo = geometry(token, cloud, g0, &lane_cam);
+        let [tx, ty, tz] = geo.t;
+        let (a0, b0, c0) = (geo.a0, geo.b0, geo.c0);
+        let (a, c) = (a0 + lane_cam.variance, c0 + lane_cam.variance);
         let det = a * c - b0 * b0;
-        // The sigmoid as the scalar code takes it: 1 / (1 + e^-x) for x >= 0, e^x / (1 + e^x)
-        // below, both from e = e^-|x|.
-        let positive = logit.ge(zero);
-        let e = lanes::exp(token, L::select(positive, zero - logit, logit));
-        let mut opacity = L::select(positive, one / (one + e), e / (one + e));
+        let logit = gather::<L>(token, &cloud.opacity_logits, 1, 0, g0);
+        let mut opacity = sigmoid(token, logit);
         if low_pass == LowPass::Mip {
             let det0 = a0 * c0 - b0 * b0;
             opacity = opacity * (det0 / det).max(zero).sqrt();
         }
-        let alive = t[2].gt(s(near))
+        let alive = tz.gt(s(near))
             & finite(tx)
             & finite(ty)
-            & qn.gt(zero)
-            & finite(qn)
+            & geo.qn.gt(zero)
+            & finite(geo.qn)
             & det.gt(zero)
             & finite(det)
             & finite(a)
@@ -210,6 +311,246 @@ pub(crate) fn project_range<L: Lanes>(
             splats.push(splat);
             ids.push(g as u32);
         }
+    }
+}
+
+/// A block of Gaussians' parameter gradients: slices of a cloud-shaped buffer that start at
+/// the block's first Gaussian.
+pub(crate) struct GradientBlock<'a> {
+    pub means: &'a mut [f32],
+    pub log_scales: &'a mut [f32],
+    pub rotations: &'a mut [f32],
+    pub colors: &'a mut [f32],
+    pub opacity_logits: &'a mut [f32],
+}
+
+/// `project::project_backward` for Gaussians `first..first + totals.len()`, N at a time:
+/// `totals[i]` is Gaussian `first + i`'s summed splat gradient (None: culled, no gradient),
+/// added into `out`. The same equations, term for term; the colour part (a clamp, or spherical
+/// harmonics) runs per Gaussian in `project::color_backward`. A tail of fewer than N Gaussians
+/// takes the scalar adjoint; blocks are fixed by the cloud's size, so the gradients are the
+/// same on any number of threads.
+#[inline(always)]
+pub(crate) fn project_backward_range<L: Lanes>(
+    token: L::Token,
+    cloud: &GaussianCloud<f32>,
+    first: usize,
+    totals: &[Option<SplatGrad<f32>>],
+    cam: &CameraTerms<f32>,
+    low_pass: LowPass,
+    out: GradientBlock<'_>,
+) {
+    let n = L::N;
+    let s = |v: f32| L::splat(token, v);
+    let (zero, one, two, half) = (s(0.0), s(1.0), s(2.0), s(0.5));
+    let lane_cam = LaneCamera::<L>::new(token, cam, low_pass);
+    let (f, w) = (lane_cam.focal, &lane_cam.w);
+    let stride = cloud.color_stride();
+    let mut j = 0;
+    while j + n <= totals.len() {
+        let group = &totals[j..j + n];
+        if group.iter().all(|t| t.is_none()) {
+            j += n;
+            continue;
+        }
+        // The summed splat gradients as lanes (culled lanes hold zeros and are not written).
+        let mut dg = [[0.0f32; 16]; 8];
+        for (i, total) in group.iter().enumerate() {
+            if let Some(t) = total {
+                let fields = [
+                    t.xy[0], t.xy[1], t.conic[0], t.conic[1], t.conic[2], t.opacity, t.depth, 0.0,
+                ];
+                for (lane, v) in dg.iter_mut().zip(fields) {
+                    lane[i] = v;
+                }
+            }
+        }
+        let dg_xy = [L::load(token, &dg[0]), L::load(token, &dg[1])];
+        let dg_conic = [
+            L::load(token, &dg[2]),
+            L::load(token, &dg[3]),
+            L::load(token, &dg[4]),
+        ];
+        let (dg_opacity, dg_depth) = (L::load(token, &dg[5]), L::load(token, &dg[6]));
+
+        let g0 = first + j;
+        let geo = geometry(token, cloud, g0, &lane_cam);
+        let [tx, ty, tz] = geo.t;
+        let (a0, b0, c0, tm, ts) = (geo.a0, geo.b0, geo.c0, &geo.tm, &geo.ts);
+        let (a, c) = (a0 + lane_cam.variance, c0 + lane_cam.variance);
+        let det = a * c - b0 * b0;
+
+        // Opacity: alpha0 = sigmoid(l) * comp.
+        let sg = sigmoid(token, gather::<L>(token, &cloud.opacity_logits, 1, 0, g0));
+        let det0 = a0 * c0 - b0 * b0;
+        let comp = if low_pass == LowPass::Mip {
+            (det0 / det).max(zero).sqrt()
+        } else {
+            one
+        };
+        let d_logit = dg_opacity * comp * sg * (one - sg);
+
+        // Conic K = Sigma2^-1: dL/dSigma2 = -K G K with G the symmetric gradient.
+        let (k01, gk01) = (zero - b0 / det, dg_conic[1] / two);
+        let kk = [[c / det, k01], [k01, a / det]];
+        let gk = [[dg_conic[0], gk01], [gk01, dg_conic[2]]];
+        let kgk = |i: usize, jx: usize| {
+            let mut acc = zero;
+            for a_ in 0..2 {
+                for b_ in 0..2 {
+                    acc = acc + kk[i][a_] * gk[a_][b_] * kk[b_][jx];
+                }
+            }
+            zero - acc
+        };
+        let mut g2 = [[kgk(0, 0), kgk(0, 1)], [kgk(1, 0), kgk(1, 1)]];
+        if low_pass == LowPass::Mip {
+            // comp = sqrt(det0 / det1), where det0 > 0.
+            let positive = det0.gt(zero);
+            let dcomp = dg_opacity * sg;
+            let hc = half * comp;
+            let d00 = dcomp * hc * (c0 / det0 - c / det);
+            let d11 = dcomp * hc * (a0 / det0 - a / det);
+            let off = dcomp * hc * (zero - b0 / det0 + b0 / det);
+            g2[0][0] = L::select(positive, g2[0][0] + d00, g2[0][0]);
+            g2[1][1] = L::select(positive, g2[1][1] + d11, g2[1][1]);
+            g2[0][1] = L::select(positive, g2[0][1] + off, g2[0][1]);
+            g2[1][0] = L::select(positive, g2[1][0] + off, g2[1][0]);
+        }
+
+        // Sigma2 = T Sigma T^T: dL/dSigma = T^T G2 T, dL/dT = 2 G2 T Sigma.
+        let d_sigma_entry = |i: usize, jx: usize| {
+            let mut acc = zero;
+            for a_ in 0..2 {
+                for b_ in 0..2 {
+                    acc = acc + tm[a_][i] * g2[a_][b_] * tm[b_][jx];
+                }
+            }
+            acc
+        };
+        let mut d_sigma = [[zero; 3]; 3];
+        for i in 0..3 {
+            for jx in 0..3 {
+                d_sigma[i][jx] = d_sigma_entry(i, jx);
+            }
+        }
+        let d_t_entry =
+            |a_: usize, i: usize| two * (g2[a_][0] * ts[0][i] + g2[a_][1] * ts[1][i]);
+        let d_t = [
+            [d_t_entry(0, 0), d_t_entry(0, 1), d_t_entry(0, 2)],
+            [d_t_entry(1, 0), d_t_entry(1, 1), d_t_entry(1, 2)],
+        ];
+        // T = J W: dL/dJ = dL/dT W^T (only the non-zero entries of J matter).
+        let d_j00 = dot(&d_t[0], &w[0]);
+        let d_j02 = dot(&d_t[0], &w[2]);
+        let d_j11 = dot(&d_t[1], &w[1]);
+        let d_j12 = dot(&d_t[1], &w[2]);
+        let tz2 = tz * tz;
+        let tz3 = tz2 * tz;
+        let mut d2 = zero - (d_j00 + d_j11) * f / tz2;
+        let d0 = L::select(geo.x_inside, zero - d_j02 * f / tz2, zero);
+        d2 = L::select(
+            geo.x_inside,
+            d2 + d_j02 * two * f * tx / tz3,
+            d2 + d_j02 * f * geo.txc / tz3,
+        );
+        let d1 = L::select(geo.y_inside, zero - d_j12 * f / tz2, zero);
+        d2 = L::select(
+            geo.y_inside,
+            d2 + d_j12 * two * f * ty / tz3,
+            d2 + d_j12 * f * geo.tyc / tz3,
+        );
+        // Screen position and depth.
+        let d0 = d0 + dg_xy[0] * f / tz;
+        let d1 = d1 + dg_xy[1] * f / tz;
+        let d2 = d2 - (dg_xy[0] * f * tx + dg_xy[1] * f * ty) / tz2 + dg_depth;
+        let dp = [
+            w[0][0] * d0 + w[1][0] * d1 + w[2][0] * d2,
+            w[0][1] * d0 + w[1][1] * d1 + w[2][1] * d2,
+            w[0][2] * d0 + w[1][2] * d1 + w[2][2] * d2,
+        ];
+
+        // Sigma = M M^T, M = R S: dL/dM = 2 dL/dSigma M.
+        let (m, r, scale) = (&geo.m, &geo.r, &geo.scale);
+        let d_m_entry = |i: usize, jx: usize| {
+            two * (d_sigma[i][0] * m[0][jx] + d_sigma[i][1] * m[1][jx] + d_sigma[i][2] * m[2][jx])
+        };
+        let mut d_r = [[zero; 3]; 3];
+        let mut d_log_scale = [zero; 3];
+        for jx in 0..3 {
+            let mut ds = zero;
+            for i in 0..3 {
+                let d_m = d_m_entry(i, jx);
+                ds = ds + d_m * r[i][jx];
+                d_r[i][jx] = d_m * scale[jx];
+            }
+            d_log_scale[jx] = ds * scale[jx];
+        }
+        // `real::quat_to_mat_backward`, and the unit quaternion's projection.
+        let [qw, qx, qy, qz] = geo.qh;
+        let g = &d_r;
+        let dqh = [
+            two * (zero - qz * g[0][1] + qy * g[0][2] + qz * g[1][0] - qx * g[1][2] - qy * g[2][0]
+                + qx * g[2][1]),
+            two * (qy * g[0][1] + qz * g[0][2] + qy * g[1][0] - two * qx * g[1][1] - qw * g[1][2]
+                + qz * g[2][0]
+                + qw * g[2][1]
+                - two * qx * g[2][2]),
+            two * (zero - two * qy * g[0][0] + qx * g[0][1] + qw * g[0][2] + qx * g[1][0]
+                + qz * g[1][2]
+                - qw * g[2][0]
+                + qz * g[2][1]
+                - two * qy * g[2][2]),
+            two * (zero - two * qz * g[0][0] - qw * g[0][1] + qx * g[0][2] + qw * g[1][0]
+                - two * qz * g[1][1]
+                + qy * g[1][2]
+                + qx * g[2][0]
+                + qy * g[2][1]),
+        ];
+        let proj = dqh[0] * qw + dqh[1] * qx + dqh[2] * qy + dqh[3] * qz;
+        let qh = [qw, qx, qy, qz];
+
+        // Out of the lanes, into each live Gaussian's slices.
+        let mut lanes_out = [[0.0f32; 16]; 11];
+        for k in 0..3 {
+            dp[k].store(&mut lanes_out[k]);
+            d_log_scale[k].store(&mut lanes_out[3 + k]);
+        }
+        for k in 0..4 {
+            ((dqh[k] - qh[k] * proj) / geo.qn).store(&mut lanes_out[6 + k]);
+        }
+        d_logit.store(&mut lanes_out[10]);
+        for (i, total) in group.iter().enumerate() {
+            let Some(total) = total else { continue };
+            let g = j + i;
+            let d_mean = &mut out.means[3 * g..3 * g + 3];
+            for k in 0..3 {
+                d_mean[k] += lanes_out[k][i];
+                out.log_scales[3 * g + k] += lanes_out[3 + k][i];
+            }
+            for k in 0..4 {
+                out.rotations[4 * g + k] += lanes_out[6 + k][i];
+            }
+            out.opacity_logits[g] += lanes_out[10][i];
+            let d_color = &mut out.colors[stride * g..stride * (g + 1)];
+            color_backward(cloud, first + g, cam, total.color, d_mean, d_color);
+        }
+        j += n;
+    }
+    for (g, total) in totals.iter().enumerate().skip(j) {
+        let Some(total) = total else { continue };
+        project_backward(
+            cloud,
+            first + g,
+            cam,
+            low_pass,
+            total,
+            &mut out.means[3 * g..3 * g + 3],
+            &mut out.log_scales[3 * g..3 * g + 3],
+            &mut out.rotations[4 * g..4 * g + 4],
+            &mut out.colors[stride * g..stride * (g + 1)],
+            &mut out.opacity_logits[g],
+        );
     }
 }
 

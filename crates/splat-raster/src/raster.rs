@@ -23,6 +23,7 @@ use crate::camera::Camera;
 use crate::cloud::{CloudGradients, GaussianCloud};
 use crate::project::*;
 use crate::real::{Real, SplatGrad};
+use crate::project_lanes::GradientBlock;
 use crate::simd::{Isa, Kernel};
 use rayon::prelude::*;
 use std::any::Any;
@@ -765,11 +766,7 @@ pub fn backward<F: Real>(
     });
 
     // For each splat, its records in tile order; for each Gaussian, its splat.
-    let SplatIndex {
-        starts,
-        slots,
-        splat_of,
-    } = state.index.get_or_init(|| {
+    let index = state.index.get_or_init(|| {
         SplatIndex::build(
             &state.entries,
             &state.tile_ranges,
@@ -779,12 +776,92 @@ pub fn backward<F: Real>(
             cloud.len(),
         )
     });
+    let SplatIndex {
+        starts,
+        slots,
+        splat_of,
+    } = index;
     assert_eq!(
         splat_of.len(),
         cloud.len(),
         "backward over a cloud other than the one drawn"
     );
     let mut out = cloud.zeros_like();
+    let lanes = (
+        isa,
+        as_f32::<_, GaussianCloud<f32>>(cloud),
+        as_f32::<_, CameraTerms<f32>>(&cam),
+        as_f32::<_, Vec<SplatGrad<f32>>>(&records),
+    );
+    if let ((Some(isa), Some(cloud), Some(cam), Some(records)), Some(out)) =
+        (lanes, as_f32_mut::<_, GaussianCloud<f32>>(&mut out))
+    {
+        gradients_in_lanes(isa, cloud, cam, state.config.low_pass, records, index, out);
+        sanitize(out);
+    } else {
+        let stride = cloud.color_stride();
+        let GaussianCloud {
+            means,
+            log_scales,
+            rotations,
+            colors,
+            opacity_logits,
+            ..
+        } = &mut out;
+        // The scalar kernel and the f64 path: per Gaussian, in parallel, sum its splat's
+        // records and back-propagate them into its parameters, written in place.
+        (
+            means.par_chunks_mut(3),
+            log_scales.par_chunks_mut(3),
+            rotations.par_chunks_mut(4),
+            colors.par_chunks_mut(stride),
+            opacity_logits.par_iter_mut(),
+        )
+            .into_par_iter()
+            .with_min_len(256)
+            .enumerate()
+            .for_each(|(g, (dm, ds, dr, dc, dl))| {
+                let si = splat_of[g] as usize;
+                if si == u32::MAX as usize {
+                    return; // culled: no gradient
+                }
+                let mut total = SplatGrad::<F>::default();
+                for &pos in &slots[starts[si] as usize..starts[si + 1] as usize] {
+                    total.add(&records[pos as usize]);
+                }
+                project_backward(
+                    cloud,
+                    g,
+                    &cam,
+                    state.config.low_pass,
+                    &total,
+                    dm,
+                    ds,
+                    dr,
+                    dc,
+                    dl,
+                );
+            });
+        sanitize(&mut out);
+    }
+    out
+}
+
+/// Gaussians per block of the lanes' parameter gradients: a block's summed splat gradients sit
+/// on the stack, and the blocks are fixed by the cloud's size, never by the threads.
+const GRADIENT_BLOCK: usize = 256;
+
+/// Per block of Gaussians, in parallel: sum each Gaussian's splat records in tile order, then
+/// back-propagate them into its parameters in lanes (`project_lanes`), written in place.
+fn gradients_in_lanes(
+    isa: Isa,
+    cloud: &GaussianCloud<f32>,
+    cam: &CameraTerms<f32>,
+    low_pass: LowPass,
+    records: &[SplatGrad<f32>],
+    index: &SplatIndex,
+    out: &mut GaussianCloud<f32>,
+) {
     let stride = cloud.color_stride();
     let GaussianCloud {
         means,
@@ -793,43 +870,40 @@ pub fn backward<F: Real>(
         colors,
         opacity_logits,
         ..
-    } = &mut out;
-    // Per Gaussian, in parallel: sum its splat's records and back-propagate them into its
-    // parameters, written in place.
+    } = out;
     (
-        means.par_chunks_mut(3),
-        log_scales.par_chunks_mut(3),
-        rotations.par_chunks_mut(4),
-        colors.par_chunks_mut(stride),
-        opacity_logits.par_iter_mut(),
+        means.par_chunks_mut(3 * GRADIENT_BLOCK),
+        log_scales.par_chunks_mut(3 * GRADIENT_BLOCK),
+        rotations.par_chunks_mut(4 * GRADIENT_BLOCK),
+        colors.par_chunks_mut(stride * GRADIENT_BLOCK),
+        opacity_logits.par_chunks_mut(GRADIENT_BLOCK),
     )
         .into_par_iter()
-        .with_min_len(256)
         .enumerate()
-        .for_each(|(g, (dm, ds, dr, dc, dl))| {
-            let si = splat_of[g] as usize;
-            if si == u32::MAX as usize {
-                return; // culled: no gradient
+        .for_each(|(block, (means, log_scales, rotations, colors, opacity_logits))| {
+            let first = block * GRADIENT_BLOCK;
+            let mut totals = [None; GRADIENT_BLOCK];
+            let totals = &mut totals[..opacity_logits.len()];
+            for (i, total) in totals.iter_mut().enumerate() {
+                let si = index.splat_of[first + i] as usize;
+                if si == u32::MAX as usize {
+                    continue; // culled: no gradient
+                }
+                let mut sum = SplatGrad::<f32>::default();
+                for &pos in &index.slots[index.starts[si] as usize..index.starts[si + 1] as usize] {
+                    sum.add(&records[pos as usize]);
+                }
+                *total = Some(sum);
             }
-            let mut total = SplatGrad::<F>::default();
-            for &pos in &slots[starts[si] as usize..starts[si + 1] as usize] {
-                total.add(&records[pos as usize]);
-            }
-            project_backward(
-                cloud,
-                g,
-                &cam,
-                state.config.low_pass,
-                &total,
-                dm,
-                ds,
-                dr,
-                dc,
-                dl,
-            );
+            let out = GradientBlock {
+                means,
+                log_scales,
+                rotations,
+                colors,
+                opacity_logits,
+            };
+            isa.project_backward_range(cloud, first, totals, cam, low_pass, out);
         });
-    sanitize(&mut out);
-    out
 }
 
 /// Back-to-front gradients of one tile, one pixel at a time: the reference kernel. One record

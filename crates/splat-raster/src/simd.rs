@@ -21,7 +21,7 @@ use crate::cloud::GaussianCloud;
 use crate::lanes::{Avx2, Avx2Token};
 use crate::lanes::{Lanes, exp};
 use crate::project::{ALPHA_MAX, ALPHA_MIN, CameraTerms, LowPass, Splat, T_MIN};
-use crate::project_lanes;
+use crate::project_lanes::{self, GradientBlock};
 use crate::real::SplatGrad;
 use crate::tile::{TILE, TileOut, TilePixels};
 use std::ops::Range;
@@ -175,6 +175,35 @@ impl Isa {
         }
     }
 
+    /// Back-propagates the summed splat gradients of Gaussians `first..first + totals.len()`
+    /// to their parameters in lanes (`project_lanes`), added into `out`.
+    pub(crate) fn project_backward_range(
+        self,
+        cloud: &GaussianCloud<f32>,
+        first: usize,
+        totals: &[Option<SplatGrad<f32>>],
+        cam: &CameraTerms<f32>,
+        low_pass: LowPass,
+        out: GradientBlock<'_>,
+    ) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `forward_tile`, the token proves AVX2 and FMA are there.
+            Isa::Avx2Fma(token) => unsafe {
+                project_backward_avx2_fma(token, cloud, first, totals, cam, low_pass, out)
+            },
+            Isa::Baseline => project_lanes::project_backward_range::<BaselineLanes>(
+                (),
+                cloud,
+                first,
+                totals,
+                cam,
+                low_pass,
+                out,
+            ),
+        }
+    }
+
     /// Back-propagates one tile, back to front; one record per splat of the tile's list.
     pub(crate) fn backward_tile(
         self,
@@ -248,6 +277,20 @@ fn project_avx2_fma(
     ids: &mut Vec<u32>,
 ) {
     project_lanes::project_range::<Avx2>(token, cloud, range, cam, low_pass, near, splats, ids)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn project_backward_avx2_fma(
+    token: Avx2Token,
+    cloud: &GaussianCloud<f32>,
+    first: usize,
+    totals: &[Option<SplatGrad<f32>>],
+    cam: &CameraTerms<f32>,
+    low_pass: LowPass,
+    out: GradientBlock<'_>,
+) {
+    project_lanes::project_backward_range::<Avx2>(token, cloud, first, totals, cam, low_pass, out)
 }
 
 fn forward_baseline(

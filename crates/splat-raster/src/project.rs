@@ -458,7 +458,6 @@ pub fn project_backward<F: Real>(
     color_backward(cloud, g, cam, dg.color, d_mean, d_color);
 }
 
-
 /// The colour part of [`project_backward`]: through the clamp at 0, and for SH through the
 /// view direction into the mean (added into `d_mean`). The lanes' adjoint
 /// (`project_lanes.rs`) calls it per Gaussian, so both share one colour code.

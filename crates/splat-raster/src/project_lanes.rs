@@ -434,8 +434,7 @@ pub(crate) fn project_backward_range<L: Lanes>(
                 d_sigma[i][jx] = d_sigma_entry(i, jx);
             }
         }
-        let d_t_entry =
-            |a_: usize, i: usize| two * (g2[a_][0] * ts[0][i] + g2[a_][1] * ts[1][i]);
+        let d_t_entry = |a_: usize, i: usize| two * (g2[a_][0] * ts[0][i] + g2[a_][1] * ts[1][i]);
         let d_t = [
             [d_t_entry(0, 0), d_t_entry(0, 1), d_t_entry(0, 2)],
             [d_t_entry(1, 0), d_t_entry(1, 1), d_t_entry(1, 2)],
@@ -496,7 +495,10 @@ pub(crate) fn project_backward_range<L: Lanes>(
                 + qz * g[2][0]
                 + qw * g[2][1]
                 - two * qx * g[2][2]),
-            two * (zero - two * qy * g[0][0] + qx * g[0][1] + qw * g[0][2] + qx * g[1][0]
+            two * (zero - two * qy * g[0][0]
+                + qx * g[0][1]
+                + qw * g[0][2]
+                + qx * g[1][0]
                 + qz * g[1][2]
                 - qw * g[2][0]
                 + qz * g[2][1]
@@ -607,7 +609,7 @@ mod tests {
     use glam::Vec3;
 
     /// A cloud that exercises every cull: Gaussians behind the camera and on its near plane,
-    /// off screen and in the guard band, with zero and non-finite quaternions, tiny and huge
+    /// off screen and beyond the guard band (some reaching the screen), with zero and non-finite quaternions, tiny and huge
     /// scales, opacities from far below 1/255 to the cap, and the rest ordinary.
     fn hard_cloud(n: usize, model: ColorModel) -> GaussianCloud<f32> {
         let mut cloud = GaussianCloud::<f32>::new(model);
@@ -619,11 +621,21 @@ mod tests {
             if kind == 2 {
                 mean[2] = -4.0 + 0.01 * (r(g, 3) - 0.5); // on the camera's near plane
             }
+            // Beyond the guard band (1.3x the half field of view: at 4 units' depth, y past
+            // 2.4, x past 4.3) but wide enough to reach the screen: the clamped Jacobian.
+            let side = if r(g, 13) < 0.5 { -1.0 } else { 1.0 };
+            match kind {
+                6 => mean[1] = side * (2.7 + r(g, 3)),
+                7 => mean[0] = side * (4.6 + r(g, 3)),
+                _ => {}
+            }
             // Anisotropic up to e^3; kind 3 nearly round but up to e^10 across (anisotropy of
             // e^14 would leave f32 nothing of the projected covariance to compare).
             let log_scale = if kind == 3 {
                 let size = -4.0 + 14.0 * r(g, 4);
                 [4, 5, 6].map(|k| size + 0.5 * r(g, k + 1))
+            } else if kind == 6 || kind == 7 {
+                [4, 5, 6].map(|k| 0.3 + 0.7 * r(g, k))
             } else {
                 [4, 5, 6].map(|k| -4.0 + 3.0 * r(g, k))
             };
@@ -716,6 +728,181 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The lanes' adjoint is as accurate as the scalar f32 one: against the f64 adjoint, each
+    /// gradient entry's error is at most 4x the scalar f32 error plus 1e-4 of its parameter
+    /// group's largest entry (mean, scales, rotation, colour, opacity of that Gaussian), for
+    /// random splat gradients; culled Gaussians get none. A wrong term or sign is off by the
+    /// size of the term itself, far beyond the bound. The Gaussians on the near plane and the
+    /// huge ones (`hard_cloud`'s kinds 2 and 3) are held to 1e-2 instead: their chains subtract
+    /// nearly equal terms, so both f32 adjoints are off by up to 1e-3 of the group, and which
+    /// of the two lands nearer the f64 value is chance.
+    fn check_adjoint<L: Lanes>(token: L::Token, name: &str) {
+        let camera = Camera::look_at(
+            Vec3::new(0.3, -0.2, -4.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            50.0,
+            320,
+            180,
+        )
+        .unwrap();
+        let cam = CameraTerms::<f32>::new(&camera);
+        let r = |g: usize, k: u32| unit_f32(hash32(&[g as u32, k, 0x5eed])) * 2.0 - 1.0;
+        for model in [ColorModel::Rgb, ColorModel::Sh(2)] {
+            for low_pass in [LowPass::Classic, LowPass::Mip] {
+                let cloud = hard_cloud(4003, model);
+                let totals: Vec<Option<SplatGrad<f32>>> = (0..cloud.len())
+                    .map(|g| {
+                        project(&cloud, g, &cam, low_pass, 0.01).map(|_| SplatGrad {
+                            xy: [r(g, 0), r(g, 1)],
+                            conic: [r(g, 2) * 50.0, r(g, 3) * 50.0, r(g, 4) * 50.0],
+                            opacity: r(g, 5),
+                            color: [r(g, 6), r(g, 7), r(g, 8)],
+                            depth: r(g, 9),
+                        })
+                    })
+                    .collect();
+                let mut lanes = cloud.zeros_like();
+                {
+                    let GaussianCloud {
+                        means,
+                        log_scales,
+                        rotations,
+                        colors,
+                        opacity_logits,
+                        ..
+                    } = &mut lanes;
+                    let block = GradientBlock {
+                        means,
+                        log_scales,
+                        rotations,
+                        colors,
+                        opacity_logits,
+                    };
+                    project_backward_range::<L>(token, &cloud, 0, &totals, &cam, low_pass, block);
+                }
+                let stride = cloud.color_stride();
+                // The scalar adjoint on f32 and on f64, Gaussian by Gaussian.
+                fn scalar_adjoint<F: crate::real::Real>(
+                    cloud: &GaussianCloud<F>,
+                    cam: &CameraTerms<F>,
+                    low_pass: LowPass,
+                    totals: &[Option<SplatGrad<f32>>],
+                ) -> GaussianCloud<F> {
+                    let mut out = cloud.zeros_like();
+                    let stride = cloud.color_stride();
+                    let c = |v: f32| F::c(v as f64);
+                    for (g, total) in totals.iter().enumerate() {
+                        let Some(t) = total else { continue };
+                        let t = SplatGrad {
+                            xy: t.xy.map(c),
+                            conic: t.conic.map(c),
+                            opacity: c(t.opacity),
+                            color: t.color.map(c),
+                            depth: c(t.depth),
+                        };
+                        project_backward(
+                            cloud,
+                            g,
+                            cam,
+                            low_pass,
+                            &t,
+                            &mut out.means[3 * g..3 * g + 3],
+                            &mut out.log_scales[3 * g..3 * g + 3],
+                            &mut out.rotations[4 * g..4 * g + 4],
+                            &mut out.colors[stride * g..stride * (g + 1)],
+                            &mut out.opacity_logits[g],
+                        );
+                    }
+                    out
+                }
+                let scalar = scalar_adjoint(&cloud, &cam, low_pass, &totals);
+                let exact = scalar_adjoint(
+                    &cloud.cast::<f64>(),
+                    &CameraTerms::<f64>::new(&camera),
+                    low_pass,
+                    &totals,
+                );
+                let case = format!("{name}, {model:?}, {low_pass:?}");
+                let live = totals.iter().filter(|t| t.is_some()).count();
+                assert!(live > 1000, "{case}");
+                let groups = [
+                    ("mean", &lanes.means, &scalar.means, &exact.means, 3),
+                    (
+                        "log scale",
+                        &lanes.log_scales,
+                        &scalar.log_scales,
+                        &exact.log_scales,
+                        3,
+                    ),
+                    (
+                        "rotation",
+                        &lanes.rotations,
+                        &scalar.rotations,
+                        &exact.rotations,
+                        4,
+                    ),
+                    (
+                        "colour",
+                        &lanes.colors,
+                        &scalar.colors,
+                        &exact.colors,
+                        stride,
+                    ),
+                    (
+                        "opacity",
+                        &lanes.opacity_logits,
+                        &scalar.opacity_logits,
+                        &exact.opacity_logits,
+                        1,
+                    ),
+                ];
+                for (group, got, f32_scalar, exact, width) in groups {
+                    for (g, total) in totals.iter().enumerate() {
+                        let span = width * g..width * (g + 1);
+                        let (got, f32_scalar, exact) =
+                            (&got[span.clone()], &f32_scalar[span.clone()], &exact[span]);
+                        if total.is_none() {
+                            assert!(got.iter().all(|&v| v == 0.0), "{case}: culled {g}");
+                            continue;
+                        }
+                        let scale = exact.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                        let floor = if matches!(g % 10, 2 | 3) { 1e-2 } else { 1e-4 };
+                        for ((&a, &b), &e) in got.iter().zip(f32_scalar).zip(exact) {
+                            let (lane_err, scalar_err) =
+                                ((a as f64 - e).abs(), (b as f64 - e).abs());
+                            assert!(
+                                lane_err <= 4.0 * scalar_err + floor * scale,
+                                "{case}: Gaussian {g}'s {group}: lanes {a}, scalar {b}, f64 {e}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn portable_adjoint_matches_the_scalar_one() {
+        check_adjoint::<crate::lanes::Portable>((), "portable");
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sse2_adjoint_matches_the_scalar_one() {
+        check_adjoint::<crate::lanes::Sse2>((), "sse2");
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_adjoint_matches_the_scalar_one() {
+        let Some(token) = crate::lanes::Avx2Token::detect() else {
+            eprintln!("note: this CPU has no AVX2 + FMA; the 8-lane check is skipped");
+            return;
+        };
+        check_adjoint::<crate::lanes::Avx2>(token, "avx2");
     }
 
     #[test]

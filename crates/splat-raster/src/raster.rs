@@ -22,8 +22,8 @@
 use crate::camera::Camera;
 use crate::cloud::{CloudGradients, GaussianCloud};
 use crate::project::*;
-use crate::real::{Real, SplatGrad};
 use crate::project_lanes::GradientBlock;
+use crate::real::{Real, SplatGrad};
 use crate::simd::{Isa, Kernel};
 use rayon::prelude::*;
 use std::any::Any;
@@ -880,30 +880,34 @@ fn gradients_in_lanes(
     )
         .into_par_iter()
         .enumerate()
-        .for_each(|(block, (means, log_scales, rotations, colors, opacity_logits))| {
-            let first = block * GRADIENT_BLOCK;
-            let mut totals = [None; GRADIENT_BLOCK];
-            let totals = &mut totals[..opacity_logits.len()];
-            for (i, total) in totals.iter_mut().enumerate() {
-                let si = index.splat_of[first + i] as usize;
-                if si == u32::MAX as usize {
-                    continue; // culled: no gradient
+        .for_each(
+            |(block, (means, log_scales, rotations, colors, opacity_logits))| {
+                let first = block * GRADIENT_BLOCK;
+                let mut totals = [None; GRADIENT_BLOCK];
+                let totals = &mut totals[..opacity_logits.len()];
+                for (i, total) in totals.iter_mut().enumerate() {
+                    let si = index.splat_of[first + i] as usize;
+                    if si == u32::MAX as usize {
+                        continue; // culled: no gradient
+                    }
+                    let mut sum = SplatGrad::<f32>::default();
+                    for &pos in
+                        &index.slots[index.starts[si] as usize..index.starts[si + 1] as usize]
+                    {
+                        sum.add(&records[pos as usize]);
+                    }
+                    *total = Some(sum);
                 }
-                let mut sum = SplatGrad::<f32>::default();
-                for &pos in &index.slots[index.starts[si] as usize..index.starts[si + 1] as usize] {
-                    sum.add(&records[pos as usize]);
-                }
-                *total = Some(sum);
-            }
-            let out = GradientBlock {
-                means,
-                log_scales,
-                rotations,
-                colors,
-                opacity_logits,
-            };
-            isa.project_backward_range(cloud, first, totals, cam, low_pass, out);
-        });
+                let out = GradientBlock {
+                    means,
+                    log_scales,
+                    rotations,
+                    colors,
+                    opacity_logits,
+                };
+                isa.project_backward_range(cloud, first, totals, cam, low_pass, out);
+            },
+        );
 }
 
 /// Back-to-front gradients of one tile, one pixel at a time: the reference kernel. One record

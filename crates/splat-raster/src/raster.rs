@@ -11,9 +11,11 @@
 //! the gradient tests); the lane kernels of [`crate::simd`] take a row's pixels 8 or 4 at a time
 //! (f32 only). [`RasterConfig::kernel`] chooses; the default is the widest this CPU runs.
 //!
-//! Where the time goes (2 cores, 300k Gaussians at 1280x720, lane kernel): projection and
-//! binning (one pass over fixed chunks of the cloud) a quarter, the per-tile depth sort a
-//! sixth, the tile kernels half (`BENCHMARKS.md`).
+//! Where the time goes (2 cores, 300k Gaussians at 1280x720, lane kernel, 36-40 ms): the tile
+//! kernels 60%, projection and binning (one pass over fixed chunks of the cloud, projected in
+//! lanes) a sixth, the per-tile lists and their radix depth sort a sixth, the rest the output
+//! images. The backward pass is about 1.4x that: its tile kernels, then each Gaussian's records
+//! summed in tile order and its projection's adjoint in lanes (`BENCHMARKS.md`).
 //!
 //! Determinism: the backward pass writes one gradient record per (tile, splat) entry up to the
 //! tile's last contributor, each tile's pixels in a fixed order, and sums every Gaussian's

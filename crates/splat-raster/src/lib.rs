@@ -7,7 +7,7 @@
 //! - [`cloud`]: the Gaussian cloud, structure of arrays.
 //! - [`io`]: 3DGS PLY (read, write) and `.splat` (read).
 //! - [`project`]: EWA projection of one Gaussian, and its exact adjoint.
-//! - `project_lanes`: the same projection 8 or 4 Gaussians at a time in SIMD lanes.
+//! - `project_lanes`: the same projection and adjoint, 8 or 4 Gaussians at a time in SIMD lanes.
 //! - [`raster`]: tiles, depth order, front-to-back compositing, and the backward pass.
 //! - [`simd`]: the per-tile kernels across pixels in SIMD lanes, and the choice of lane width.
 //! - [`lanes`]: fixed-width f32 lanes and a vector `exp` with a tested error bound.

@@ -1,20 +1,23 @@
-//! The forward projection of [`crate::project`], 8 or 4 Gaussians at a time in SIMD lanes (f32).
+//! The projection of [`crate::project`] and its adjoint, 8 or 4 Gaussians at a time in SIMD
+//! lanes (f32).
 //!
-//! Why: projected one at a time, a Gaussian costs about 70 ns a core (three `exp` for its
-//! scales, one for its opacity, one `ln`, three square roots and a dozen divisions, none of
-//! them in lanes): a quarter of a 300k-Gaussian frame at 2 threads (issue 31).
+//! Why: one at a time, a Gaussian's projection costs about 70 ns a core (three `exp` for its
+//! scales, one for its opacity, one `ln`, three square roots and a dozen divisions) and its
+//! adjoint about twice that: a quarter of a 300k-Gaussian frame at 2 threads, and a third of
+//! its backward pass (issue 31).
 //!
-//! The equations are `project::project`'s, term for term. The lanes' `exp` and `ln`
-//! ([`crate::lanes`]) round differently from libm, within `EXP_MAX_REL_ERROR` and
-//! `LN_MAX_ERROR`, so a splat can differ from the scalar projection's in its last bits; its
-//! screen rectangle keeps the scalar one's margin (1e-5 relative and 1e-3 px), thousands of
-//! times those bits, so it still holds every pixel whose alpha reaches 1/255. Culling runs in
-//! the lanes as masks. Each surviving Gaussian's rectangle (floor and ceiling) and colour (RGB
-//! or spherical harmonics) are then finished one at a time, as the scalar code does them.
+//! The equations are `project::project`'s and `project::project_backward`'s, term for term,
+//! on the same geometry ([`LaneGeometry`]). The lanes' `exp` and `ln` ([`crate::lanes`]) round
+//! differently from libm, within `EXP_MAX_REL_ERROR` and `LN_MAX_ERROR`, so a splat can differ
+//! from the scalar projection's in its last bits; its screen rectangle keeps the scalar one's
+//! margin (1e-5 relative and 1e-3 px), thousands of times those bits, so it still holds every
+//! pixel whose alpha reaches 1/255. Culling runs in the lanes as masks. Each surviving
+//! Gaussian's rectangle (floor and ceiling) and colour (RGB or spherical harmonics), and each
+//! colour gradient, are finished one at a time by the scalar code.
 //!
-//! The lane count divides the chunks of `raster::project_and_bin` except for a tail of fewer
-//! than N Gaussians, which the scalar projection takes; both depend on the cloud's size alone,
-//! so the splats are the same on any number of threads.
+//! The lane count divides the chunks of `raster::project_and_bin` and the gradient blocks of
+//! `raster::backward` except for a tail of fewer than N Gaussians, which the scalar code takes;
+//! both depend on the cloud's size alone, so the results are the same on any number of threads.
 
 use crate::cloud::GaussianCloud;
 use crate::lanes::{self, Lanes};

@@ -888,44 +888,26 @@ mod tests {
     }
 
     #[test]
-    fn portable_adjoint_matches_the_scalar_one() {
+    fn portable_lanes_match_the_scalar_projection_and_adjoint() {
+        check::<crate::lanes::Portable>((), "portable");
         check_adjoint::<crate::lanes::Portable>((), "portable");
     }
 
     #[cfg(target_arch = "x86_64")]
     #[test]
-    fn sse2_adjoint_matches_the_scalar_one() {
+    fn sse2_lanes_match_the_scalar_projection_and_adjoint() {
+        check::<crate::lanes::Sse2>((), "sse2");
         check_adjoint::<crate::lanes::Sse2>((), "sse2");
     }
 
     #[cfg(target_arch = "x86_64")]
     #[test]
-    fn avx2_adjoint_matches_the_scalar_one() {
-        let Some(token) = crate::lanes::Avx2Token::detect() else {
-            eprintln!("note: this CPU has no AVX2 + FMA; the 8-lane check is skipped");
-            return;
-        };
-        check_adjoint::<crate::lanes::Avx2>(token, "avx2");
-    }
-
-    #[test]
-    fn portable_projection_matches_the_scalar_one() {
-        check::<crate::lanes::Portable>((), "portable");
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[test]
-    fn sse2_projection_matches_the_scalar_one() {
-        check::<crate::lanes::Sse2>((), "sse2");
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[test]
-    fn avx2_projection_matches_the_scalar_one() {
+    fn avx2_lanes_match_the_scalar_projection_and_adjoint() {
         let Some(token) = crate::lanes::Avx2Token::detect() else {
             eprintln!("note: this CPU has no AVX2 + FMA; the 8-lane check is skipped");
             return;
         };
         check::<crate::lanes::Avx2>(token, "avx2");
+        check_adjoint::<crate::lanes::Avx2>(token, "avx2");
     }
 }

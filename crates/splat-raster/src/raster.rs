@@ -111,6 +111,15 @@ struct SplatIndex {
 }
 
 impl SplatIndex {
+    /// Splat `si`'s records summed in tile order (the same order on any thread count).
+    fn total<F: Real>(&self, si: usize, records: &[SplatGrad<F>]) -> SplatGrad<F> {
+        let mut total = SplatGrad::<F>::default();
+        for &pos in &self.slots[self.starts[si] as usize..self.starts[si + 1] as usize] {
+            total.add(&records[pos as usize]);
+        }
+        total
+    }
+
     fn build(
         entries: &[u32],
         tile_ranges: &[(u32, u32)],
@@ -844,13 +853,8 @@ pub fn backward<F: Real>(
             cloud.len(),
         )
     });
-    let SplatIndex {
-        starts,
-        slots,
-        splat_of,
-    } = index;
     assert_eq!(
-        splat_of.len(),
+        index.splat_of.len(),
         cloud.len(),
         "backward over a cloud other than the one drawn"
     );
@@ -889,14 +893,11 @@ pub fn backward<F: Real>(
             .with_min_len(256)
             .enumerate()
             .for_each(|(g, (dm, ds, dr, dc, dl))| {
-                let si = splat_of[g] as usize;
+                let si = index.splat_of[g] as usize;
                 if si == u32::MAX as usize {
                     return; // culled: no gradient
                 }
-                let mut total = SplatGrad::<F>::default();
-                for &pos in &slots[starts[si] as usize..starts[si + 1] as usize] {
-                    total.add(&records[pos as usize]);
-                }
+                let total = index.total(si, &records);
                 project_backward(
                     cloud,
                     g,
@@ -958,13 +959,7 @@ fn gradients_in_lanes(
                     if si == u32::MAX as usize {
                         continue; // culled: no gradient
                     }
-                    let mut sum = SplatGrad::<f32>::default();
-                    for &pos in
-                        &index.slots[index.starts[si] as usize..index.starts[si + 1] as usize]
-                    {
-                        sum.add(&records[pos as usize]);
-                    }
-                    *total = Some(sum);
+                    *total = Some(index.total(si, records));
                 }
                 let out = GradientBlock {
                     means,

@@ -793,7 +793,13 @@ pub fn backward<F: Real>(
     let splats_f32 = as_f32::<_, Vec<Splat<f32>>>(&state.splats);
     // One record per live entry (tile-major, like `entries`), written tile by tile.
     let live_records = state.live_ranges.last().map_or(0, |r| r.1) as usize;
-    let mut records = vec![SplatGrad::<F>::default(); live_records];
+    // Zeroed in parallel: a serial fill is a fixed cost that no number of threads shortens.
+    let mut records = Vec::with_capacity(live_records);
+    records.par_extend(
+        (0..live_records)
+            .into_par_iter()
+            .map(|_| SplatGrad::<F>::default()),
+    );
     let per_tile = split_by_tile(&mut records, &state.live_ranges);
     per_tile.into_par_iter().enumerate().for_each(|(ti, rec)| {
         let a = state.tile_ranges[ti].0 as usize;

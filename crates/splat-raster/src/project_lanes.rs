@@ -657,11 +657,9 @@ mod tests {
         cloud
     }
 
-    /// The lanes keep the same Gaussians as the scalar projection and make the same splats:
-    /// the same rectangles and colours, and the same geometry within the lanes' `exp` and `ln`
-    /// error (`EXP_MAX_REL_ERROR`, `LN_MAX_ERROR`) carried through a few roundings.
-    fn check<L: Lanes>(token: L::Token, name: &str) {
-        let camera = Camera::look_at(
+    /// The camera both checks look through: the hard cloud's kinds are placed for it.
+    fn test_camera() -> Camera {
+        Camera::look_at(
             Vec3::new(0.3, -0.2, -4.0),
             Vec3::ZERO,
             Vec3::Y,
@@ -669,7 +667,14 @@ mod tests {
             320,
             180,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    /// The lanes keep the same Gaussians as the scalar projection and make the same splats:
+    /// the same rectangles and colours, and the same geometry within the lanes' `exp` and `ln`
+    /// error (`EXP_MAX_REL_ERROR`, `LN_MAX_ERROR`) carried through a few roundings.
+    fn check<L: Lanes>(token: L::Token, name: &str) {
+        let camera = test_camera();
         let cam = CameraTerms::<f32>::new(&camera);
         for model in [ColorModel::Rgb, ColorModel::Sh(2)] {
             for low_pass in [LowPass::Classic, LowPass::Mip] {
@@ -742,15 +747,7 @@ mod tests {
     /// nearly equal terms, so both f32 adjoints are off by up to 1e-3 of the group, and which
     /// of the two lands nearer the f64 value is chance.
     fn check_adjoint<L: Lanes>(token: L::Token, name: &str) {
-        let camera = Camera::look_at(
-            Vec3::new(0.3, -0.2, -4.0),
-            Vec3::ZERO,
-            Vec3::Y,
-            50.0,
-            320,
-            180,
-        )
-        .unwrap();
+        let camera = test_camera();
         let cam = CameraTerms::<f32>::new(&camera);
         let r = |g: usize, k: u32| unit_f32(hash32(&[g as u32, k, 0x5eed])) * 2.0 - 1.0;
         for model in [ColorModel::Rgb, ColorModel::Sh(2)] {

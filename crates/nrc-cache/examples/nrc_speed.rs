@@ -79,6 +79,7 @@ fn main() {
         cache.grid().encode_rows(&points, &mut rows, width);
         println!("encoding alone: {:.1} ms", t.elapsed().as_secs_f64() * 1e3);
     }
+    network_alone(&cache, &rows, width, config.batch_size as usize);
     if args.iter().any(|a| a == "--burn-encoding") {
         burn_encoding(&cache, &points, config.batch_size as usize);
         return;
@@ -106,6 +107,48 @@ fn main() {
             train * 1e3 / r.steps.max(1) as f64,
             r.mean_loss,
             err
+        );
+    }
+}
+
+/// The network without the encoding: a forward pass over every query's encoded row (in chunks
+/// of 1,024 rows in parallel, as inference runs) and the loss and gradient of one batch, with
+/// the multiply-adds per second each reaches.
+fn network_alone(cache: &NeuralCache, rows: &[f32], grid_width: usize, batch: usize) {
+    use nrc_cache::mlp::{BlockWork, Gradient};
+    use rayon::prelude::*;
+    let mlp = cache.network();
+    let width = mlp.inputs();
+    // The grid's encoding, padded with the constant inputs to the network's width.
+    let inputs: Vec<f32> = rows
+        .chunks_exact(grid_width)
+        .flat_map(|r| {
+            let mut row = r.to_vec();
+            row.resize(width, 0.5);
+            row
+        })
+        .collect();
+    let n = inputs.len() / width;
+    let macs = mlp.macs_per_row() as f64;
+    let mut outputs = vec![0.0f32; n * 3];
+    let mut gradient = Gradient::default();
+    let targets = vec![1.0f32; batch * 3];
+    for _ in 0..3 {
+        let t = Instant::now();
+        outputs
+            .par_chunks_mut(1024 * 3)
+            .zip(inputs.par_chunks(1024 * width))
+            .for_each_init(BlockWork::default, |work, (y, x)| mlp.forward(x, y, work));
+        let forward = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let loss = mlp.loss_and_gradient(&inputs[..batch * width], &targets, 1e-2, &mut gradient);
+        let backward = t.elapsed().as_secs_f64();
+        println!(
+            "network alone: forward of {n} rows {:.2} ms ({:.1} GMAC/s); loss and gradient of {batch} rows {:.2} ms ({:.1} GMAC/s counting 3 passes), loss {loss:.3}",
+            forward * 1e3,
+            n as f64 * macs / forward / 1e9,
+            backward * 1e3,
+            3.0 * batch as f64 * macs / backward / 1e9,
         );
     }
 }

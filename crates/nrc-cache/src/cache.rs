@@ -3,11 +3,8 @@
 
 use crate::config::{ConfigError, NrcConfig};
 use crate::encoding::HashGrid;
-use crate::network::Mlp;
+use crate::mlp::{Adam, BlockWork, Gradient, Mlp};
 use crate::random::SplitMix;
-use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::tensor::{Device, Tensor, TensorData};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -54,10 +51,10 @@ const INFERENCE_ROWS: usize = 1024;
 pub struct NeuralCache {
     config: NrcConfig,
     grid: HashGrid,
-    /// The network, on the autodiff device.
     mlp: Mlp,
-    optim: ModuleOptimizer,
-    device: Device,
+    adam: Adam,
+    /// The network's gradient and its scratch, kept between steps so no step allocates them.
+    gradient: Gradient,
     /// The tables' gradient, kept between steps so no step allocates it.
     grid_grad: Vec<f32>,
     steps: u64,
@@ -67,27 +64,20 @@ impl NeuralCache {
     /// A fresh cache (tables near zero, network He-initialised) from `config`, after checking it.
     pub fn new(config: NrcConfig) -> Result<Self, ConfigError> {
         config.validate()?;
-        let device = Device::flex().autodiff();
         let grid = HashGrid::new(&config, config.seed);
         let mlp = Mlp::new(
             config.input_width(),
             config.hidden_width as usize,
             config.hidden_layers as usize,
             config.seed ^ 0x004d_4c50,
-            &device,
         );
-        let optim = AdamConfig::new()
-            .with_beta_1(config.beta1 as f32)
-            .with_beta_2(config.beta2 as f32)
-            .with_epsilon(config.epsilon as f32)
-            .init();
         let grid_grad = vec![0.0; grid.params().len()];
         Ok(Self {
             config,
             grid,
             mlp,
-            optim,
-            device,
+            adam: Adam::default(),
+            gradient: Gradient::default(),
             grid_grad,
             steps: 0,
         })
@@ -119,6 +109,11 @@ impl NeuralCache {
         &self.grid
     }
 
+    /// The network.
+    pub fn network(&self) -> &Mlp {
+        &self.mlp
+    }
+
     pub fn grid_mut(&mut self) -> &mut HashGrid {
         &mut self.grid
     }
@@ -146,18 +141,18 @@ impl NeuralCache {
 
     /// The cached radiance at each query: never negative, never NaN (a NaN output reads as 0).
     pub fn predict(&self, queries: &[Query]) -> Vec<Vec3> {
-        predict_with(&self.config, &self.grid, &self.mlp.valid(), queries)
+        predict_with(&self.config, &self.grid, &self.mlp, queries)
     }
 
     /// The cache as it stands, to read while the cache itself trains: a frame's inference can
     /// then run beside its training step (issue 31), reading the weights from before the step
-    /// as it would if it ran first. The network's weights are shared (a step makes new ones),
-    /// the tables copied (a step changes them in place).
+    /// as it would if it ran first. The weights and the tables are copied (a step changes
+    /// them in place).
     pub fn snapshot(&self) -> Snapshot {
         Snapshot {
             config: self.config,
             grid: self.grid.clone(),
-            net: self.mlp.valid(),
+            net: self.mlp.clone(),
         }
     }
 
@@ -226,56 +221,41 @@ impl NeuralCache {
     /// or a gradient is not finite.
     fn step(&mut self, batch: &[TrainingRecord]) -> Option<f64> {
         let width = self.config.input_width();
-        let n = batch.len();
         let queries: Vec<Query> = batch.iter().map(|r| r.query).collect();
         let positions: Vec<Vec3> = batch.iter().map(|r| r.query.position).collect();
         let mut rows = Vec::new();
         self.inputs(&queries, &mut rows);
         let targets: Vec<f32> = batch.iter().flat_map(|r| r.target.to_array()).collect();
-
-        let x =
-            Tensor::<2>::from_data(TensorData::new(rows, [n, width]), &self.device).require_grad();
-        let target = Tensor::<2>::from_data(TensorData::new(targets, [n, 3]), &self.device);
-        let prediction = self.mlp.forward(x.clone());
-        // Relative L2 (Müller et al., 2021): the prediction held constant in the denominator,
-        // so the minimiser over noisy targets is their mean, at any radiance scale.
-        let held = prediction.clone().detach();
-        let denominator = held.clone() * held + self.config.loss_epsilon;
-        let diff = prediction - target;
-        let loss = (diff.clone() * diff / denominator).mean();
-        let loss_value = loss
-            .clone()
-            .into_data()
-            .try_to_vec::<f32>()
-            .ok()?
-            .first()
-            .copied()? as f64;
-        if !loss_value.is_finite() {
-            return None;
-        }
-        let mut grads = loss.backward();
-        let input_grad: Vec<f32> = x
-            .grad_remove(&mut grads)?
-            .into_data()
-            .try_to_vec::<f32>()
-            .ok()?;
-        if !input_grad.iter().all(|g| g.is_finite()) {
-            return None;
-        }
-        let params = GradientsParams::from_grads(grads, &self.mlp);
-        self.grid
-            .backward(&positions, &input_grad, width, &mut self.grid_grad);
-        let lr = self.config.learning_rate;
-        self.mlp = self.optim.step(lr, self.mlp.clone(), params);
-        self.grid.adam_step(
-            &mut self.grid_grad,
-            lr,
-            self.config.beta1,
-            self.config.beta2,
-            self.config.epsilon,
+        let loss = self.mlp.loss_and_gradient(
+            &rows,
+            &targets,
+            self.config.loss_epsilon,
+            &mut self.gradient,
         );
+        let finite = |g: &[f32]| g.iter().all(|g| g.is_finite());
+        if !loss.is_finite() || !finite(&self.gradient.params) || !finite(&self.gradient.inputs) {
+            return None;
+        }
+        self.grid.backward(
+            &positions,
+            &self.gradient.inputs,
+            width,
+            &mut self.grid_grad,
+        );
+        let lr = self.config.learning_rate;
+        let (beta1, beta2, epsilon) = (self.config.beta1, self.config.beta2, self.config.epsilon);
+        self.adam.step(
+            &mut self.mlp,
+            &self.gradient.params,
+            lr,
+            beta1,
+            beta2,
+            epsilon,
+        );
+        self.grid
+            .adam_step(&mut self.grid_grad, lr, beta1, beta2, epsilon);
         self.steps += 1;
-        Some(loss_value)
+        Some(loss)
     }
 }
 
@@ -337,29 +317,24 @@ fn encode_inputs(config: &NrcConfig, grid: &HashGrid, queries: &[Query], out: &m
 /// matrices stay in cache, which measured faster than one large product per layer
 /// (BENCHMARKS.md).
 fn predict_with(config: &NrcConfig, grid: &HashGrid, net: &Mlp, queries: &[Query]) -> Vec<Vec3> {
-    let width = config.input_width();
-    let device = Device::flex();
-    let parts: Vec<Vec<Vec3>> = queries
-        .par_chunks(INFERENCE_ROWS)
-        .map(|chunk| {
-            let mut rows = Vec::new();
-            encode_inputs(config, grid, chunk, &mut rows);
-            let x = Tensor::<2>::from_data(TensorData::new(rows, [chunk.len(), width]), &device);
-            let y: Vec<f32> = net
-                .forward(x)
-                .into_data()
-                .try_to_vec::<f32>()
-                .expect("the network outputs f32");
-            y.chunks_exact(3)
-                .map(|c| {
+    let mut radiance = vec![Vec3::ZERO; queries.len()];
+    radiance
+        .par_chunks_mut(INFERENCE_ROWS)
+        .zip(queries.par_chunks(INFERENCE_ROWS))
+        .for_each_init(
+            || (Vec::new(), Vec::new(), BlockWork::default()),
+            |(rows, outputs, work), (radiance, chunk)| {
+                encode_inputs(config, grid, chunk, rows);
+                outputs.resize(chunk.len() * 3, 0.0);
+                net.forward(rows, outputs, work);
+                for (r, c) in radiance.iter_mut().zip(outputs.chunks_exact(3)) {
                     // `max` returns the other operand for NaN: a NaN channel becomes 0.
-                    Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0))
-                        .min(Vec3::splat(f32::MAX))
-                })
-                .collect()
-        })
-        .collect();
-    parts.concat()
+                    *r = Vec3::new(c[0].max(0.0), c[1].max(0.0), c[2].max(0.0))
+                        .min(Vec3::splat(f32::MAX));
+                }
+            },
+        );
+    radiance
 }
 
 /// Real spherical harmonics of bands 0 to 2 at a unit direction.

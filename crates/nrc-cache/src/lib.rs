@@ -7,8 +7,10 @@
 //! (a [`Query`]) and what training paths gathered from them (a [`TrainingRecord`]).
 //!
 //! - [`config`]: the encoding, the network, training, and how many paths train it.
-//! - [`encoding`]: the hash grid, forward, backward and its sparse Adam, in plain Rust.
-//! - [`network`]: the MLP as burn modules (autodiff and Adam from burn).
+//! - [`encoding`]: the hash grid, forward, backward and its sparse Adam.
+//! - [`mlp`]: the network, forward, backward and Adam, parallel over fixed blocks of rows.
+//! - [`dense`]: the small dense products the network is made of, the same bits on every
+//!   instruction set.
 //! - [`cache`]: batched inference and training steps (relative L2 loss).
 //! - [`random`]: counter-based random numbers for initialisation and shuffling.
 //!
@@ -29,11 +31,12 @@
 
 pub mod cache;
 pub mod config;
+pub mod dense;
 pub mod encoding;
-pub mod network;
+pub mod mlp;
 pub mod random;
 
 pub use cache::{NeuralCache, Query, Snapshot, TrainReport, TrainingRecord, spherical_harmonics_2};
 pub use config::{ConfigError, NrcConfig};
 pub use encoding::HashGrid;
-pub use network::Mlp;
+pub use mlp::Mlp;

@@ -1,0 +1,253 @@
+//! The hand-written network (`nrc_cache::mlp`) against burn, its oracle: the same weights as
+//! burn `Linear` layers, burn's autodiff through the same relative L2 loss, and burn's Adam fed
+//! the same gradient.
+//!
+//! The shapes are chosen to reach every path of the kernels: 7 inputs (narrower than a register
+//! tile), hidden layers of 20 (one whole 16-column tile and a tail of 4), the 3 outputs (the
+//! narrow layer), and 301 rows (two whole blocks of 128 and a tail block of 45, whose last
+//! row is not a whole 4-row tile).
+//!
+//! Both sides are f32 with different summation orders, so they agree to rounding: each
+//! gradient entry within 2e-5 of the largest entry of its layer (the sums run over at most 301
+//! rows of terms of one sign or another; f32's rounding over such sums is about 1e-6
+//! relative). The bugs these tests are for (a dropped ReLU mask, bias gradient or transpose, a
+//! wrong scale or bias correction) change entries by a large fraction of that largest entry.
+
+use burn::module::{Module, Param};
+use burn::nn::Linear;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use nrc_cache::Mlp;
+use nrc_cache::mlp::{Adam, BlockWork, Gradient};
+use nrc_cache::random::SplitMix;
+
+const INPUTS: usize = 7;
+const WIDTH: usize = 20;
+const HIDDEN: usize = 2;
+const ROWS: usize = 301;
+const LOSS_EPSILON: f32 = 1e-2;
+
+#[derive(Module, Debug)]
+struct BurnMlp {
+    layers: Vec<Linear>,
+}
+
+impl BurnMlp {
+    /// burn's layers holding `mlp`'s parameters (burn's `Linear` weight is `fan_in x fan_out`,
+    /// the layout `Mlp::params` uses).
+    fn from(mlp: &Mlp, device: &Device) -> Self {
+        let mut offset = 0;
+        let layers = mlp
+            .dims()
+            .windows(2)
+            .map(|d| {
+                let (fan_in, fan_out) = (d[0], d[1]);
+                let p = mlp.params();
+                let w = p[offset..offset + fan_in * fan_out].to_vec();
+                let b = p[offset + fan_in * fan_out..offset + (fan_in + 1) * fan_out].to_vec();
+                offset += (fan_in + 1) * fan_out;
+                Linear {
+                    weight: Param::from_data(TensorData::new(w, [fan_in, fan_out]), device),
+                    bias: Some(Param::from_data(TensorData::new(b, [fan_out]), device)),
+                }
+            })
+            .collect();
+        Self { layers }
+    }
+
+    fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        let last = self.layers.len() - 1;
+        let mut h = x;
+        for (i, layer) in self.layers.iter().enumerate() {
+            h = layer.forward(h);
+            if i < last {
+                h = relu(h);
+            }
+        }
+        h
+    }
+
+    /// The parameters in `Mlp::params`' layout.
+    fn params(&self) -> Vec<f32> {
+        let mut out = Vec::new();
+        for layer in &self.layers {
+            out.extend(to_vec(layer.weight.val()));
+            out.extend(to_vec(layer.bias.as_ref().unwrap().val()));
+        }
+        out
+    }
+}
+
+fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().unwrap()
+}
+
+/// A network of the test's shape with every parameter drawn, the biases too (a fresh `Mlp`'s
+/// are zero, which would hide a dropped bias).
+fn random_mlp(seed: u64) -> Mlp {
+    let shape = Mlp::new(INPUTS, WIDTH, HIDDEN, seed);
+    let mut rng = SplitMix::new(seed);
+    let params = shape
+        .params()
+        .iter()
+        .map(|w| w + (rng.next_f32() - 0.5) * 0.2)
+        .collect();
+    Mlp::from_parts(shape.dims().to_vec(), params)
+}
+
+fn data(seed: u64) -> (Vec<f32>, Vec<f32>) {
+    let mut rng = SplitMix::new(seed);
+    let inputs = (0..ROWS * INPUTS)
+        .map(|_| rng.next_f32() * 2.0 - 1.0)
+        .collect();
+    let targets = (0..ROWS * 3).map(|_| rng.next_f32() * 3.0).collect();
+    (inputs, targets)
+}
+
+/// burn's loss and gradients (parameters, then inputs) for `mlp` on `inputs` and `targets`.
+fn burn_gradient(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
+    let device = Device::flex().autodiff();
+    let net = BurnMlp::from(mlp, &device);
+    let x = Tensor::<2>::from_data(TensorData::new(inputs.to_vec(), [ROWS, INPUTS]), &device)
+        .require_grad();
+    let target = Tensor::<2>::from_data(TensorData::new(targets.to_vec(), [ROWS, 3]), &device);
+    let prediction = net.forward(x.clone());
+    let held = prediction.clone().detach();
+    let denominator = held.clone() * held + LOSS_EPSILON;
+    let diff = prediction - target;
+    let loss = (diff.clone() * diff / denominator).mean();
+    let loss_value = to_vec(loss.clone())[0] as f64;
+    let mut grads = loss.backward();
+    let input_grad = to_vec(x.grad_remove(&mut grads).unwrap());
+    let mut params = Vec::new();
+    for layer in &net.layers {
+        params.extend(to_vec(layer.weight.grad(&grads).unwrap()));
+        params.extend(to_vec(layer.bias.as_ref().unwrap().grad(&grads).unwrap()));
+    }
+    (loss_value, params, input_grad)
+}
+
+/// Each entry of `got` within `tolerance` of the largest magnitude of its group in `expected`;
+/// groups are consecutive runs of `group_lengths`.
+fn assert_close_by_group(what: &str, got: &[f32], expected: &[f32], group_lengths: &[usize]) {
+    assert_eq!(got.len(), expected.len(), "{what}: lengths");
+    assert_eq!(group_lengths.iter().sum::<usize>(), got.len());
+    let mut start = 0;
+    for (g, &len) in group_lengths.iter().enumerate() {
+        let e = &expected[start..start + len];
+        let scale = e.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        assert!(
+            scale > 0.0,
+            "{what}: group {g} is all zero: the test would be empty"
+        );
+        for (i, (a, b)) in got[start..start + len].iter().zip(e).enumerate() {
+            assert!(
+                (a - b).abs() <= 2e-5 * scale,
+                "{what}: group {g} entry {i}: {a} against burn's {b} (group scale {scale})"
+            );
+        }
+        start += len;
+    }
+}
+
+/// Each layer's weights, then its biases: the groups of `Mlp::params`.
+fn parameter_groups(mlp: &Mlp) -> Vec<usize> {
+    mlp.dims()
+        .windows(2)
+        .flat_map(|d| [d[0] * d[1], d[1]])
+        .collect()
+}
+
+#[test]
+fn forward_loss_and_gradients_match_burn() {
+    let mlp = random_mlp(11);
+    let (inputs, targets) = data(12);
+    let mut gradient = Gradient::default();
+    let loss = mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
+    let (burn_loss, burn_params, burn_inputs) = burn_gradient(&mlp, &inputs, &targets);
+    assert!(
+        (loss - burn_loss).abs() <= 1e-5 * burn_loss.abs(),
+        "loss {loss} against burn's {burn_loss}"
+    );
+    assert_close_by_group(
+        "parameter gradient",
+        &gradient.params,
+        &burn_params,
+        &parameter_groups(&mlp),
+    );
+    // The input gradient, one group per input column.
+    assert_close_by_group(
+        "input gradient",
+        &gradient.inputs,
+        &burn_inputs,
+        &[ROWS * INPUTS],
+    );
+
+    let mut outputs = vec![0.0; ROWS * 3];
+    mlp.forward(&inputs, &mut outputs, &mut BlockWork::default());
+    let device = Device::flex();
+    let burn_outputs = to_vec(BurnMlp::from(&mlp, &device).forward(Tensor::<2>::from_data(
+        TensorData::new(inputs.clone(), [ROWS, INPUTS]),
+        &device,
+    )));
+    assert_close_by_group("forward", &outputs, &burn_outputs, &[ROWS * 3]);
+}
+
+/// Three Adam steps (the bias corrections differ at each) from the same gradients as burn's
+/// Adam (theirs fed ours, so that only the optimisers are compared). Each side's parameters
+/// carry on from its own steps (burn keeps its moments by parameter), so they drift apart by
+/// rounding only; the moves are compared.
+#[test]
+fn adam_matches_burn() {
+    let (beta1, beta2, epsilon, lr) = (0.9, 0.99, 1e-15, 1e-2);
+    let mut mlp = random_mlp(13);
+    let device = Device::flex().autodiff();
+    let mut burn_net = BurnMlp::from(&mlp, &device);
+    let mut burn_adam = AdamConfig::new()
+        .with_beta_1(beta1 as f32)
+        .with_beta_2(beta2 as f32)
+        .with_epsilon(epsilon as f32)
+        .init();
+    let mut adam = Adam::default();
+    let mut gradient = Gradient::default();
+    for step in 0..3 {
+        let (inputs, targets) = data(20 + step);
+        mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
+        let mut registered = GradientsParams::new();
+        let mut offset = 0;
+        for layer in &burn_net.layers {
+            let [fan_in, fan_out] = layer.weight.dims();
+            let g = &gradient.params[offset..];
+            let w = TensorData::new(g[..fan_in * fan_out].to_vec(), [fan_in, fan_out]);
+            let b = TensorData::new(g[fan_in * fan_out..][..fan_out].to_vec(), [fan_out]);
+            registered.register(layer.weight.id, Tensor::<2>::from_data(w, &Device::flex()));
+            let bias_id = layer.bias.as_ref().unwrap().id;
+            registered.register(bias_id, Tensor::<1>::from_data(b, &Device::flex()));
+            offset += (fan_in + 1) * fan_out;
+        }
+        let before = mlp.params().to_vec();
+        let burn_before = burn_net.params();
+        adam.step(&mut mlp, &gradient.params, lr, beta1, beta2, epsilon);
+        burn_net = burn_adam.step(lr, burn_net, registered);
+        // Compare the moves (not the parameters, whose size would hide an error in the move).
+        let ours: Vec<f32> = mlp
+            .params()
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| a - b)
+            .collect();
+        let theirs: Vec<f32> = burn_net
+            .params()
+            .iter()
+            .zip(&burn_before)
+            .map(|(a, b)| a - b)
+            .collect();
+        assert_close_by_group(
+            &format!("Adam step {step}"),
+            &ours,
+            &theirs,
+            &parameter_groups(&mlp),
+        );
+    }
+}

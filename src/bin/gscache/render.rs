@@ -95,8 +95,8 @@ pub struct CacheRun {
     /// Read and train the radiance cache.
     #[arg(long, conflicts_with = "nrc")]
     cache: bool,
-    /// Read and train the neural radiance cache (Müller et al., 2021: a hash grid and an MLP
-    /// on burn) instead: the baseline the GSCache paper compares with.
+    /// Read and train the neural radiance cache (Müller et al., 2021: a hash grid and an MLP)
+    /// instead: the baseline the GSCache paper compares with.
     #[arg(long)]
     nrc: bool,
     /// The Gaussian cache's settings: `--cache-KEY VALUE`, the keys of an experiment file's

@@ -198,13 +198,15 @@ impl Walk<'_> {
                 continue;
             }
             let i = e.index as usize;
+            // The rays share their origin: its terms once for the row.
+            let origin = g.origin_terms(i, rays[0].o);
             for (l, r) in rays.iter().enumerate() {
                 if !meets[l] || (e.reaches_behind && !meets_box(g, i, r)) {
                     continue;
                 }
-                let Some(h) = g.intersect(
+                let Some(h) = g.intersect_from(
                     i,
-                    r.o,
+                    &origin,
                     r.d,
                     0.0,
                     f32::INFINITY,

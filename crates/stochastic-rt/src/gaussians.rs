@@ -53,6 +53,16 @@ pub struct Intersection {
     pub alpha: f32,
 }
 
+/// What [`TraceGaussians::intersect`] computes from a ray's origin and a Gaussian alone
+/// ([`TraceGaussians::origin_terms`]).
+#[derive(Debug, Clone, Copy)]
+pub struct OriginTerms {
+    /// The origin less the Gaussian's mean.
+    off: Vec3,
+    /// `off` in the Gaussian's canonical frame.
+    canonical: Vec3,
+}
+
 impl TraceGaussians {
     /// Prepares every Gaussian that can contribute; non-finite, degenerate (zero quaternion,
     /// zero or infinite scale) and too faint (opacity below 1/255) ones are left out.
@@ -115,9 +125,37 @@ impl TraceGaussians {
         mode: DepthMode,
         forward: Vec3,
     ) -> Option<Intersection> {
+        self.intersect_from(i, &self.origin_terms(i, o), d, t_min, t_max, mode, forward)
+    }
+
+    /// The part of [`TraceGaussians::intersect`] that depends on the ray's origin and not its
+    /// direction: rays that leave one point (a camera's) share it, computed once per Gaussian.
+    #[inline]
+    pub fn origin_terms(&self, i: usize, o: Vec3) -> OriginTerms {
         let a = &self.canonical[i];
         let off = o - self.means[i];
-        let oc = Vec3::new(a[0].dot(off), a[1].dot(off), a[2].dot(off));
+        OriginTerms {
+            off,
+            canonical: Vec3::new(a[0].dot(off), a[1].dot(off), a[2].dot(off)),
+        }
+    }
+
+    /// [`TraceGaussians::intersect`] from the origin's [`OriginTerms`] for Gaussian `i`: the
+    /// same result, bit for bit.
+    #[inline]
+    #[allow(clippy::too_many_arguments)] // the hot path: plain values, no per-call struct
+    pub fn intersect_from(
+        &self,
+        i: usize,
+        origin: &OriginTerms,
+        d: Vec3,
+        t_min: f32,
+        t_max: f32,
+        mode: DepthMode,
+        forward: Vec3,
+    ) -> Option<Intersection> {
+        let a = &self.canonical[i];
+        let oc = origin.canonical;
         let dc = Vec3::new(a[0].dot(d), a[1].dot(d), a[2].dot(d));
         let dd = dc.length_squared();
         if !(dd > 0.0) {
@@ -141,7 +179,8 @@ impl TraceGaussians {
                 if !(fd > 0.0) {
                     return None;
                 }
-                (self.means[i] - o).dot(forward) / fd
+                // `means - o`, exactly: IEEE subtraction is antisymmetric.
+                (-origin.off).dot(forward) / fd
             }
         };
         (t > t_min && t < t_max).then_some(Intersection { t, alpha })

@@ -3,6 +3,7 @@
 //! position, perturbed per (seed, pixel, sample) as the paper perturbs it per frame.
 
 use glam::Vec3;
+use render_base::hash::Hash32;
 use splat_raster::random::{hash32, unit_f32};
 
 /// Which generator decides acceptance.
@@ -31,6 +32,10 @@ pub struct SampleKey {
     pub sample: u32,
     /// Per-(seed, pixel, sample) offset added to hit positions by the trigonometric hash.
     offset: Vec3,
+    /// The integer hash's state after the key's seed and pixel, which every acceptance number
+    /// of the key starts from: hashed once here rather than in each of them (a hit tests up to
+    /// a number per slot).
+    prefix: Hash32,
 }
 
 impl SampleKey {
@@ -41,6 +46,7 @@ impl SampleKey {
             pixel,
             sample,
             offset: Vec3::new(h(1), h(2), h(3)),
+            prefix: Hash32::new(4).absorb(seed).absorb(pixel),
         }
     }
 }
@@ -70,14 +76,42 @@ pub fn trig_hash(p: Vec3) -> f32 {
 #[inline]
 pub fn acceptance(kind: RandomKind, key: &SampleKey, id: u32, slot: u32, p: Vec3) -> f32 {
     match kind {
-        RandomKind::Hash => unit_f32(hash32(&[
-            key.seed,
-            key.pixel,
-            key.sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab)),
-            id,
-        ])),
+        // `hash32(&[seed, pixel, sample + slot * 0x632be5ab, id])`, from the key's prefix.
+        RandomKind::Hash => unit_f32(
+            key.prefix
+                .absorb(key.sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab)))
+                .absorb(id)
+                .finish(),
+        ),
         RandomKind::Trig => trig_hash(
             p + key.offset + slot as f32 * Vec3::new(0.618_034, 0.414_213_57, 0.732_050_8),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The integer hash's acceptance number, started from the key's kept prefix, is the hash of
+    /// the whole key (seed, pixel, sample and slot, Gaussian id), bit for bit.
+    #[test]
+    fn acceptance_from_the_prefix_is_the_whole_key_hashed() {
+        for (seed, pixel, sample) in [(0u32, 0u32, 0u32), (1, 57_599, 3), (u32::MAX, 12_345, 1023)]
+        {
+            let key = SampleKey::new(seed, pixel, sample);
+            for slot in [0u32, 1, 7, 63] {
+                for id in [0, 1, 4_095, u32::MAX] {
+                    let whole = hash32(&[
+                        seed,
+                        pixel,
+                        sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab)),
+                        id,
+                    ]);
+                    let got = acceptance(RandomKind::Hash, &key, id, slot, Vec3::ZERO);
+                    assert_eq!(got.to_bits(), unit_f32(whole).to_bits());
+                }
+            }
+        }
     }
 }

@@ -5,7 +5,8 @@
 //! The shapes are chosen to reach every path of the kernels: 7 inputs (narrower than a register
 //! tile), hidden layers of 20 (one whole 16-column tile and a tail of 4), the 3 outputs (the
 //! narrow layer), and 301 rows (two whole blocks of 128 and a tail block of 45, whose last
-//! row is not a whole 4-row tile).
+//! row is not a whole 4-row tile); the gradients also on hidden layers of 8 (narrow, like the
+//! outputs) and on no hidden layer at all (inputs straight to outputs).
 //!
 //! Both sides are f32 with different summation orders, so they agree to rounding: each
 //! gradient entry within 2e-5 of the largest entry of its layer (the sums run over at most 301
@@ -86,7 +87,11 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 /// A network of the test's shape with every parameter drawn, the biases too (a fresh `Mlp`'s
 /// are zero, which would hide a dropped bias).
 fn random_mlp(seed: u64) -> Mlp {
-    let shape = Mlp::new(INPUTS, WIDTH, HIDDEN, seed);
+    random_mlp_of(WIDTH, HIDDEN, seed)
+}
+
+fn random_mlp_of(width: usize, hidden: usize, seed: u64) -> Mlp {
+    let shape = Mlp::new(INPUTS, width, hidden, seed);
     let mut rng = SplitMix::new(seed);
     let params = shape
         .params()
@@ -161,20 +166,25 @@ fn parameter_groups(mlp: &Mlp) -> Vec<usize> {
 
 #[test]
 fn forward_loss_and_gradients_match_burn() {
-    let mlp = random_mlp(11);
+    for (width, hidden) in [(WIDTH, HIDDEN), (8, 1), (WIDTH, 0)] {
+        forward_loss_and_gradients_match_burn_for(&random_mlp_of(width, hidden, 11));
+    }
+}
+
+fn forward_loss_and_gradients_match_burn_for(mlp: &Mlp) {
     let (inputs, targets) = data(12);
     let mut gradient = Gradient::default();
     let loss = mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
-    let (burn_loss, burn_params, burn_inputs) = burn_gradient(&mlp, &inputs, &targets);
+    let (burn_loss, burn_params, burn_inputs) = burn_gradient(mlp, &inputs, &targets);
     assert!(
         (loss - burn_loss).abs() <= 1e-5 * burn_loss.abs(),
         "loss {loss} against burn's {burn_loss}"
     );
     assert_close_by_group(
-        "parameter gradient",
+        &format!("parameter gradient of {:?}", mlp.dims()),
         &gradient.params,
         &burn_params,
-        &parameter_groups(&mlp),
+        &parameter_groups(mlp),
     );
     // The input gradient, one group per input column.
     assert_close_by_group(
@@ -187,7 +197,7 @@ fn forward_loss_and_gradients_match_burn() {
     let mut outputs = vec![0.0; ROWS * 3];
     mlp.forward(&inputs, &mut outputs, &mut BlockWork::default());
     let device = Device::flex();
-    let burn_outputs = to_vec(BurnMlp::from(&mlp, &device).forward(Tensor::<2>::from_data(
+    let burn_outputs = to_vec(BurnMlp::from(mlp, &device).forward(Tensor::<2>::from_data(
         TensorData::new(inputs.clone(), [ROWS, INPUTS]),
         &device,
     )));

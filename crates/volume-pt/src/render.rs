@@ -58,6 +58,7 @@ fn render_tile<C: FrameCache>(
 ) -> u64 {
     let mut nonfinite = 0;
     let keep_features = !tile.features.is_empty();
+    let directions = camera.ray_directions();
     for j in 0..tile.height {
         for i in 0..tile.width {
             let (x, y) = (tile.x0 + i, tile.y0 + j);
@@ -78,7 +79,7 @@ fn render_tile<C: FrameCache>(
                 };
                 let mut rng = SampleStream::new(settings.seed, pixel.pixel, s as u64);
                 let (jx, jy) = rng.next_2d();
-                let dir = camera.ray_direction(x as f32 + jx, y as f32 + jy);
+                let dir = directions.at(x as f32 + jx, y as f32 + jy);
                 let mut path = cache.path(pixel);
                 let sample = radiance_with(
                     scene,

@@ -217,6 +217,13 @@ impl TraceGaussians {
     pub fn color(&self, i: usize, eye: Vec3) -> Vec3 {
         match self.color_model {
             ColorModel::Rgb => Vec3::from_slice(&self.colors[3 * i..3 * i + 3]).max(Vec3::ZERO),
+            // Degree 0 does not depend on the direction: its one basis function is a constant,
+            // so the direction and the basis's call are skipped (the cache's clouds are degree
+            // 0, and its lookup takes a colour per slot of every ray). The same bits as below.
+            ColorModel::Sh(0) => {
+                let c = &self.colors[3 * i..3 * i + 3];
+                (Vec3::splat(0.5) + sh0_basis() * Vec3::new(c[0], c[1], c[2])).max(Vec3::ZERO)
+            }
             ColorModel::Sh(deg) => {
                 let n = sh::coeffs_for_degree(deg);
                 let c = &self.colors[3 * n * i..3 * n * (i + 1)];
@@ -231,6 +238,17 @@ impl TraceGaussians {
             }
         }
     }
+}
+
+/// The degree-0 spherical harmonic's value, as `sh::basis` gives it (computed once).
+#[inline]
+fn sh0_basis() -> f32 {
+    static VALUE: std::sync::LazyLock<f32> = std::sync::LazyLock::new(|| {
+        let mut basis = [0.0f32; 1];
+        sh::basis(0, [0.0; 3], &mut basis, None);
+        basis[0]
+    });
+    *VALUE
 }
 
 /// One Gaussian's tracing terms ([`TraceGaussians::new`]).

@@ -53,7 +53,7 @@ pub fn hash32(words: &[u32]) -> u32 {
 /// common prefix is kept and continued with each key's last words (the ray tracer hashes a
 /// sample's seed and pixel once for all its acceptance numbers). `Hash32::new(n)`, `absorb`
 /// the key's `n` words in order, then `finish`, is `hash32` of those words, bit for bit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Hash32(u32);
 
 impl Hash32 {

@@ -25,9 +25,10 @@
 //! can lie behind the camera.
 
 use crate::gaussians::{DepthMode, TraceGaussians};
-use crate::random::{RandomKind, SampleKey, acceptance};
+use crate::random::{RandomKind, SampleKey, acceptance, slot_acceptances};
 use glam::Vec3;
 use rayon::prelude::*;
+use render_base::hash::Hash32;
 use splat_raster::Camera;
 
 /// Pixels along a tile's side: smaller tiles walk fewer Gaussians that miss the pixel but list
@@ -67,12 +68,20 @@ pub fn trace_camera_image(
     let (width, forward) = (camera.width, camera.axes().2);
     let directions = camera.ray_directions();
     let mut image = vec![Vec3::ZERO; width as usize * camera.height as usize];
+    // The walk compiled for AVX2 where the processor has it: the slots' acceptance numbers are
+    // integer multiplies across slots, which the baseline x86-64 has no vector instruction for.
+    // Both compilations give the same bits (no fused multiply-add; integers are exact).
+    #[cfg(target_arch = "x86_64")]
+    let avx2 = std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    let avx2 = false;
     image
         .par_chunks_mut(width as usize)
         .enumerate()
         .for_each(|(y, row)| {
             let y = y as u32;
             let mut hits = vec![EMPTY_SLOT; LANES * slots];
+            let mut states = vec![Hash32::default(); LANES * slots];
             // A tile's row of pixels at a time: its rays share the tile's list.
             for (tx, span) in row.chunks_mut(LANES).enumerate() {
                 let x0 = tx as u32 * TILE;
@@ -96,7 +105,20 @@ pub fn trace_camera_image(
                         random,
                         background,
                     };
-                    walk.estimate(rays, &keys, list, slots, &mut hits, &mut sums);
+                    let scratch = Scratch {
+                        hits: &mut hits,
+                        states: &mut states,
+                    };
+                    if avx2 {
+                        #[cfg(target_arch = "x86_64")]
+                        // SAFETY: `avx2` is true only where the processor runs AVX2 (checked
+                        // by `is_x86_feature_detected!` above).
+                        unsafe {
+                            walk.estimate_avx2(rays, &keys, list, slots, scratch, &mut sums)
+                        };
+                    } else {
+                        walk.estimate(rays, &keys, list, slots, scratch, &mut sums);
+                    }
                 }
                 for (out, sum) in span.iter_mut().zip(sums) {
                     *out = (sum / spp as f64).as_vec3();
@@ -137,6 +159,13 @@ struct Entry {
     reaches_behind: bool,
 }
 
+/// An estimate's working memory, for `rays.len() * slots` slots: each slot's hit, and each
+/// slot's acceptance hash state before the Gaussian's id ([`SampleKey::slot_states`]).
+struct Scratch<'a> {
+    hits: &'a mut [(f32, usize, f32)],
+    states: &'a mut [Hash32],
+}
+
 /// What every estimate reads besides its rays and list.
 struct Walk<'a> {
     g: &'a TraceGaussians,
@@ -150,19 +179,28 @@ impl Walk<'_> {
     /// closest accepted colours. The list is walked front to back once for all the rays; a
     /// ray takes part until the next Gaussian lies behind every one of its slots' hits, and the
     /// walk stops when no ray takes part. Each ray meets exactly the hits it would meet alone.
-    /// `hits` is scratch for `rays.len() * slots` slots.
+    #[inline(always)]
     fn estimate(
         &self,
         rays: &[CameraRay],
         keys: &[SampleKey; LANES],
         list: &[Entry],
         slots: usize,
-        hits: &mut [(f32, usize, f32)],
+        scratch: Scratch<'_>,
         sums: &mut [glam::DVec3; LANES],
     ) {
         let g = self.g;
         let n = rays.len();
+        let Scratch { hits, states } = scratch;
         hits[..n * slots].fill(EMPTY_SLOT);
+        let hashed = self.random == RandomKind::Hash;
+        if hashed {
+            for (key, states) in keys.iter().zip(states.chunks_exact_mut(slots)).take(n) {
+                key.slot_states(states);
+            }
+        }
+        // One Gaussian's acceptance numbers for a ray's slots.
+        let mut numbers = [0.0f32; MAX_SLOTS];
         // Per ray, the centre depth of its farthest slot's hit: infinite while a slot is
         // empty. `intersect` places a hit at `depth / fd`, which never decreases with the
         // depth, so a Gaussian at or behind it cannot come before any of the ray's hits; one in
@@ -216,13 +254,25 @@ impl Walk<'_> {
                 ) else {
                     continue;
                 };
-                let p = r.o + h.t * r.d;
                 let lane = &mut hits[l * slots..(l + 1) * slots];
-                for (s, slot) in lane.iter_mut().enumerate() {
-                    if h.t < slot.0
-                        && acceptance(self.random, &keys[l], g.ids[i], s as u32, p) < h.alpha
-                    {
-                        *slot = (h.t, i, e.depth);
+                if hashed {
+                    // Every slot's number, then the slots that take the hit: the same choice as
+                    // numbering only the slots whose hit is farther (the numbers are pure).
+                    let numbers = &mut numbers[..slots];
+                    slot_acceptances(&states[l * slots..(l + 1) * slots], g.ids[i], numbers);
+                    for (slot, &u) in lane.iter_mut().zip(numbers.iter()) {
+                        if h.t < slot.0 && u < h.alpha {
+                            *slot = (h.t, i, e.depth);
+                        }
+                    }
+                } else {
+                    let p = r.o + h.t * r.d;
+                    for (s, slot) in lane.iter_mut().enumerate() {
+                        if h.t < slot.0
+                            && acceptance(self.random, &keys[l], g.ids[i], s as u32, p) < h.alpha
+                        {
+                            *slot = (h.t, i, e.depth);
+                        }
                     }
                 }
                 farthest[l] = lane.iter().fold(0.0f32, |m, s| m.max(s.2));
@@ -242,6 +292,26 @@ impl Walk<'_> {
                 .sum();
             sums[l] += (sum / slots as f32).as_dvec3();
         }
+    }
+}
+
+impl Walk<'_> {
+    /// [`Walk::estimate`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// The processor must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn estimate_avx2(
+        &self,
+        rays: &[CameraRay],
+        keys: &[SampleKey; LANES],
+        list: &[Entry],
+        slots: usize,
+        scratch: Scratch<'_>,
+        sums: &mut [glam::DVec3; LANES],
+    ) {
+        self.estimate(rays, keys, list, slots, scratch, sums)
     }
 }
 

@@ -46,6 +46,21 @@ impl SampleKey {
         }
     }
 
+    /// The integer hash's state for each of slots `0..states.len()` before a Gaussian's id:
+    /// from them, [`slot_acceptances`] gives one Gaussian's acceptance numbers for every slot.
+    pub fn slot_states(&self, states: &mut [Hash32]) {
+        for (slot, state) in (0u32..).zip(states.iter_mut()) {
+            *state = self.slot_state(slot);
+        }
+    }
+
+    /// The integer hash's state for slot `slot` before a Gaussian's id.
+    #[inline]
+    fn slot_state(&self, slot: u32) -> Hash32 {
+        self.prefix
+            .absorb(self.sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab)))
+    }
+
     /// The per-(seed, pixel, sample) offset the trigonometric hash adds to hit positions:
     /// computed where that hash is used, not with every key (three hashes a key, a tenth of
     /// a camera ray's cost in the cache's lookup, which uses the integer hash).
@@ -88,15 +103,20 @@ pub fn trig_hash(p: Vec3) -> f32 {
 pub fn acceptance(kind: RandomKind, key: &SampleKey, id: u32, slot: u32, p: Vec3) -> f32 {
     match kind {
         // `hash32(&[seed, pixel, sample + slot * 0x632be5ab, id])`, from the key's prefix.
-        RandomKind::Hash => unit_f32(
-            key.prefix
-                .absorb(key.sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab)))
-                .absorb(id)
-                .finish(),
-        ),
+        RandomKind::Hash => unit_f32(key.slot_state(slot).absorb(id).finish()),
         RandomKind::Trig => trig_hash(
             p + key.trig_offset() + slot as f32 * Vec3::new(0.618_034, 0.414_213_57, 0.732_050_8),
         ),
+    }
+}
+
+/// [`acceptance`] with [`RandomKind::Hash`] for every slot at once, from the key's
+/// [`SampleKey::slot_states`]: one Gaussian's numbers for all the slots in a loop without
+/// branches, which the compiler vectorises across slots. `out[s]` is slot `s`'s number.
+#[inline(always)]
+pub fn slot_acceptances(states: &[Hash32], id: u32, out: &mut [f32]) {
+    for (u, state) in out.iter_mut().zip(states) {
+        *u = unit_f32(state.absorb(id).finish());
     }
 }
 
@@ -121,6 +141,11 @@ mod tests {
                     ]);
                     let got = acceptance(RandomKind::Hash, &key, id, slot, Vec3::ZERO);
                     assert_eq!(got.to_bits(), unit_f32(whole).to_bits());
+                    let mut states = [Hash32::default(); 64];
+                    key.slot_states(&mut states);
+                    let mut all = [0.0f32; 64];
+                    slot_acceptances(&states, id, &mut all);
+                    assert_eq!(all[slot as usize].to_bits(), got.to_bits());
                 }
             }
         }

@@ -5,7 +5,8 @@
 //! - [`splitmix64_finalize`] / [`splitmix64`]: 64-bit keys (the path tracer's sample streams,
 //!   the neural cache's shuffles and seeds).
 //! - [`hash32`] / [`unit_f32`]: several 32-bit words to one (per-fragment decisions of the
-//!   rasteriser and the ray tracer).
+//!   rasteriser and the ray tracer); [`Hash32`] is the same hash a word at a time, for keys
+//!   that share a prefix.
 //! - [`fnv1a64`]: byte strings to the keys of renders, references and experiments.
 
 /// The FNV-1a offset basis: the 64-bit FNV-1a hash of nothing.

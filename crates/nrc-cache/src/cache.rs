@@ -55,6 +55,8 @@ pub struct NeuralCache {
     adam: Adam,
     /// The network's gradient and its scratch, kept between steps so no step allocates them.
     gradient: Gradient,
+    /// A step's batch as the network and the grid read it, kept between steps likewise.
+    batch: StepBatch,
     /// The tables' gradient, kept between steps so no step allocates it.
     grid_grad: Vec<f32>,
     steps: u64,
@@ -78,6 +80,7 @@ impl NeuralCache {
             mlp,
             adam: Adam::default(),
             gradient: Gradient::default(),
+            batch: StepBatch::default(),
             grid_grad,
             steps: 0,
         })
@@ -132,11 +135,6 @@ impl NeuralCache {
     /// Multiply-adds of one inference (the network only; the encoding adds 8 gathers per level).
     pub fn macs_per_query(&self) -> usize {
         self.mlp.macs_per_row()
-    }
-
-    /// The network's input rows for `queries`.
-    fn inputs(&self, queries: &[Query], out: &mut Vec<f32>) {
-        encode_inputs(&self.config, &self.grid, queries, out);
     }
 
     /// The cached radiance at each query: never negative, never NaN (a NaN output reads as 0).
@@ -221,23 +219,28 @@ impl NeuralCache {
     /// or a gradient is not finite.
     fn step(&mut self, batch: &[TrainingRecord]) -> Option<f64> {
         let width = self.config.input_width();
-        let queries: Vec<Query> = batch.iter().map(|r| r.query).collect();
-        let positions: Vec<Vec3> = batch.iter().map(|r| r.query.position).collect();
-        let mut rows = Vec::new();
-        self.inputs(&queries, &mut rows);
-        let targets: Vec<f32> = batch.iter().flat_map(|r| r.target.to_array()).collect();
-        let loss = self.mlp.loss_and_gradient(
-            &rows,
-            &targets,
-            self.config.loss_epsilon,
-            &mut self.gradient,
-        );
+        let StepBatch {
+            queries,
+            positions,
+            rows,
+            targets,
+        } = &mut self.batch;
+        queries.clear();
+        queries.extend(batch.iter().map(|r| r.query));
+        positions.clear();
+        positions.extend(batch.iter().map(|r| r.query.position));
+        targets.clear();
+        targets.extend(batch.iter().flat_map(|r| r.target.to_array()));
+        encode_inputs(&self.config, &self.grid, queries, rows);
+        let loss =
+            self.mlp
+                .loss_and_gradient(rows, targets, self.config.loss_epsilon, &mut self.gradient);
         let finite = |g: &[f32]| g.iter().all(|g| g.is_finite());
         if !loss.is_finite() || !finite(&self.gradient.params) || !finite(&self.gradient.inputs) {
             return None;
         }
         self.grid.backward(
-            &positions,
+            &self.batch.positions,
             &self.gradient.inputs,
             width,
             &mut self.grid_grad,
@@ -257,6 +260,16 @@ impl NeuralCache {
         self.steps += 1;
         Some(loss)
     }
+}
+
+/// [`NeuralCache::step`]'s batch: its queries, their positions, the network's input rows and the
+/// targets (3 a record).
+#[derive(Debug, Default)]
+struct StepBatch {
+    queries: Vec<Query>,
+    positions: Vec<Vec3>,
+    rows: Vec<f32>,
+    targets: Vec<f32>,
 }
 
 impl std::fmt::Debug for NeuralCache {

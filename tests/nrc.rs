@@ -1,9 +1,9 @@
 //! The neural radiance cache inside the volume path tracer (cached-pt's `nrc` adapter), on the
 //! bundled neghip scene at a small size: an untrained cache changes nothing, bit for bit;
 //! training paths put in the image what stopped paths do; a warm cache lowers the error at
-//! 1 spp.
+//! 1 spp; a frame's training step beside the next frame's tracing changes no bit.
 
-use cached_pt::nrc::render_nrc_frame;
+use cached_pt::nrc::{NrcSequence, render_nrc_frame};
 use glam::Vec3;
 use gscache_cli::metrics::rel_mse;
 use nrc_cache::{NeuralCache, NrcConfig};
@@ -34,7 +34,7 @@ fn small_config() -> NrcConfig {
 }
 
 /// Frame `f` with the neural cache; returns the frame's image.
-fn nrc_frame(s: &Scene, cache: &mut NeuralCache, seed: u64, f: u32) -> Vec<Vec3> {
+fn nrc_frame(s: &Scene, cache: &mut NrcSequence, seed: u64, f: u32) -> Vec<Vec3> {
     let mut settings = s.settings;
     settings.seed = seed;
     let mut film = Film::new(SIZE, SIZE);
@@ -49,6 +49,25 @@ fn nrc_frame(s: &Scene, cache: &mut NeuralCache, seed: u64, f: u32) -> Vec<Vec3>
     );
     assert_eq!(stats.nonfinite_samples, 0);
     film.mean()
+}
+
+/// A warm-up frame `f` (no film: nothing read, the cache trained).
+fn warm_up_frame(s: &Scene, cache: &mut NrcSequence, seed: u64, f: u32) {
+    let mut settings = s.settings;
+    settings.seed = seed;
+    render_nrc_frame(
+        &s.media,
+        &s.camera,
+        &settings,
+        f,
+        None,
+        cache,
+        &Control::none(),
+    );
+}
+
+fn new_cache(config: NrcConfig) -> NrcSequence {
+    NrcSequence::new(NeuralCache::new(config).unwrap())
 }
 
 /// Frame `f` of plain NEE: the same sample indices a cached frame `f` draws.
@@ -75,17 +94,19 @@ fn plain_frame(s: &Scene, seed: u64, f: u32) -> Vec<Vec3> {
 fn an_untrained_cache_is_plain_nee() {
     let s = scene();
     for fraction in [1.0, 0.25] {
-        let mut cache = NeuralCache::new(NrcConfig {
+        let mut cache = new_cache(NrcConfig {
             training_fraction: fraction,
             ..small_config()
-        })
-        .unwrap();
+        });
         assert_eq!(
             nrc_frame(&s, &mut cache, 4, 0),
             plain_frame(&s, 4, 0),
             "training fraction {fraction}"
         );
-        assert!(cache.steps() > 0, "the frame trained the cache");
+        assert!(
+            cache.finish().steps > 0,
+            "the frame's records train the cache"
+        );
     }
 }
 
@@ -99,14 +120,14 @@ fn an_untrained_cache_is_plain_nee() {
 #[test]
 fn training_paths_read_the_cache_as_stopped_paths_do() {
     let s = scene();
-    let mut cache = NeuralCache::new(small_config()).unwrap();
+    let mut cache = new_cache(small_config());
     for f in 0..20 {
         nrc_frame(&s, &mut cache, 8, f);
     }
     let frames = 128u32;
-    let steps_before = cache.steps();
+    let steps_before = cache.cache_mut().steps();
     let mut moments = |fraction: f32, seed: u64| -> Vec<(f64, f64)> {
-        cache.set_training(fraction, 0).unwrap();
+        cache.cache_mut().set_training(fraction, 0).unwrap();
         let mut m = vec![(0.0f64, 0.0f64); (SIZE * SIZE) as usize];
         for f in 0..frames {
             for (acc, v) in m.iter_mut().zip(nrc_frame(&s, &mut cache, seed, 100 + f)) {
@@ -119,7 +140,11 @@ fn training_paths_read_the_cache_as_stopped_paths_do() {
     };
     let all = moments(1.0, 21);
     let none = moments(0.0, 22);
-    assert_eq!(cache.steps(), steps_before, "a frozen cache takes no step");
+    assert_eq!(
+        cache.cache_mut().steps(),
+        steps_before,
+        "a frozen cache takes no step"
+    );
     let n = frames as f64;
     let mut z = test_stats::ZScores::new();
     let (mut mean_all, mut mean_none) = (0.0, 0.0);
@@ -148,11 +173,10 @@ fn warm_nrc_beats_nee_at_one_spp() {
     let mut film = Film::new(SIZE, SIZE);
     render(&s.media, &s.camera, &settings, &mut film, &Control::none());
     let reference = film.mean();
-    let mut cache = NeuralCache::new(NrcConfig {
+    let mut cache = new_cache(NrcConfig {
         training_fraction: 0.1,
         ..small_config()
-    })
-    .unwrap();
+    });
     for f in 0..60 {
         nrc_frame(&s, &mut cache, 500, f);
     }
@@ -167,4 +191,48 @@ fn warm_nrc_beats_nee_at_one_spp() {
         e_nee / 8.0
     );
     assert!(e_nrc < 0.8 * e_nee, "nrc {e_nrc} vs nee {e_nee}");
+}
+
+/// A frame's training step runs beside the next frame's path tracing (issue 31). The images
+/// must be those of taking each step at the end of its frame: frames with a film, warm-up
+/// frames, then frames with a film again, pipelined on 3 threads against stepped one frame at a time on 1 thread, bit
+/// for bit, and the caches they leave equal. Inference reading the cache before the previous
+/// frame's step, or the first frames' stop decision made before the first step is known,
+/// fails it.
+#[test]
+fn the_next_frames_tracing_beside_the_step_changes_no_bit() {
+    let s = scene();
+    let run = |threads: usize, step_each_frame: bool| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut cache = new_cache(small_config());
+            let mut images = Vec::new();
+            for f in 0..7 {
+                if (2..4).contains(&f) {
+                    warm_up_frame(&s, &mut cache, 31, f);
+                } else {
+                    images.push(nrc_frame(&s, &mut cache, 31, f));
+                }
+                if step_each_frame {
+                    cache.finish();
+                }
+            }
+            let cache = cache.into_cache();
+            (images, cache.steps(), cache.network().params().to_vec())
+        })
+    };
+    let (pipelined, pipelined_steps, pipelined_weights) = run(3, false);
+    let (stepped, stepped_steps, stepped_weights) = run(1, true);
+    assert!(
+        stepped_steps >= 7,
+        "every frame trained: {stepped_steps} steps"
+    );
+    assert_eq!(pipelined_steps, stepped_steps);
+    assert!(pipelined_weights == stepped_weights, "the caches differ");
+    for (f, (a, b)) in pipelined.iter().zip(&stepped).enumerate() {
+        assert!(a == b, "image {f} differs");
+    }
 }

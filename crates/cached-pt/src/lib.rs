@@ -11,7 +11,8 @@
 //! - [`render_cached_frame`]: one frame that draws the cache, traces paths reading it, and
 //!   trains it on their samples.
 //! - [`nrc`] (feature `nrc`): the same for the neural radiance cache (nrc-cache), the baseline
-//!   the GSCache paper compares with.
+//!   the GSCache paper compares with; its `NrcSequence` runs each frame's training step beside
+//!   the next frame's path tracing.
 
 use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets};
 use splat_raster::Camera;

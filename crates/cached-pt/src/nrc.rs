@@ -262,18 +262,93 @@ impl FrameCache for NrcFrame {
     }
 }
 
+/// The neural cache as a sequence of frames drives it, with the last frame's training step
+/// still to take.
+///
+/// A frame's training step needs only that frame's records, and the next frame's path tracing
+/// needs nothing of the cache but whether it has been trained at all (its stops are read after
+/// tracing, in one batch). So frame `N`'s step runs beside frame `N + 1`'s path tracing, whose
+/// thousands of tiles keep every core busy through the step's small kernels, and frame
+/// `N + 1`'s inference then reads the cache with that step taken (issue 31). The images are
+/// the same bits as when each frame takes its step at its end: the cache each inference reads
+/// and each frame's stop decisions are the same (tested).
+#[derive(Debug)]
+pub struct NrcSequence {
+    cache: NeuralCache,
+    pending: Option<PendingStep>,
+}
+
+/// A frame's training step, not yet taken: its training paths' records, by tile, and the seed
+/// that draws its batches.
+#[derive(Debug)]
+struct PendingStep {
+    tiles: Vec<Vec<TrainingRecord>>,
+    shuffle: u64,
+}
+
+impl PendingStep {
+    /// Takes the step on `cache`: what `NeuralCache::train` does with the frame's records.
+    fn take(self, cache: &mut NeuralCache) -> TrainReport {
+        let records: Vec<TrainingRecord> = self.tiles.into_iter().flatten().collect();
+        cache.train(&records, self.shuffle)
+    }
+
+    /// [`PendingStep::take`], and the seconds it took.
+    fn take_timed(self, cache: &mut NeuralCache) -> (TrainReport, f64) {
+        let start = std::time::Instant::now();
+        let report = self.take(cache);
+        (report, start.elapsed().as_secs_f64())
+    }
+}
+
+impl NrcSequence {
+    pub fn new(cache: NeuralCache) -> Self {
+        Self {
+            cache,
+            pending: None,
+        }
+    }
+
+    /// The cache as its steps so far left it: the last frame's step may still be to take (see
+    /// [`NrcSequence::finish`]).
+    pub fn cache(&self) -> &NeuralCache {
+        &self.cache
+    }
+
+    /// Takes the last frame's training step, if it is still to take, and reports it: after
+    /// this the cache has learned from every frame rendered.
+    pub fn finish(&mut self) -> TrainReport {
+        match self.pending.take() {
+            Some(step) => step.take(&mut self.cache),
+            None => TrainReport::default(),
+        }
+    }
+
+    /// The cache with every frame's step taken, to change or read directly.
+    pub fn cache_mut(&mut self) -> &mut NeuralCache {
+        self.finish();
+        &mut self.cache
+    }
+
+    /// The cache with every frame's step taken.
+    pub fn into_cache(mut self) -> NeuralCache {
+        self.finish();
+        self.cache
+    }
+}
+
 /// What one frame with the neural cache did.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct NrcFrameStats {
-    /// Path tracing (the GSCache paper's PT).
+    /// Path tracing (the GSCache paper's PT), the previous frame's training step beside it.
     pub trace_seconds: f64,
     /// Inference and composition (IT).
     pub inference_seconds: f64,
-    /// Training's part of the frame (OT), gathering the tiles' records included: the frame's
-    /// time after tracing beyond inference. Inference runs beside the training step, so this
-    /// is less than the step when they overlap; the parts add up to the frame.
+    /// Training's part of the frame (OT): the time the frame waited on the previous frame's
+    /// step after its own tracing ended, and filing its own records for the next frame. The
+    /// parts add up to the frame.
     pub train_seconds: f64,
-    /// The training step's own duration, overlap included.
+    /// The training step's own duration, the overlap with path tracing included.
     pub train_step_seconds: f64,
     /// Making a film for a frame that keeps none (a warm-up frame's scratch film).
     pub film_seconds: f64,
@@ -281,23 +356,41 @@ pub struct NrcFrameStats {
     pub queries: usize,
     pub samples: u64,
     pub nonfinite_samples: u64,
+    /// The training step taken during this frame: the previous frame's records.
     pub train: TrainReport,
     pub cancelled: bool,
 }
 
 /// Frame `frame_index`: trace `settings.spp` paths per pixel (accumulated into `film` when one
-/// is given), read the cache at their stops in one batch and compose the values into the film,
-/// then train on the training paths' records (unless cancelled). Without a film (warm-up
-/// frames) nothing is read: the stops' values would go nowhere.
+/// is given) while the previous frame's training step runs, read the cache at the paths' stops
+/// in one batch and compose the values into the film, then file the frame's training records
+/// for the next frame's step (unless cancelled). Without a film (warm-up frames) nothing is
+/// read: the stops' values would go nowhere.
 pub fn render_nrc_frame(
     scene: &SceneMedia,
     camera: &Camera,
     settings: &RenderSettings,
     frame_index: u32,
     film: Option<&mut volume_pt::Film>,
-    cache: &mut NeuralCache,
+    sequence: &mut NrcSequence,
     control: &Control,
 ) -> NrcFrameStats {
+    let timed = |f: &mut dyn FnMut()| {
+        let start = std::time::Instant::now();
+        f();
+        start.elapsed().as_secs_f64()
+    };
+    let NrcSequence { cache, pending } = sequence;
+    let mut report = TrainReport::default();
+    let mut first_step_seconds = 0.0;
+    if cache.steps() == 0 {
+        // Whether paths may stop depends on whether the cache has taken a step, which only
+        // taking it tells (a step whose loss is not finite is skipped): an untrained cache's
+        // pending step runs before the tracing, not beside it.
+        if let Some(step) = pending.take() {
+            (report, first_step_seconds) = step.take_timed(cache);
+        }
+    }
     let frame = NrcFrame::new(
         cache.config(),
         scene.medium.bounds(),
@@ -317,57 +410,50 @@ pub fn render_nrc_frame(
     };
     let film_seconds = clock.elapsed().as_secs_f64();
     let nonfinite_before = film.nonfinite_samples;
-    let traced = render_frame_with(scene, camera, settings, frame_index, film, &frame, control);
+    let clock = std::time::Instant::now();
+    let step = pending.take();
+    let mut step_seconds = first_step_seconds;
+    let mut traced = {
+        let film = &mut *film;
+        let cache = &mut *cache;
+        let (traced, step) = rayon::join(
+            || render_frame_with(scene, camera, settings, frame_index, film, &frame, control),
+            || step.map(|step| step.take_timed(cache)),
+        );
+        if let Some((step_report, seconds)) = step {
+            report = step_report;
+            step_seconds += seconds;
+        }
+        traced
+    };
+    let waited = (clock.elapsed().as_secs_f64() - traced.trace_seconds).max(0.0);
     let mut stats = NrcFrameStats {
         trace_seconds: traced.trace_seconds,
         film_seconds,
         samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
+        train_step_seconds: step_seconds,
+        train: report,
         ..Default::default()
     };
-
-    let start = std::time::Instant::now();
-    let stops: usize = traced.records.iter().map(|(_, t)| t.stops.len()).sum();
-    stats.queries = stops;
+    stats.queries = traced.records.iter().map(|(_, t)| t.stops.len()).sum();
     stats.cancelled = traced.cancelled || control.cancelled();
-    let read = has_film && stops > 0;
-    let train = !stats.cancelled;
-    let records: Vec<TrainingRecord> = if train {
-        traced
-            .records
-            .iter()
-            .flat_map(|(_, t)| t.records.iter().copied())
-            .collect()
-    } else {
-        Vec::new()
-    };
-    let shuffle = mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e));
-    let timed = |f: &mut dyn FnMut()| {
-        let start = std::time::Instant::now();
-        f();
-        start.elapsed().as_secs_f64()
-    };
-    let mut report = TrainReport::default();
-    if read && train {
-        // Inference reads a snapshot of the cache from before this frame's step while the step
-        // runs beside it: the same values as reading first, and at many cores the step's
-        // small, serial kernels no longer add to inference's time (issue 31).
-        let snapshot = cache.snapshot();
-        let (inference, step) = rayon::join(
-            || timed(&mut || compose(&traced.records, &|q| snapshot.predict(q), film)),
-            || timed(&mut || report = cache.train(&records, shuffle)),
-        );
-        stats.inference_seconds = inference;
-        stats.train_step_seconds = step;
-    } else if read {
+    if has_film && stats.queries > 0 {
         stats.inference_seconds =
             timed(&mut || compose(&traced.records, &|q| cache.predict(q), film));
-    } else if train {
-        stats.train_step_seconds = timed(&mut || report = cache.train(&records, shuffle));
     }
-    stats.train = report;
-    // Training's part of the frame: what it adds beyond inference (the whole step when they
-    // did not run side by side), so that the parts add up to the frame.
-    stats.train_seconds = (start.elapsed().as_secs_f64() - stats.inference_seconds).max(0.0);
+    let filing = timed(&mut || {
+        if !stats.cancelled {
+            *pending = Some(PendingStep {
+                tiles: traced
+                    .records
+                    .iter_mut()
+                    .map(|(_, t)| std::mem::take(&mut t.records))
+                    .collect(),
+                shuffle: mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e)),
+            });
+        }
+    });
+    stats.train_seconds = first_step_seconds + waited + filing;
     // The traced samples and the composed values that were refused.
     stats.nonfinite_samples = film.nonfinite_samples - nonfinite_before;
     stats

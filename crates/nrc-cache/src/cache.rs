@@ -142,18 +142,6 @@ impl NeuralCache {
         predict_with(&self.config, &self.grid, &self.mlp, queries)
     }
 
-    /// The cache as it stands, to read while the cache itself trains: a frame's inference can
-    /// then run beside its training step (issue 31), reading the weights from before the step
-    /// as it would if it ran first. The weights and the tables are copied (a step changes
-    /// them in place).
-    pub fn snapshot(&self) -> Snapshot {
-        Snapshot {
-            config: self.config,
-            grid: self.grid.clone(),
-            net: self.mlp.clone(),
-        }
-    }
-
     /// Trains on `records` (a frame's training paths): draws up to `steps_per_frame *
     /// batch_size` of them at random (with `shuffle_seed`), then takes up to `steps_per_frame`
     /// Adam steps of `batch_size` records each, fewer when there are fewer records. Records
@@ -278,20 +266,6 @@ impl std::fmt::Debug for NeuralCache {
             .field("config", &self.config)
             .field("steps", &self.steps)
             .finish_non_exhaustive()
-    }
-}
-
-/// [`NeuralCache::snapshot`]: the cache frozen as it was, for reading.
-pub struct Snapshot {
-    config: NrcConfig,
-    grid: HashGrid,
-    net: Mlp,
-}
-
-impl Snapshot {
-    /// [`NeuralCache::predict`] as the cache stood when the snapshot was taken.
-    pub fn predict(&self, queries: &[Query]) -> Vec<Vec3> {
-        predict_with(&self.config, &self.grid, &self.net, queries)
     }
 }
 

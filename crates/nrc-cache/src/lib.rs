@@ -36,7 +36,7 @@ pub mod encoding;
 pub mod mlp;
 pub mod random;
 
-pub use cache::{NeuralCache, Query, Snapshot, TrainReport, TrainingRecord, spherical_harmonics_2};
+pub use cache::{NeuralCache, Query, TrainReport, TrainingRecord, spherical_harmonics_2};
 pub use config::{ConfigError, NrcConfig};
 pub use encoding::HashGrid;
 pub use mlp::Mlp;

@@ -277,31 +277,3 @@ fn bit_identical_whatever_the_thread_count() {
     };
     assert_eq!(run(1), run(2));
 }
-
-/// A snapshot reads the cache as it stood when taken, bit for bit, however the cache trains
-/// after it: a frame's inference reads one while the frame's step runs beside it.
-#[test]
-fn a_snapshot_reads_the_cache_from_before_its_training() {
-    let mut cache = NeuralCache::new(fit_config()).unwrap();
-    let records = |frame: u64| -> Vec<TrainingRecord> {
-        points(2048, 90 + frame)
-            .into_iter()
-            .map(|p| TrainingRecord {
-                query: query(p),
-                target: field(p),
-            })
-            .collect()
-    };
-    cache.train(&records(0), 0);
-    let queries: Vec<Query> = points(500, 9).into_iter().map(query).collect();
-    let before = cache.predict(&queries);
-    let snapshot = cache.snapshot();
-    assert_eq!(snapshot.predict(&queries), before);
-    cache.train(&records(1), 1);
-    let after = cache.predict(&queries);
-    assert_ne!(
-        after, before,
-        "the step must change the predictions for the test to mean anything"
-    );
-    assert_eq!(snapshot.predict(&queries), before);
-}

@@ -17,6 +17,8 @@ use std::time::Instant;
 use volume_pt::{Film, RenderSettings, Scene, SceneMedia, render_samples, sample_cache_points};
 
 #[cfg(feature = "nrc")]
+use cached_pt::nrc::NrcSequence;
+#[cfg(feature = "nrc")]
 use nrc_cache::{NeuralCache, NrcConfig};
 
 /// Which cache a session reads and trains, and its settings.
@@ -53,8 +55,10 @@ pub enum Cache {
     #[default]
     None,
     Gaussian(Box<GsCache>),
+    /// The neural cache, with the last frame's training step possibly still to take (it runs
+    /// beside the next frame's path tracing).
     #[cfg(feature = "nrc")]
-    Neural(Box<NeuralCache>),
+    Neural(Box<NrcSequence>),
 }
 
 impl Cache {
@@ -97,7 +101,7 @@ impl Cache {
                 };
                 let cache =
                     NeuralCache::new(config).map_err(|e| SessionError::Neural(e.to_string()))?;
-                Cache::Neural(Box::new(cache))
+                Cache::Neural(Box::new(NrcSequence::new(cache)))
             }
         };
         Ok((cache, start.elapsed().as_secs_f64()))
@@ -114,7 +118,7 @@ impl Cache {
             Cache::None => 0,
             Cache::Gaussian(c) => c.parameter_bytes(),
             #[cfg(feature = "nrc")]
-            Cache::Neural(c) => c.parameter_bytes(),
+            Cache::Neural(c) => c.cache().parameter_bytes(),
         }
     }
 
@@ -133,11 +137,12 @@ impl Cache {
         }
     }
 
-    /// The neural cache, if that is what this is.
+    /// The neural cache, if that is what this is, as its steps so far left it (the last
+    /// frame's step may still be to take: [`NrcSequence::finish`]).
     #[cfg(feature = "nrc")]
     pub fn neural(&self) -> Option<&NeuralCache> {
         match self {
-            Cache::Neural(c) => Some(c),
+            Cache::Neural(c) => Some(c.cache()),
             _ => None,
         }
     }

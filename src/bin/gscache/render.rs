@@ -573,24 +573,28 @@ fn describe_cache(session: &Session, loaded: bool) {
             c.parameter_bytes() as f64 / 1e6,
             if loaded { "loaded" } else { "initialised" },
         ),
-        Cache::Neural(c) => eprintln!(
-            "neural cache: {} levels of 2^{} entries, {} hidden layers of {} ({:.1} MB of parameters and optimiser state)",
-            c.config().grid_levels,
-            c.config().grid_log2_table,
-            c.config().hidden_layers,
-            c.config().hidden_width,
-            c.parameter_bytes() as f64 / 1e6
-        ),
+        Cache::Neural(c) => {
+            let c = c.cache();
+            eprintln!(
+                "neural cache: {} levels of 2^{} entries, {} hidden layers of {} ({:.1} MB of parameters and optimiser state)",
+                c.config().grid_levels,
+                c.config().grid_log2_table,
+                c.config().hidden_layers,
+                c.config().hidden_width,
+                c.parameter_bytes() as f64 / 1e6
+            )
+        }
     }
 }
 
 /// Prints a cached render's mean per-frame costs over `frames` (`what`: which frames): every
 /// part of the frame's wall time, the remainder ("other", the session's bookkeeping) included.
 fn print_frame_costs(session: &Session, what: &str, frames: &[FrameReport]) {
-    let read = match session.cache() {
+    let (read, beside) = match session.cache() {
         Cache::None => return,
-        Cache::Gaussian(_) => "cache lookup",
-        Cache::Neural(_) => "inference and composition",
+        Cache::Gaussian(_) => ("cache lookup", "cache lookup"),
+        // The previous frame's step runs beside this frame's path tracing.
+        Cache::Neural(_) => ("inference and composition", "path tracing"),
     };
     if frames.is_empty() {
         return;
@@ -613,7 +617,7 @@ fn print_frame_costs(session: &Session, what: &str, frames: &[FrameReport]) {
         .collect();
     let step = mean(&|r| r.train_step_seconds);
     let beside = if step > mean(&|r| r.train_seconds) + 0.05 {
-        format!(" (the training step, {step:.1} ms, runs beside the {read})")
+        format!(" (the training step, {step:.1} ms, runs beside the {beside})")
     } else {
         String::new()
     };

@@ -154,9 +154,9 @@ impl CacheFrame {
     /// Empty training targets for this frame: its levels and size, and with the unbiased
     /// estimator its statistics per cache pixel.
     pub fn training_targets(&self) -> TrainingTargets {
-        let t = TrainingTargets::new(self.levels(), self.camera.width, self.camera.height);
+        let t = TrainingTargets::new(self.levels(), self.map);
         if self.kappa.is_some() {
-            t.with_statistics(self.map)
+            t.with_statistics()
         } else {
             t
         }
@@ -541,19 +541,12 @@ impl GsCache {
 
     /// Empty training targets for the last drawn frame: [`CacheFrame::training_targets`], but
     /// reusing the buffers handed back by [`GsCache::recycle_training_targets`] when they fit
-    /// (cleared in parallel). `None` before the first [`GsCache::begin_frame`].
+    /// (cleared). `None` before the first [`GsCache::begin_frame`].
     pub fn take_training_targets(&mut self) -> Option<TrainingTargets> {
         let frame = self.frame.as_ref()?;
-        let statistics = frame.kappa.is_some().then_some(frame.map);
+        let statistics = frame.kappa.is_some();
         Some(match self.spare_targets.take() {
-            Some(mut spare)
-                if spare.fits(
-                    frame.levels(),
-                    frame.camera.width,
-                    frame.camera.height,
-                    statistics,
-                ) =>
-            {
+            Some(mut spare) if spare.fits(frame.levels(), &frame.map, statistics) => {
                 spare.clear();
                 spare
             }
@@ -588,18 +581,20 @@ impl GsCache {
         {
             c.observe(stats, moments);
         }
-        if targets.levels() != self.levels.len()
-            || targets.width() != frame_camera.width
-            || targets.height() != frame_camera.height
-        {
+        if targets.levels() != self.levels.len() || *targets.map() != map {
             return Err(CacheError::Config(format!(
-                "training targets are {} levels of {}x{}: expected {} levels of {}x{}",
+                "training targets are {} levels of {}x{} binned to {}x{}: expected {} levels of \
+                 {}x{} binned to {}x{}",
                 targets.levels(),
                 targets.width(),
                 targets.height(),
+                targets.map().width,
+                targets.map().height,
                 self.levels.len(),
                 frame_camera.width,
-                frame_camera.height
+                frame_camera.height,
+                map.width,
+                map.height
             )));
         }
         if frame.handed_off {
@@ -618,7 +613,7 @@ impl GsCache {
                     && level.radiance_scale.is_none()
                     && !level.absolute_colors
                 {
-                    let (target, mask) = targets.level_target_binned(i, true, &map);
+                    let (target, mask) = targets.level_target(i, true);
                     if mask.iter().any(|&m| m) {
                         level.set_radiance_scale(&target, &mask);
                         self.levels_changed = true;
@@ -756,9 +751,7 @@ impl LevelStep<'_> {
             mut drawn,
             trust,
         } = slot;
-        let (target, mask) =
-            self.targets
-                .level_target_binned(i, self.config.masked_targets, self.map);
+        let (target, mask) = self.targets.level_target(i, self.config.masked_targets);
         if !mask.iter().any(|&m| m) {
             return LevelOutcome::default();
         }
@@ -793,7 +786,7 @@ impl LevelStep<'_> {
         }
         let mut outcome = LevelOutcome::default();
         if let Some(verdicts) = trust {
-            let spread = self.targets.level_spread_binned(i, self.map);
+            let spread = self.targets.level_spread(i);
             outcome.stale_fraction = update_trust(verdicts, &prediction, &target, &spread);
         }
         let (loss, mut grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));

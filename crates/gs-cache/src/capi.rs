@@ -547,13 +547,7 @@ pub unsafe extern "C" fn gs_cache_begin_frame(
         let unbiased = h.cache.config().unbiased;
         let frame = h.cache.begin_frame(&camera);
         match &mut h.targets {
-            Some(t)
-                if t.width() == c.width
-                    && t.height() == c.height
-                    && t.statistics().is_some() == unbiased =>
-            {
-                t.clear()
-            }
+            Some(t) if t.fits(levels, &frame.pixel_map(), unbiased) => t.clear(),
             t => *t = Some(frame.training_targets()),
         }
         Ok(())

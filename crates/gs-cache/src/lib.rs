@@ -11,7 +11,7 @@
 //! - [`termination`]: Algorithm 1's continuation probability.
 //! - [`control`]: the unbiased estimator's continuation probabilities, from measured error and
 //!   cost.
-//! - [`targets`]: per-level training targets with masks.
+//! - [`targets`]: per-level training targets with masks, gathered straight into cache pixels.
 //! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
 //! - [`fallback`]: plain path tracing where a level's last residual says it is stale.

@@ -197,14 +197,14 @@ mod tests {
         let cam = camera(8, 4);
         let (_, map) = PixelMap::new(&cam, 2);
         assert_eq!((map.width, map.height), (4, 2));
-        let mut t = TrainingTargets::new(1, 8, 4);
+        let mut t = TrainingTargets::new(1, map);
         // Frame pixels (0, 0), (1, 0), (0, 1) fall in cache pixel 0 (one sample each);
         // (1, 1) has none. Pixel (7, 3) alone fills cache pixel 7.
         t.add(0, 0, [1.0, 2.0, 3.0]);
         t.add(0, 1, [3.0, 2.0, 1.0]);
         t.add(0, 8, [2.0, 2.0, 2.0]);
         t.add(0, 31, [5.0, 0.0, 0.0]);
-        let (target, mask) = t.level_target_binned(0, true, &map);
+        let (target, mask) = t.level_target(0, true);
         assert_eq!(target[0], [2.0, 2.0, 2.0]);
         assert_eq!(target[7], [5.0, 0.0, 0.0]);
         assert_eq!(mask.iter().filter(|&&m| m).count(), 2);

@@ -1,9 +1,17 @@
-//! Per-level training targets: each pixel's weighted mean sample for each level this frame, and
-//! how many samples it had (no sample: the pixel takes no part in that level's loss). The
-//! weights are 1, or with survivor weights the inverse of Algorithm 1's probability of going on;
-//! they are kept through the binning into cache pixels, so a bin's target is the weighted mean of
+//! Per-level training targets at the cache's resolution: for each level and cache pixel (a
+//! bin of frame pixels, [`PixelMap`]), the weighted mean of the samples the frame's paths gave
+//! there, and the spread of that mean (a bin without a sample takes no part in that level's
+//! loss). The weights are 1, or with survivor weights the inverse of Algorithm 1's probability
+//! of going on; they are kept through the binning, so a bin's target is the weighted mean of
 //! every sample in it (a pixel's mean taken with weight 1 would undo them: one path per pixel
 //! has a weighted mean equal to its own sample).
+//!
+//! The samples go straight into the bins. Kept per frame pixel first, the targets were four
+//! frame-sized images per level (90 MB at 1280x720) to clear, fill and read back every frame:
+//! at 16 cores that memory traffic, not arithmetic, made a tenth of the cold cache's frame
+//! (issue 31). Each frame pixel's sample sum still enters its bin as it did then (an f32
+//! weighted sum per pixel, added to the bin's f64 sums in row-major pixel order), so the
+//! targets are the same bits.
 
 use crate::control::{PathStatistics, Statistics};
 use crate::resolution::PixelMap;
@@ -12,25 +20,18 @@ use glam::Vec3;
 use rayon::prelude::*;
 use splat_raster::MAX_SAMPLE_RADIANCE;
 
-/// Training samples of one frame, one image per level, row-major.
+/// Training samples of one frame: per level, per cache pixel, row-major.
 #[derive(Debug, Clone)]
 pub struct TrainingTargets {
-    width: u32,
-    height: u32,
-    /// Per level, per pixel: the weighted sum of its samples.
-    sums: Vec<Vec<[f32; 3]>>,
-    /// Per level, per pixel: the sum of the weights.
-    weights: Vec<Vec<f32>>,
-    /// Per level, per pixel: the weighted sum of the squared luminances of its samples (for the
-    /// spread the fallback's test needs: [`TrainingTargets::level_spread_binned`]).
-    squares: Vec<Vec<f32>>,
-    /// Per level, per pixel: how many samples were added.
-    counts: Vec<Vec<u32>>,
+    /// Frame pixels to cache pixels (the bins).
+    map: PixelMap,
+    /// Per level, per bin: its samples' sums.
+    bins: Vec<Vec<BinSums>>,
     /// Samples refused this frame for being not finite or too large in magnitude.
     dropped: u64,
-    /// The unbiased estimator's statistics per cache pixel (see [`crate::control`]), with the
-    /// map from frame pixels to cache pixels.
-    statistics: Option<(PixelMap, Statistics, Vec<[f32; 3]>)>,
+    /// The unbiased estimator's statistics per cache pixel (see [`crate::control`]), and per
+    /// frame pixel the moments of its paths' estimates.
+    statistics: Option<(Statistics, Vec<[f32; 3]>)>,
 }
 
 /// Per cache row of `map`, the frame rows (of `height`) whose pixels it bins: a frame row's
@@ -50,21 +51,26 @@ fn frame_rows_per_cache_row(map: &PixelMap, height: u32) -> Vec<std::ops::Range<
     rows
 }
 
-/// One pixel's accumulators in [`TrainingTargets`] for one level.
-struct Bin<'a> {
-    sum: &'a mut [f32; 3],
-    weight: &'a mut f32,
-    square: &'a mut f32,
-    count: &'a mut u32,
+/// One bin's sums for one level: the weighted sum of its samples, the summed weights, the
+/// weighted sum of their luminances and of their squared luminances, and the number of frame
+/// pixels' sums added (the samples, when each pixel adds one).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct BinSums {
+    sum: [f64; 3],
+    weight: f64,
+    luminance: f64,
+    square: f64,
+    count: u64,
 }
 
-impl Bin<'_> {
-    /// Adds `value` with `weight`; false (nothing added) for a value not finite or above
-    /// [`MAX_SAMPLE_RADIANCE`] in magnitude, or a weight not finite and positive. Negative
-    /// values are kept: the unbiased estimator's control variate makes them, and their mean is
-    /// still the level's target. Written so that NaN fails.
+impl BinSums {
+    /// Adds `value` with `weight` as one frame pixel's sums; false (nothing added) for a value
+    /// not finite or above [`MAX_SAMPLE_RADIANCE`] in magnitude, or a weight not finite and
+    /// positive. Negative values are kept: the unbiased estimator's control variate makes
+    /// them, and their mean is still the level's target. Written so that NaN fails. The
+    /// products are rounded to f32 as a per-pixel f32 sum would hold them.
     #[inline]
-    fn add(self, value: [f32; 3], weight: f32) -> bool {
+    fn add(&mut self, value: [f32; 3], weight: f32) -> bool {
         if !(value
             .iter()
             .all(|v| (-MAX_SAMPLE_RADIANCE..=MAX_SAMPLE_RADIANCE).contains(v))
@@ -73,38 +79,35 @@ impl Bin<'_> {
         {
             return false;
         }
+        let weighted = value.map(|v| weight * v);
         for c in 0..3 {
-            self.sum[c] += weight * value[c];
+            self.sum[c] += weighted[c] as f64;
         }
-        *self.weight += weight;
-        *self.square += weight * luminance(Vec3::from_array(value)).powi(2);
-        *self.count += 1;
+        self.weight += weight as f64;
+        self.luminance += luminance(Vec3::from_array(weighted)) as f64;
+        self.square += (weight * luminance(Vec3::from_array(value)).powi(2)) as f64;
+        self.count += 1;
         true
     }
 }
 
 impl TrainingTargets {
-    pub fn new(levels: usize, width: u32, height: u32) -> Self {
-        let n = width as usize * height as usize;
+    /// Empty targets for `levels` levels of frames binned by `map`.
+    pub fn new(levels: usize, map: PixelMap) -> Self {
+        let n = map.width as usize * map.height as usize;
         Self {
-            width,
-            height,
-            sums: vec![vec![[0.0; 3]; n]; levels],
-            weights: vec![vec![0.0; n]; levels],
-            squares: vec![vec![0.0; n]; levels],
-            counts: vec![vec![0; n]; levels],
+            map,
+            bins: vec![vec![BinSums::default(); n]; levels],
             dropped: 0,
             statistics: None,
         }
     }
 
-    /// These targets also gather the unbiased estimator's statistics per pixel of `map` (the
-    /// cache's pixels).
-    pub fn with_statistics(mut self, map: PixelMap) -> Self {
-        let pixels = map.width as usize * map.height as usize;
-        let frame_pixels = self.width as usize * self.height as usize;
+    /// These targets also gather the unbiased estimator's statistics per cache pixel.
+    pub fn with_statistics(mut self) -> Self {
+        let pixels = self.map.width as usize * self.map.height as usize;
+        let frame_pixels = self.width() as usize * self.height() as usize;
         self.statistics = Some((
-            map,
             Statistics::new(self.levels(), pixels),
             vec![[0.0; 3]; frame_pixels],
         ));
@@ -114,47 +117,49 @@ impl TrainingTargets {
     /// The unbiased estimator's statistics per cache pixel, and per frame pixel the moments of
     /// its paths' estimates (paths, sum, sum of squares), if gathered.
     pub fn statistics(&self) -> Option<(&Statistics, &[[f32; 3]])> {
-        self.statistics.as_ref().map(|(_, s, m)| (s, m.as_slice()))
+        self.statistics.as_ref().map(|(s, m)| (s, m.as_slice()))
     }
 
     /// Files one path's statistics at row-major frame pixel `pixel` (a renderer without
     /// tiles: the C ABI).
     pub fn add_path_statistics(&mut self, pixel: usize, path: &PathStatistics) {
-        if let Some((map, s, moments)) = self.statistics.as_mut() {
+        let map = self.map;
+        if let Some((s, moments)) = self.statistics.as_mut() {
             let w = map.frame_size().0 as usize;
             let mut one = Statistics::new(s.levels(), 1);
             one.add(0, path);
             s.add_tile(
                 &one,
                 ((pixel % w) as u32, (pixel / w) as u32, 1),
-                map,
+                &map,
                 moments,
             );
         }
     }
 
     pub fn levels(&self) -> usize {
-        self.sums.len()
+        self.bins.len()
     }
 
-    /// Whether these buffers serve a frame of `levels` levels at `width` x `height` whose
-    /// statistics go per pixel of `statistics` (`None`: none gathered).
-    pub fn fits(
-        &self,
-        levels: usize,
-        width: u32,
-        height: u32,
-        statistics: Option<PixelMap>,
-    ) -> bool {
-        self.levels() == levels
-            && (self.width, self.height) == (width, height)
-            && self.statistics.as_ref().map(|(map, ..)| *map) == statistics
+    /// The map from frame pixels to the bins.
+    pub fn map(&self) -> &PixelMap {
+        &self.map
     }
+
+    /// Whether these buffers serve a frame of `levels` levels binned by `map`, gathering the
+    /// unbiased estimator's statistics or not.
+    pub fn fits(&self, levels: usize, map: &PixelMap, statistics: bool) -> bool {
+        self.levels() == levels && self.map == *map && self.statistics.is_some() == statistics
+    }
+
+    /// The frame's width in pixels.
     pub fn width(&self) -> u32 {
-        self.width
+        self.map.frame_size().0
     }
+
+    /// The frame's height in pixels.
     pub fn height(&self) -> u32 {
-        self.height
+        self.map.frame_size().1
     }
 
     /// Samples refused since the last [`TrainingTargets::clear`] (not finite, or too large): a
@@ -163,10 +168,10 @@ impl TrainingTargets {
         self.dropped
     }
 
-    /// Adds one sample for `level` at row-major pixel `pixel`. Samples that are not finite or
-    /// above [`MAX_SAMPLE_RADIANCE`] in magnitude are dropped (they would poison the loss, or
-    /// overflow it) and counted. Negative samples are kept: the unbiased estimator's control
-    /// variate makes them, and their mean is still the level's target.
+    /// Adds one sample for `level` at row-major frame pixel `pixel`. Samples that are not
+    /// finite or above [`MAX_SAMPLE_RADIANCE`] in magnitude are dropped (they would poison the
+    /// loss, or overflow it) and counted. Negative samples are kept: the unbiased estimator's
+    /// control variate makes them, and their mean is still the level's target.
     pub fn add(&mut self, level: usize, pixel: usize, value: [f32; 3]) {
         self.add_weighted(level, pixel, value, 1.0);
     }
@@ -174,136 +179,68 @@ impl TrainingTargets {
     /// [`TrainingTargets::add`] with a weight (finite and positive, else the sample is dropped
     /// and counted).
     pub fn add_weighted(&mut self, level: usize, pixel: usize, value: [f32; 3], weight: f32) {
-        let bin = Bin {
-            sum: &mut self.sums[level][pixel],
-            weight: &mut self.weights[level][pixel],
-            square: &mut self.squares[level][pixel],
-            count: &mut self.counts[level][pixel],
-        };
-        if !bin.add(value, weight) {
+        let w = self.width() as usize;
+        let bin = self.map.bin((pixel % w) as u32, (pixel / w) as u32);
+        if !self.bins[level][bin].add(value, weight) {
             self.dropped += 1;
         }
     }
 
-    /// Forgets every sample, keeping the buffers (filled in parallel: tens of megabytes at
-    /// 1280x720).
+    /// Forgets every sample, keeping the buffers.
     pub fn clear(&mut self) {
-        const CHUNK: usize = 1 << 14;
-        for s in &mut self.sums {
-            s.par_chunks_mut(CHUNK).for_each(|c| c.fill([0.0; 3]));
+        const CHUNK: usize = 1 << 12;
+        for bins in &mut self.bins {
+            bins.par_chunks_mut(CHUNK)
+                .for_each(|c| c.fill(BinSums::default()));
         }
-        for s in self.squares.iter_mut().chain(&mut self.weights) {
-            s.par_chunks_mut(CHUNK).for_each(|c| c.fill(0.0));
-        }
-        for c in &mut self.counts {
-            c.par_chunks_mut(CHUNK).for_each(|c| c.fill(0));
-        }
-        if let Some((map, s, moments)) = self.statistics.as_mut() {
-            *s = Statistics::new(s.levels(), map.width as usize * map.height as usize);
+        if let Some((s, moments)) = self.statistics.as_mut() {
+            *s = Statistics::new(
+                s.levels(),
+                self.map.width as usize * self.map.height as usize,
+            );
             moments.fill([0.0; 3]);
         }
         self.dropped = 0;
     }
 
-    /// [`TrainingTargets::level_target`] at the cache's resolution: each cache pixel takes the
-    /// weighted mean of the samples of the frame pixels binned into it by `map`.
-    pub fn level_target_binned(
-        &self,
-        level: usize,
-        masked: bool,
-        map: &PixelMap,
-    ) -> (Vec<[f32; 3]>, Vec<bool>) {
-        if map.is_identity() {
-            return self.level_target(level, masked);
-        }
-        let n = map.width as usize * map.height as usize;
-        let mut sums = vec![[0.0f64; 3]; n];
-        let mut weights = vec![0.0f64; n];
-        // Cache rows in parallel; within a bin the frame pixels add in the serial order.
-        let rows = frame_rows_per_cache_row(map, self.height);
-        sums.par_chunks_mut(map.width as usize)
-            .zip(weights.par_chunks_mut(map.width as usize))
-            .zip(rows.par_iter())
-            .for_each(|((sums, weights), rows)| {
-                for y in rows.clone() {
-                    for x in 0..self.width {
-                        let i = (y * self.width + x) as usize;
-                        if self.counts[level][i] > 0 {
-                            let b = map.bin(x, y) % map.width as usize;
-                            for k in 0..3 {
-                                sums[b][k] += self.sums[level][i][k] as f64;
-                            }
-                            weights[b] += self.weights[level][i] as f64;
-                        }
-                    }
-                }
-            });
-        let mut target = vec![[0.0f32; 3]; n];
-        let mut mask = vec![!masked; n];
-        for b in 0..n {
-            if weights[b] > 0.0 {
-                target[b] = sums[b].map(|v| (v / weights[b]) as f32);
-                mask[b] = true;
-            }
-        }
-        (target, mask)
-    }
-
-    /// Per cache pixel of `map`, the number of samples binned into it and the variance of their
-    /// weighted mean's luminance (the weighted sample variance over that number; NaN below two
-    /// samples): how far the binned target may lie from its expectation by noise alone.
-    pub fn level_spread_binned(&self, level: usize, map: &PixelMap) -> Vec<(u64, f32)> {
-        let n = map.width as usize * map.height as usize;
-        // Per bin: samples, summed weights, weighted luminance sum, weighted square sum. Cache
-        // rows in parallel; within a bin the frame pixels add in the serial order.
-        let mut acc = vec![(0u64, 0.0f64, 0.0f64, 0.0f64); n];
-        let rows = frame_rows_per_cache_row(map, self.height);
-        acc.par_chunks_mut(map.width as usize)
-            .zip(rows.par_iter())
-            .for_each(|(acc, rows)| {
-                for y in rows.clone() {
-                    for x in 0..self.width {
-                        let i = (y * self.width + x) as usize;
-                        let c = self.counts[level][i];
-                        if c > 0 {
-                            let a = &mut acc[map.bin(x, y) % map.width as usize];
-                            a.0 += c as u64;
-                            a.1 += self.weights[level][i] as f64;
-                            a.2 += luminance(Vec3::from_array(self.sums[level][i])) as f64;
-                            a.3 += self.squares[level][i] as f64;
-                        }
-                    }
-                }
-            });
-        acc.into_iter()
-            .map(|(count, weight, sum, squares)| {
-                if count < 2 || !(weight > 0.0) {
-                    return (count, f32::NAN);
-                }
-                let k = count as f64;
-                let mean = sum / weight;
-                let variance = ((squares / weight - mean * mean) * k / (k - 1.0)).max(0.0);
-                (count, (variance / k) as f32)
-            })
-            .collect()
-    }
-
-    /// The weighted mean target image of `level` and its mask (pixels with at least one
-    /// sample). With `masked = false` every pixel is valid and pixels without samples target
+    /// The target image of `level` at the cache's resolution and its mask: each cache pixel
+    /// takes the weighted mean of the samples binned into it, and is in the mask when it has
+    /// one. With `masked = false` every pixel is in the mask and pixels without samples target
     /// zero.
     pub fn level_target(&self, level: usize, masked: bool) -> (Vec<[f32; 3]>, Vec<bool>) {
-        let sums = &self.sums[level];
-        let weights = &self.weights[level];
-        let mut target = vec![[0.0f32; 3]; sums.len()];
-        let mut mask = vec![!masked; sums.len()];
-        for i in 0..sums.len() {
-            if weights[i] > 0.0 {
-                let inv = 1.0 / weights[i];
-                target[i] = sums[i].map(|v| v * inv);
-                mask[i] = true;
-            }
-        }
-        (target, mask)
+        let identity = self.map.is_identity();
+        self.bins[level]
+            .iter()
+            .map(|b| {
+                if !(b.weight > 0.0) {
+                    ([0.0; 3], !masked)
+                } else if identity {
+                    // A bin is a frame pixel: its mean in f32, as the pixel's own sums give it.
+                    let inv = 1.0 / b.weight as f32;
+                    (b.sum.map(|v| v as f32 * inv), true)
+                } else {
+                    (b.sum.map(|v| (v / b.weight) as f32), true)
+                }
+            })
+            .unzip()
+    }
+
+    /// Per cache pixel, the number of samples binned into it and the variance of their
+    /// weighted mean's luminance (the weighted sample variance over that number; NaN below two
+    /// samples): how far the binned target may lie from its expectation by noise alone.
+    pub fn level_spread(&self, level: usize) -> Vec<(u64, f32)> {
+        self.bins[level]
+            .iter()
+            .map(|b| {
+                if b.count < 2 || !(b.weight > 0.0) {
+                    return (b.count, f32::NAN);
+                }
+                let k = b.count as f64;
+                let mean = b.luminance / b.weight;
+                let variance = ((b.square / b.weight - mean * mean) * k / (k - 1.0)).max(0.0);
+                (b.count, (variance / k) as f32)
+            })
+            .collect()
     }
 }
 
@@ -387,28 +324,28 @@ impl TileTargets {
 }
 
 impl TrainingTargets {
-    /// Adds each pixel's weighted mean sample of `tile`, with its summed weight, level by level. The tile must lie inside the
-    /// image and have at most this frame's levels.
+    /// Adds each pixel's weighted mean sample of `tile`, with its summed weight, level by
+    /// level. The tile must lie inside the frame and have at most this frame's levels.
     pub fn add_tile(&mut self, tile: &TileTargets) {
         self.add_tiles(&[tile]);
     }
 
-    /// [`TrainingTargets::add_tile`] for every tile of a frame, rows of the image in parallel:
-    /// each pixel takes the same values in the same order as adding the tiles one after the
-    /// other, so the targets are bit for bit the same on any number of threads. (Serial, this
-    /// was a tenth of a cached frame at 1280x720 and did not scale: issue 31.)
+    /// [`TrainingTargets::add_tile`] for every tile of a frame, the cache's rows in parallel:
+    /// each bin takes its frame pixels' sums in row-major order, whatever the tiles' order, so
+    /// the targets are bit for bit the same on any number of threads.
     pub fn add_tiles(&mut self, tiles: &[&TileTargets]) {
-        let (width, height) = (self.width as usize, self.height as usize);
+        let (width, height) = (self.width() as usize, self.height() as usize);
+        let map = self.map;
         // The statistics (unbiased estimator only) go per cache pixel: in tile order, serially.
         for tile in tiles {
             self.dropped += tile.dropped;
-            if let (Some((map, stats, moments)), Some(t)) =
+            if let (Some((stats, moments)), Some(t)) =
                 (self.statistics.as_mut(), tile.statistics.as_ref())
             {
-                stats.add_tile(t, (tile.x0, tile.y0, tile.width), map, moments);
+                stats.add_tile(t, (tile.x0, tile.y0, tile.width), &map, moments);
             }
         }
-        // Per image row, the tiles that cross it, in the order given.
+        // Per frame row, the tiles that cross it, left to right.
         let mut crossing: Vec<Vec<&TileTargets>> = vec![Vec::new(); height];
         for tile in tiles {
             let rows = tile.y0 as usize..(tile.y0 + tile.height) as usize;
@@ -419,40 +356,41 @@ impl TrainingTargets {
                 tile.y0,
                 tile.width,
                 tile.height,
-                self.width,
-                self.height
+                width,
+                height
             );
             for row in &mut crossing[rows] {
                 row.push(tile);
             }
         }
-        let levels = self.levels();
+        for row in &mut crossing {
+            row.sort_by_key(|t| t.x0);
+        }
+        // A frame pixel's cache column depends on its column alone.
+        let column: Vec<usize> = (0..width as u32)
+            .map(|x| map.bin(x, 0) % map.width as usize)
+            .collect();
+        let rows = frame_rows_per_cache_row(&map, height as u32);
+        let cache_width = map.width as usize;
         let mut dropped = 0;
-        for level in 0..levels {
-            dropped += self.sums[level]
-                .par_chunks_mut(width)
-                .zip(self.weights[level].par_chunks_mut(width))
-                .zip(self.squares[level].par_chunks_mut(width))
-                .zip(self.counts[level].par_chunks_mut(width))
-                .zip(crossing.par_iter().enumerate())
-                .map(|((((sums, weights), squares), counts), (y, tiles))| {
+        for (level, bins) in self.bins.iter_mut().enumerate() {
+            dropped += bins
+                .par_chunks_mut(cache_width)
+                .zip(rows.par_iter())
+                .map(|(bins, rows)| {
                     let mut dropped = 0u64;
-                    for tile in tiles.iter().filter(|t| level < t.levels) {
-                        let tile_pixels = tile.width as usize * tile.height as usize;
-                        let j = y - tile.y0 as usize;
-                        for i in 0..tile.width as usize {
-                            let k = level * tile_pixels + j * tile.width as usize + i;
-                            if tile.weights[k] > 0.0 {
-                                let x = tile.x0 as usize + i;
-                                let mean = (tile.sums[k] / tile.weights[k]).to_array();
-                                let bin = Bin {
-                                    sum: &mut sums[x],
-                                    weight: &mut weights[x],
-                                    square: &mut squares[x],
-                                    count: &mut counts[x],
-                                };
-                                if !bin.add(mean, tile.weights[k]) {
-                                    dropped += 1;
+                    for y in rows.clone() {
+                        for tile in crossing[y as usize].iter().filter(|t| level < t.levels) {
+                            let tile_pixels = tile.width as usize * tile.height as usize;
+                            let j = y as usize - tile.y0 as usize;
+                            for i in 0..tile.width as usize {
+                                let k = level * tile_pixels + j * tile.width as usize + i;
+                                if tile.weights[k] > 0.0 {
+                                    let mean = (tile.sums[k] / tile.weights[k]).to_array();
+                                    let bin = &mut bins[column[tile.x0 as usize + i]];
+                                    if !bin.add(mean, tile.weights[k]) {
+                                        dropped += 1;
+                                    }
                                 }
                             }
                         }
@@ -467,20 +405,24 @@ impl TrainingTargets {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// A frame of `w` x `h` pixels kept at its own resolution.
+    fn identity(w: u32, h: u32) -> PixelMap {
+        PixelMap::for_size(w, h, 1)
+    }
 
     /// A target brighter than any sample a film accepts is refused and counted like a NaN one:
     /// frames of 3e38 targets once overflowed the loss and drew a level of infinite pixels
     /// (and the C ABI returned OK).
     #[test]
     fn targets_above_the_largest_sample_are_dropped() {
-        let mut t = TrainingTargets::new(1, 2, 1);
+        let mut t = TrainingTargets::new(1, identity(2, 1));
         t.add(0, 0, [3e38; 3]);
         t.add(0, 0, [1.0, MAX_SAMPLE_RADIANCE * 2.0, 1.0]);
         t.add(0, 1, [MAX_SAMPLE_RADIANCE; 3]);
         assert_eq!(t.dropped(), 2);
     }
-
-    use super::*;
 
     /// A NaN or huge sample is refused and counted; the pixel keeps the mean of the rest
     /// (before, one NaN made the pixel's whole mean NaN and the pixel was lost). A negative
@@ -495,16 +437,22 @@ mod tests {
             [(0, Vec3::splat(-3e38), 1.0), (0, Vec3::ONE, f32::INFINITY)],
         );
         tile.add_samples(1, [(0, Vec3::splat(-1.0), 1.0)]);
-        let mut targets = TrainingTargets::new(1, 2, 1);
+        let mut targets = TrainingTargets::new(1, identity(2, 1));
         targets.add_tile(&tile);
         targets.add(0, 1, [f32::NAN; 3]);
         assert_eq!(targets.dropped(), 4);
-        assert_eq!(targets.sums[0][0], [4.0; 3]); // the mean of 1 and 3, weight 2
-        assert_eq!(targets.sums[0][1], [-1.0; 3]); // kept
-        assert_eq!(targets.counts[0], vec![1, 1]);
-        assert_eq!(targets.weights[0], vec![2.0, 1.0]);
+        let bins = &targets.bins[0];
+        assert_eq!(bins[0].sum, [4.0; 3]); // the mean of 1 and 3, weight 2
+        assert_eq!(bins[1].sum, [-1.0; 3]); // kept
+        assert_eq!((bins[0].count, bins[1].count), (1, 1));
+        assert_eq!((bins[0].weight, bins[1].weight), (2.0, 1.0));
+        assert_eq!(
+            targets.level_target(0, true),
+            (vec![[2.0; 3], [-1.0; 3]], vec![true, true])
+        );
         targets.clear();
         assert_eq!(targets.dropped(), 0);
+        assert!(targets.bins[0].iter().all(|b| *b == BinSums::default()));
     }
 
     /// Survivor weights survive the binning: two pixels in one cache pixel, each with one path,
@@ -515,22 +463,104 @@ mod tests {
         let mut tile = TileTargets::new(1, 0, 0, 2, 2);
         tile.add_samples(0, [(0, Vec3::splat(1.0), 1.0)]);
         tile.add_samples(1, [(0, Vec3::splat(5.0), 3.0)]);
-        let mut targets = TrainingTargets::new(1, 2, 2);
-        targets.add_tile(&tile);
         let map = PixelMap::for_size(2, 2, 2);
         assert_eq!((map.width, map.height), (1, 1));
-        let (target, mask) = targets.level_target_binned(0, true, &map);
+        let mut targets = TrainingTargets::new(1, map);
+        targets.add_tile(&tile);
+        let (target, mask) = targets.level_target(0, true);
         assert_eq!((target, mask), (vec![[4.0; 3]], vec![true]));
-        let (target, _) = targets.level_target(0, true);
+        let mut unbinned = TrainingTargets::new(1, identity(2, 2));
+        unbinned.add_tile(&tile);
+        let (target, _) = unbinned.level_target(0, true);
         assert_eq!(&target[..2], &[[1.0; 3], [5.0; 3]]);
     }
 
-    /// The parallel gather and binning (issue 31) give, on 1 and on 4 threads, bit for bit what
-    /// adding each tile pixel's mean one after the other and binning serially gives: a
-    /// 70x45 frame in 16x16 tiles (ragged at the edges), 2 levels, hashed samples with weights,
-    /// some pixels empty, binned 4:1 with the map's odd edge bins.
+    /// The targets as they were gathered before they went straight into the bins (issue 31):
+    /// per frame pixel, f32 sums of each tile pixel's weighted mean, added tile after tile;
+    /// then per bin, f64 sums of its pixels in row-major order.
+    struct PerPixel {
+        width: u32,
+        sums: Vec<[f32; 3]>,
+        weights: Vec<f32>,
+        squares: Vec<f32>,
+        counts: Vec<u32>,
+    }
+
+    impl PerPixel {
+        fn gather(tiles: &[TileTargets], level: usize, width: u32, height: u32) -> Self {
+            let n = (width * height) as usize;
+            let mut p = PerPixel {
+                width,
+                sums: vec![[0.0; 3]; n],
+                weights: vec![0.0; n],
+                squares: vec![0.0; n],
+                counts: vec![0; n],
+            };
+            for tile in tiles {
+                let tile_pixels = (tile.width * tile.height) as usize;
+                for j in 0..tile.height {
+                    for i in 0..tile.width {
+                        let k = level * tile_pixels + (j * tile.width + i) as usize;
+                        if tile.weights[k] > 0.0 {
+                            let q = ((tile.y0 + j) * width + tile.x0 + i) as usize;
+                            let (mean, w) =
+                                ((tile.sums[k] / tile.weights[k]).to_array(), tile.weights[k]);
+                            for c in 0..3 {
+                                p.sums[q][c] += w * mean[c];
+                            }
+                            p.weights[q] += w;
+                            p.squares[q] += w * luminance(Vec3::from_array(mean)).powi(2);
+                            p.counts[q] += 1;
+                        }
+                    }
+                }
+            }
+            p
+        }
+
+        /// Per bin: the target, whether it has a sample, the samples and the spread.
+        fn binned(&self, map: &PixelMap) -> Vec<([f32; 3], bool, u64, f32)> {
+            let n = (map.width * map.height) as usize;
+            let mut acc = vec![([0.0f64; 3], 0.0f64, 0.0f64, 0.0f64, 0u64); n];
+            for (q, &c) in self.counts.iter().enumerate() {
+                if c > 0 {
+                    let a = &mut acc[map.bin(q as u32 % self.width, q as u32 / self.width)];
+                    for k in 0..3 {
+                        a.0[k] += self.sums[q][k] as f64;
+                    }
+                    a.1 += self.weights[q] as f64;
+                    a.2 += luminance(Vec3::from_array(self.sums[q])) as f64;
+                    a.3 += self.squares[q] as f64;
+                    a.4 += c as u64;
+                }
+            }
+            acc.iter()
+                .map(|&(sum, weight, lum, square, count)| {
+                    let target = if weight > 0.0 {
+                        sum.map(|v| (v / weight) as f32)
+                    } else {
+                        [0.0; 3]
+                    };
+                    let spread = if count < 2 {
+                        f32::NAN
+                    } else {
+                        let k = count as f64;
+                        let mean = lum / weight;
+                        (((square / weight - mean * mean) * k / (k - 1.0)).max(0.0) / k) as f32
+                    };
+                    (target, weight > 0.0, count, spread)
+                })
+                .collect()
+        }
+    }
+
+    /// Gathered straight into the bins, in parallel, the targets and spreads are bit for bit
+    /// what the per-pixel gather and a serial binning give, on 1 and on 4 threads: a 70x45
+    /// frame in 16x16 tiles (ragged at the edges, given out of order), 2 levels, hashed
+    /// samples with weights, some pixels empty, binned 4:1 with the map's odd edge bins and
+    /// 1:1.
     #[test]
-    fn parallel_gather_and_binning_equal_the_serial_order() {
+    fn binned_gather_equals_the_per_pixel_gather() {
         use render_base::hash::{hash32, unit_f32};
         let (w, h, levels) = (70u32, 45u32, 2usize);
         let mut tiles = Vec::new();
@@ -552,85 +582,67 @@ mod tests {
                 tiles.push(tile);
             }
         }
-        // The reference: each tile pixel's weighted mean added one pixel at a time.
-        let mut serial = TrainingTargets::new(levels, w, h);
-        for tile in &tiles {
-            let n = (tile.width * tile.height) as usize;
-            for level in 0..levels {
-                for j in 0..tile.height {
-                    for i in 0..tile.width {
-                        let k = level * n + (j * tile.width + i) as usize;
-                        if tile.weights[k] > 0.0 {
-                            let pixel = ((tile.y0 + j) * w + tile.x0 + i) as usize;
-                            let mean = (tile.sums[k] / tile.weights[k]).to_array();
-                            serial.add_weighted(level, pixel, mean, tile.weights[k]);
-                        }
+        let mut shuffled: Vec<&TileTargets> = tiles.iter().collect();
+        shuffled.reverse();
+        shuffled.swap(1, 4);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for divisor in [4, 1] {
+            let map = PixelMap::for_size(w, h, divisor);
+            for threads in [1, 4] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let binned = pool.install(|| {
+                    let mut t = TrainingTargets::new(levels, map);
+                    t.add_tiles(&shuffled);
+                    t
+                });
+                for level in 0..levels {
+                    let expected = PerPixel::gather(&tiles, level, w, h).binned(&map);
+                    let (target, mask) = binned.level_target(level, true);
+                    let spread = binned.level_spread(level);
+                    let what = format!("divisor {divisor}, {threads} threads, level {level}");
+                    let flat = |t: &[[f32; 3]]| t.iter().flatten().copied().collect::<Vec<_>>();
+                    let expected_target: Vec<[f32; 3]> = expected.iter().map(|e| e.0).collect();
+                    if divisor > 1 {
+                        assert_eq!(
+                            bits(&flat(&target)),
+                            bits(&flat(&expected_target)),
+                            "{what}"
+                        );
+                    } else {
+                        // A bin is a pixel: its f32 mean, as the per-pixel sums gave it.
+                        let p = PerPixel::gather(&tiles, level, w, h);
+                        let own: Vec<[f32; 3]> = (0..p.sums.len())
+                            .map(|q| {
+                                if p.weights[q] > 0.0 {
+                                    let inv = 1.0 / p.weights[q];
+                                    p.sums[q].map(|v| v * inv)
+                                } else {
+                                    [0.0; 3]
+                                }
+                            })
+                            .collect();
+                        assert_eq!(bits(&flat(&target)), bits(&flat(&own)), "{what}");
+                    }
+                    assert_eq!(mask, expected.iter().map(|e| e.1).collect::<Vec<_>>());
+                    assert_eq!(
+                        spread
+                            .iter()
+                            .map(|s| (s.0, s.1.to_bits()))
+                            .collect::<Vec<_>>(),
+                        expected
+                            .iter()
+                            .map(|e| (e.2, e.3.to_bits()))
+                            .collect::<Vec<_>>(),
+                        "{what}"
+                    );
+                    if divisor > 1 {
+                        assert!(spread.iter().any(|&(n, v)| n >= 2 && v > 0.0));
                     }
                 }
             }
         }
-        let map = PixelMap::for_size(w, h, 4);
-        let refs: Vec<&TileTargets> = tiles.iter().collect();
-        for threads in [1, 4] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let parallel = pool.install(|| {
-                let mut t = TrainingTargets::new(levels, w, h);
-                t.add_tiles(&refs);
-                t
-            });
-            for level in 0..levels {
-                let bits =
-                    |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert_eq!(
-                    bits(&parallel.sums[level]),
-                    bits(&serial.sums[level]),
-                    "{threads} threads"
-                );
-                assert_eq!(parallel.counts[level], serial.counts[level]);
-                let (a, b) = (
-                    pool.install(|| parallel.level_target_binned(level, true, &map)),
-                    serial_binned(&serial, level, &map),
-                );
-                assert_eq!((bits(&a.0), a.1), (bits(&b.0), b.1), "{threads} threads");
-                let spread = pool.install(|| parallel.level_spread_binned(level, &map));
-                assert!(spread.iter().any(|&(n, v)| n >= 2 && v > 0.0));
-            }
-        }
-    }
-
-    /// The binning as it was written before it ran in parallel: frame rows then columns.
-    fn serial_binned(
-        t: &TrainingTargets,
-        level: usize,
-        map: &PixelMap,
-    ) -> (Vec<[f32; 3]>, Vec<bool>) {
-        let n = map.width as usize * map.height as usize;
-        let mut sums = vec![[0.0f64; 3]; n];
-        let mut weights = vec![0.0f64; n];
-        for y in 0..t.height {
-            for x in 0..t.width {
-                let i = (y * t.width + x) as usize;
-                if t.counts[level][i] > 0 {
-                    let b = map.bin(x, y);
-                    for k in 0..3 {
-                        sums[b][k] += t.sums[level][i][k] as f64;
-                    }
-                    weights[b] += t.weights[level][i] as f64;
-                }
-            }
-        }
-        let target = (0..n)
-            .map(|b| {
-                if weights[b] > 0.0 {
-                    sums[b].map(|v| (v / weights[b]) as f32)
-                } else {
-                    [0.0; 3]
-                }
-            })
-            .collect();
-        (target, weights.iter().map(|&w| w > 0.0).collect())
     }
 }

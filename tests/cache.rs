@@ -309,6 +309,45 @@ fn persistence_and_ray_traced_lookup() {
     );
 }
 
+/// Paths read a level where they pass, bilinearly from the image as drawn at the cache's
+/// resolution (issue 31: the levels are no longer upsampled every frame); what they read is
+/// the frame-resolution image a user or `--cache-images` is given, bit for bit: as drawn, and
+/// after the first training step changed the drawn image (its radiance scale) when the image
+/// had been asked for before it.
+#[test]
+fn paths_read_the_level_image_the_user_sees() {
+    let s = scene();
+    let config = CacheConfig {
+        points: 2000,
+        resolution_divisor: 4,
+        ..small_config()
+    };
+    let mut cache = new_cache(&s, config);
+    let check = |frame: &gs_cache::CacheFrame| {
+        let (w, h) = (s.camera.width as usize, s.camera.height as usize);
+        for level in 0..frame.levels() {
+            let image = frame.image(level);
+            assert_eq!(image.len(), w * h);
+            assert!(frame.drawn_image(level).len() < w * h);
+            for (pixel, seen) in image.iter().enumerate() {
+                let read = frame.value(level, pixel).to_array();
+                assert!(
+                    read.map(f32::to_bits) == seen.map(f32::to_bits),
+                    "level {level}, pixel {pixel}: read {read:?}, image {seen:?}"
+                );
+            }
+            assert!(image.iter().any(|v| v[0] > 0.0), "level {level} is black");
+        }
+    };
+    check(cache.begin_frame(&s.camera));
+    let before = cache.frame().unwrap().value(0, 32 * 64 + 32);
+    one_frame(&s, &s.camera, 3, 0, &mut cache);
+    let after = cache.frame().unwrap().value(0, 32 * 64 + 32);
+    assert_ne!(before, after, "the first step must change the drawn image");
+    check(cache.frame().unwrap());
+    check(cache.begin_frame(&s.camera));
+}
+
 /// `train_every = 3` takes a training step on frames 0, 3, 6 and none between: the levels are
 /// unchanged by the frames between, and changed by the frames with a step.
 #[test]

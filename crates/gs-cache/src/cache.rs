@@ -15,6 +15,7 @@ use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
 use splat_raster::loss::{Loss, loss_and_grad};
 use splat_raster::raster::ForwardState;
 use splat_raster::{Camera, GaussianCloud, PixelGrads, RasterConfig, backward, render};
+use std::sync::OnceLock;
 use std::time::Instant;
 use stochastic_rt::{TraceGaussians, TraceSettings, trace_camera_image};
 
@@ -69,11 +70,14 @@ pub struct CacheFrame {
     /// The camera the levels were drawn from: the frame's at the cache's resolution.
     cache_camera: Camera,
     map: PixelMap,
-    /// Per level, the cached radiance per frame pixel (row-major).
-    images: Vec<Vec<[f32; 3]>>,
-    /// Per level, the images as drawn at the cache's resolution, when it is not the frame's
-    /// (training compares these with the binned targets).
-    drawn: Option<Vec<Vec<[f32; 3]>>>,
+    /// Per level, the cached radiance per cache pixel (row-major), as drawn: paths read it
+    /// bilinearly at their pixel's centre ([`CacheFrame::value`]) and training compares it
+    /// with the binned targets.
+    drawn: Vec<Vec<[f32; 3]>>,
+    /// Per level, the drawn image read at every frame pixel, made only when asked for
+    /// ([`CacheFrame::image`]). Upsampling every level each frame wrote 33 MB at 1280x720,
+    /// three times the reads paths make, and was half of the lookup's time (issue 31).
+    upsampled: OnceLock<Vec<Vec<[f32; 3]>>>,
     /// Per level, the rasteriser's state for the backward pass (raster lookup only, and only
     /// while the levels are unchanged since they were drawn).
     states: Vec<Option<ForwardState<f32>>>,
@@ -93,16 +97,38 @@ impl CacheFrame {
         &self.camera
     }
     pub fn levels(&self) -> usize {
-        self.images.len()
+        self.drawn.len()
     }
-    /// Cached radiance of `level` (0-based: paths of length `level + 1`) at row-major `pixel`.
+    /// Cached radiance of `level` (0-based: paths of length `level + 1`) at row-major frame
+    /// `pixel`: the level's image read bilinearly at the pixel's centre.
     #[inline]
     pub fn value(&self, level: usize, pixel: usize) -> Vec3 {
-        Vec3::from_array(self.images[level][pixel])
+        let drawn = &self.drawn[level];
+        if self.map.is_identity() {
+            return Vec3::from_array(drawn[pixel]);
+        }
+        let w = self.camera.width as usize;
+        Vec3::from_array(
+            self.map
+                .sample(drawn, (pixel % w) as u32, (pixel / w) as u32),
+        )
     }
-    /// The whole image of a level.
+    /// The whole image of a level at the frame's resolution: [`CacheFrame::value`] at every
+    /// pixel (upsampled on the first call after the levels were drawn or trained).
     pub fn image(&self, level: usize) -> &[[f32; 3]] {
-        &self.images[level]
+        if self.map.is_identity() {
+            return &self.drawn[level];
+        }
+        &self.upsampled.get_or_init(|| {
+            self.drawn
+                .par_iter()
+                .map(|d| self.map.upsample(d))
+                .collect()
+        })[level]
+    }
+    /// The whole image of a level as drawn, at the cache's resolution.
+    pub fn drawn_image(&self, level: usize) -> &[[f32; 3]] {
+        &self.drawn[level]
     }
     /// The cache pixel that holds row-major frame pixel `pixel` (what [`CacheFrame::trusted`]
     /// takes; a path computes it once).
@@ -475,8 +501,8 @@ impl GsCache {
                     .unzip()
             }
         };
-        let mut images: Vec<Vec<[f32; 3]>> = images;
-        images
+        let mut drawn: Vec<Vec<[f32; 3]>> = images;
+        drawn
             .par_iter_mut()
             .zip(&self.levels)
             .for_each(|(image, level)| {
@@ -485,14 +511,6 @@ impl GsCache {
                     image.iter_mut().flatten().for_each(|v| *v *= s);
                 }
             });
-        let (images, drawn) = if map.is_identity() {
-            (images, None)
-        } else {
-            (
-                images.par_iter().map(|i| map.upsample(i)).collect(),
-                Some(images),
-            )
-        };
         if self.config.unbiased
             && self
                 .continuation
@@ -507,8 +525,8 @@ impl GsCache {
             camera: *camera,
             cache_camera,
             map,
-            images,
             drawn,
+            upsampled: OnceLock::new(),
             states,
             trust,
             handed_off,
@@ -633,24 +651,20 @@ impl GsCache {
         // depends on nothing of the others', so the result is the same on any thread count.
         let step = LevelStep {
             targets,
-            map: &map,
             camera: &camera,
             raster: &self.raster,
             config: &self.config,
             lr_scale,
         };
         let trust = frame.trust.as_mut().filter(|_| !self.fresh);
-        let outcomes: Vec<LevelOutcome> = LevelSlot::split(
-            &mut self.levels,
-            &mut frame.states,
-            &mut frame.images,
-            frame.drawn.as_mut(),
-            trust,
-        )
-        .into_par_iter()
-        .enumerate()
-        .map(|(i, slot)| step.train(i, slot))
-        .collect();
+        let outcomes: Vec<LevelOutcome> =
+            LevelSlot::split(&mut self.levels, &mut frame.states, &mut frame.drawn, trust)
+                .into_par_iter()
+                .enumerate()
+                .map(|(i, slot)| step.train(i, slot))
+                .collect();
+        // The steps left each level's image as they compared it with the targets.
+        frame.upsampled = OnceLock::new();
         for (i, outcome) in outcomes.into_iter().enumerate() {
             self.report.losses[i] = outcome.loss;
             self.report.mse[i] = outcome.mse;
@@ -686,7 +700,6 @@ impl GsCache {
 /// What every level's training step shares: the frame's targets, its cameras and the settings.
 struct LevelStep<'a> {
     targets: &'a TrainingTargets,
-    map: &'a PixelMap,
     /// The camera the levels were drawn from (the cache's resolution).
     camera: &'a Camera,
     raster: &'a RasterConfig,
@@ -699,10 +712,8 @@ struct LevelSlot<'a> {
     level: &'a mut Level,
     /// The lookup's forward state, when it can be reused for the backward pass.
     state: &'a mut Option<ForwardState<f32>>,
-    /// The level's image at the frame's resolution.
-    image: &'a mut Vec<[f32; 3]>,
-    /// The level's image as drawn, when the cache's resolution is not the frame's.
-    drawn: Option<&'a mut Vec<[f32; 3]>>,
+    /// The level's image as drawn.
+    drawn: &'a mut Vec<[f32; 3]>,
     /// The fallback's verdicts for this level (`None`: no residual test this frame).
     trust: Option<&'a mut [Verdict]>,
 }
@@ -720,21 +731,18 @@ impl<'a> LevelSlot<'a> {
     fn split(
         levels: &'a mut [Level],
         states: &'a mut [Option<ForwardState<f32>>],
-        images: &'a mut [Vec<[f32; 3]>],
-        drawn: Option<&'a mut Vec<Vec<[f32; 3]>>>,
+        drawn: &'a mut [Vec<[f32; 3]>],
         trust: Option<&'a mut Trust>,
     ) -> Vec<Self> {
-        let mut drawn = drawn.map(|d| d.iter_mut());
         let mut trust = trust.map(|t| t.levels_mut().iter_mut());
         levels
             .iter_mut()
             .zip(states)
-            .zip(images)
-            .map(|((level, state), image)| LevelSlot {
+            .zip(drawn)
+            .map(|((level, state), drawn)| LevelSlot {
                 level,
                 state,
-                image,
-                drawn: drawn.as_mut().and_then(|d| d.next()),
+                drawn,
                 trust: trust.as_mut().and_then(|t| t.next()).map(|v| &mut v[..]),
             })
             .collect()
@@ -747,8 +755,7 @@ impl LevelStep<'_> {
         let LevelSlot {
             level,
             state: saved_state,
-            image,
-            mut drawn,
+            drawn,
             trust,
         } = slot;
         let (target, mask) = self.targets.level_target(i, self.config.masked_targets);
@@ -767,14 +774,7 @@ impl LevelStep<'_> {
         // The lookup's forward pass is reused when it was the rasteriser's: the level has not
         // changed since it was drawn.
         let (mut prediction, state, drawn_scale) = match saved_state.take() {
-            Some(state) => (
-                match drawn.as_deref_mut() {
-                    Some(drawn) => std::mem::take(drawn),
-                    None => std::mem::take(image),
-                },
-                state,
-                scale_before,
-            ),
+            Some(state) => (std::mem::take(drawn), state, scale_before),
             None => {
                 let (out, state) = render(&level.cloud, self.camera, self.raster);
                 (out.color, state, 1.0)
@@ -832,15 +832,7 @@ impl LevelStep<'_> {
             .step(&mut level.cloud, &grads, self.lr_scale);
         outcome.loss = Some(loss);
         outcome.mse = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);
-        match drawn {
-            Some(drawn) => {
-                if scale != scale_before {
-                    *image = self.map.upsample(&prediction);
-                }
-                *drawn = prediction;
-            }
-            None => *image = prediction,
-        }
+        *drawn = prediction;
         outcome
     }
 }

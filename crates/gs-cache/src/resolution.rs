@@ -90,33 +90,38 @@ impl PixelMap {
         (j * self.width + i) as usize
     }
 
-    /// `cache` (a cache-resolution image) read at every frame pixel's centre by bilinear
+    /// `cache` (a cache-resolution image) read at frame pixel `(x, y)`'s centre by bilinear
     /// interpolation between cache pixel centres, clamped at the image's edges.
-    pub fn upsample(&self, cache: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    #[inline]
+    pub fn sample(&self, cache: &[[f32; 3]], x: u32, y: u32) -> [f32; 3] {
         let (w, h) = (self.width as usize, self.height as usize);
         debug_assert_eq!(cache.len(), w * h);
+        let (u, v) = self.position(x, y);
+        let fy = (v - 0.5).clamp(0.0, (h - 1) as f32);
+        let j0 = fy as usize;
+        let j1 = (j0 + 1).min(h - 1);
+        let ty = fy - j0 as f32;
+        let fx = (u - 0.5).clamp(0.0, (w - 1) as f32);
+        let i0 = fx as usize;
+        let i1 = (i0 + 1).min(w - 1);
+        let tx = fx - i0 as f32;
+        let (a, b) = (cache[j0 * w + i0], cache[j0 * w + i1]);
+        let (c, e) = (cache[j1 * w + i0], cache[j1 * w + i1]);
+        std::array::from_fn(|k| {
+            let top = a[k] + tx * (b[k] - a[k]);
+            let bottom = c[k] + tx * (e[k] - c[k]);
+            top + ty * (bottom - top)
+        })
+    }
+
+    /// `cache` read at every frame pixel's centre ([`PixelMap::sample`]).
+    pub fn upsample(&self, cache: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let fw = self.frame_width as usize;
         let mut out = vec![[0.0f32; 3]; fw * self.frame_height as usize];
         // Rows in parallel: each output row is written by one task.
         out.par_chunks_mut(fw).enumerate().for_each(|(y, row)| {
-            let (_, v) = self.position(0, y as u32);
-            let fy = (v - 0.5).clamp(0.0, (h - 1) as f32);
-            let j0 = fy as usize;
-            let j1 = (j0 + 1).min(h - 1);
-            let ty = fy - j0 as f32;
             for (x, px) in row.iter_mut().enumerate() {
-                let (u, _) = self.position(x as u32, y as u32);
-                let fx = (u - 0.5).clamp(0.0, (w - 1) as f32);
-                let i0 = fx as usize;
-                let i1 = (i0 + 1).min(w - 1);
-                let tx = fx - i0 as f32;
-                let (a, b) = (cache[j0 * w + i0], cache[j0 * w + i1]);
-                let (c, e) = (cache[j1 * w + i0], cache[j1 * w + i1]);
-                *px = std::array::from_fn(|k| {
-                    let top = a[k] + tx * (b[k] - a[k]);
-                    let bottom = c[k] + tx * (e[k] - c[k]);
-                    top + ty * (bottom - top)
-                });
+                *px = self.sample(cache, x as u32, y as u32);
             }
         });
         out

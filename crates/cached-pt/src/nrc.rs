@@ -345,8 +345,8 @@ pub struct NrcFrameStats {
     /// Inference and composition (IT).
     pub inference_seconds: f64,
     /// Training's part of the frame (OT): the time the frame waited on the previous frame's
-    /// step after its own tracing ended, and filing its own records for the next frame. The
-    /// parts add up to the frame.
+    /// step after its own tracing ended, and filing its own records for the next frame (and
+    /// freeing its tiles). The parts add up to the frame.
     pub train_seconds: f64,
     /// The training step's own duration, the overlap with path tracing included.
     pub train_step_seconds: f64,
@@ -441,18 +441,21 @@ pub fn render_nrc_frame(
         stats.inference_seconds =
             timed(&mut || compose(&traced.records, &|q| cache.predict(q), film));
     }
-    let filing = timed(&mut || {
-        if !stats.cancelled {
-            *pending = Some(PendingStep {
-                tiles: traced
-                    .records
-                    .iter_mut()
-                    .map(|(_, t)| std::mem::take(&mut t.records))
-                    .collect(),
-                shuffle: mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e)),
-            });
-        }
-    });
+    let clock = std::time::Instant::now();
+    if !stats.cancelled {
+        *pending = Some(PendingStep {
+            tiles: traced
+                .records
+                .iter_mut()
+                .map(|(_, t)| std::mem::take(&mut t.records))
+                .collect(),
+            shuffle: mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e)),
+        });
+    }
+    // Thousands of tiles' stops, each allocated by the thread that traced the tile: freed one
+    // after another they cost a millisecond or more a frame that no number of threads shortens.
+    traced.records.into_par_iter().for_each(drop);
+    let filing = clock.elapsed().as_secs_f64();
     stats.train_seconds = first_step_seconds + waited + filing;
     // The traced samples and the composed values that were refused.
     stats.nonfinite_samples = film.nonfinite_samples - nonfinite_before;

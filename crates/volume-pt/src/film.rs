@@ -382,12 +382,12 @@ impl Film {
         }
     }
 
-    /// Total number of samples taken over all pixels.
+    /// Total number of samples taken over all pixels (tiles in parallel: a session asks twice a
+    /// frame, and a serial pass over a 1280x720 film was a millisecond of every frame).
     pub fn total_samples(&self) -> u64 {
         self.tiles
-            .iter()
-            .flat_map(|t| t.count.iter())
-            .map(|&c| c as u64)
+            .par_iter()
+            .map(|t| t.count.iter().map(|&c| c as u64).sum::<u64>())
             .sum()
     }
 

@@ -8,7 +8,7 @@ use crate::init::{SH_C0, initial_levels};
 use crate::resolution::PixelMap;
 use crate::schedule::Schedule;
 use crate::targets::TrainingTargets;
-use crate::warm_start::{Drawn, fit_colors};
+use crate::warm_start::{Drawn, apply_fit, warm_sums};
 use glam::Vec3;
 use rayon::prelude::*;
 use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
@@ -795,33 +795,39 @@ impl LevelStep<'_> {
         if !loss.is_finite() {
             return outcome;
         }
-        let mut grads = backward(
-            &level.cloud,
-            self.camera,
-            &state,
-            PixelGrads {
-                color: &grad,
-                transmittance: None,
-                depth: None,
+        // The warm start's sums read the cloud as drawn, like the backward pass: the two run
+        // side by side.
+        let warm = level.warm_steps < self.config.warm_start_frames;
+        let (mut grads, warm_sums) = rayon::join(
+            || {
+                backward(
+                    &level.cloud,
+                    self.camera,
+                    &state,
+                    PixelGrads {
+                        color: &grad,
+                        transmittance: None,
+                        depth: None,
+                    },
+                )
+            },
+            || {
+                warm.then(|| {
+                    let drawn_level = Drawn {
+                        camera: self.camera,
+                        state: &state,
+                        prediction: &prediction,
+                        radiance_scale: scale,
+                    };
+                    warm_sums(&level.cloud, drawn_level, &target, &mask)
+                })
             },
         );
-        if level.warm_steps < self.config.warm_start_frames {
+        if let Some(sums) = warm_sums {
             // The warm start sets the colours; Adam trains the rest (see `warm_start`).
             level.warm_steps += 1;
             level.warm_weights.resize(level.cloud.colors.len(), 0.0);
-            let drawn_level = Drawn {
-                camera: self.camera,
-                state: &state,
-                prediction: &prediction,
-                radiance_scale: scale,
-            };
-            fit_colors(
-                &mut level.cloud,
-                drawn_level,
-                &target,
-                &mask,
-                &mut level.warm_weights,
-            );
+            apply_fit(&mut level.cloud, &sums, &mut level.warm_weights);
             if level.warm_steps == self.config.warm_start_frames {
                 level.warm_weights = Vec::new();
             }

@@ -48,11 +48,8 @@ pub(crate) struct Drawn<'a> {
 }
 
 /// One warm-start step on a degree-0 cloud drawn as `drawn`, towards `target` where `mask`
-/// holds. `weights` holds each colour channel's `D_i` summed over
-/// the earlier warm-start frames (3 per Gaussian, zeros at the start); this frame's is added. `target` and `prediction` are radiance; the cloud's colours are radiance over
-/// `radiance_scale`.
-/// Colours are kept at or above a small floor (the rasteriser clamps them at 0). Returns how many
-/// Gaussians were refitted.
+/// holds: [`warm_sums`], then [`apply_fit`] (what a level's training step does, in two parts).
+#[cfg(test)]
 pub(crate) fn fit_colors(
     cloud: &mut GaussianCloud<f32>,
     drawn: Drawn<'_>,
@@ -60,13 +57,34 @@ pub(crate) fn fit_colors(
     mask: &[bool],
     weights: &mut [f32],
 ) -> usize {
+    let sums = warm_sums(cloud, drawn, target, mask);
+    apply_fit(cloud, &sums, weights)
+}
+
+/// What a warm-start step moves the colours by, per colour channel: the blending-weighted
+/// residuals and the coverage-weighted blending weights (the step's numerator and `D_i`), both
+/// times the same chain factor.
+pub(crate) struct WarmSums {
+    numerator: Vec<f32>,
+    denominator: Vec<f32>,
+}
+
+/// The sums of one warm-start step on a degree-0 cloud drawn as `drawn`, towards `target`
+/// where `mask` holds (`target` and `prediction` are radiance; the cloud's colours are radiance
+/// over `radiance_scale`). Reads the cloud only, so a level's training step computes them beside
+/// its own backward pass; the two passes they need run side by side too (issue 31).
+pub(crate) fn warm_sums(
+    cloud: &GaussianCloud<f32>,
+    drawn: Drawn<'_>,
+    target: &[[f32; 3]],
+    mask: &[bool],
+) -> WarmSums {
     let Drawn {
         camera,
         state,
         prediction,
         radiance_scale,
     } = drawn;
-    debug_assert_eq!(weights.len(), cloud.colors.len());
     let to_colour = 1.0 / radiance_scale;
     debug_assert_eq!(cloud.color_model, splat_raster::ColorModel::Sh(0));
     let residual: Vec<[f32; 3]> = prediction
@@ -103,15 +121,31 @@ pub(crate) fn fit_colors(
         )
         .colors
     };
-    // Both carry the same chain factor (SH_C0, or 0 where a colour is clamped), which cancels.
-    let numerator = gradient(&residual);
-    let denominator = gradient(&coverage);
+    let (numerator, denominator) = rayon::join(|| gradient(&residual), || gradient(&coverage));
+    WarmSums {
+        numerator,
+        denominator,
+    }
+}
+
+/// Moves each colour by its step: `weights` holds each colour channel's `D_i` summed over the
+/// earlier warm-start frames (3 per Gaussian, zeros at the start); this frame's is added.
+/// Colours are kept at or above a small floor (the rasteriser clamps them at 0). Returns how
+/// many Gaussians were refitted.
+pub(crate) fn apply_fit(
+    cloud: &mut GaussianCloud<f32>,
+    sums: &WarmSums,
+    weights: &mut [f32],
+) -> usize {
+    debug_assert_eq!(weights.len(), cloud.colors.len());
+    // Both sums carry the same chain factor (SH_C0, or 0 where a colour is clamped), which
+    // cancels.
     let mut refitted = 0;
     for (((dc, num), den), summed) in cloud
         .colors
         .chunks_exact_mut(3)
-        .zip(numerator.chunks_exact(3))
-        .zip(denominator.chunks_exact(3))
+        .zip(sums.numerator.chunks_exact(3))
+        .zip(sums.denominator.chunks_exact(3))
         .zip(weights.chunks_exact_mut(3))
     {
         let mut any = false;

@@ -471,17 +471,32 @@ fn compose(
     predict: &(dyn Fn(&[Query]) -> Vec<Vec3> + Sync),
     film: &mut volume_pt::Film,
 ) {
-    let queries: Vec<Query> = tiles
-        .par_iter()
-        .flat_map_iter(|(_, t)| t.stops.iter().map(|s| s.2))
-        .collect();
-    let values = predict(&queries);
     let mut first = Vec::with_capacity(tiles.len());
     let mut next = 0;
     for (_, tile) in tiles {
         first.push(next);
         next += tile.stops.len();
     }
+    // The stops' queries in tile order, each tile copying its own into place: collected from
+    // a flattened iterator they were concatenated on one thread (1.4 ms a frame at 1280x720).
+    let mut queries = Vec::with_capacity(next);
+    queries.par_extend((0..next).into_par_iter().map(|_| Query::default()));
+    let mut rest = queries.as_mut_slice();
+    let mut per_tile = Vec::with_capacity(tiles.len());
+    for (_, tile) in tiles {
+        let (mine, others) = rest.split_at_mut(tile.stops.len());
+        per_tile.push(mine);
+        rest = others;
+    }
+    per_tile
+        .into_par_iter()
+        .zip(tiles.par_iter())
+        .for_each(|(mine, (_, tile))| {
+            for (q, stop) in mine.iter_mut().zip(&tile.stops) {
+                *q = stop.2;
+            }
+        });
+    let values = predict(&queries);
     let by_corner: std::collections::HashMap<(u32, u32), usize> = tiles
         .iter()
         .enumerate()

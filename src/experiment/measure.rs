@@ -51,11 +51,12 @@ pub struct CacheRecord {
     pub init_seconds: f64,
     pub warmup_seconds: f64,
     /// Per frame (warm-up, then measured): per level, the MSE before the step (the neural
-    /// cache: one entry, its steps' mean relative L2 loss).
+    /// cache: one entry, the mean relative L2 loss of the step taken during the frame, which
+    /// trains on the previous frame's records).
     pub level_mse: Vec<Vec<Option<f64>>>,
     /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting, or
     /// the neural cache's inference and composition) and training (the neural cache's: what its
-    /// step adds beyond the inference it runs beside, `FrameReport::train_seconds`). Frames
+    /// step, run beside the path tracing, adds after it, `FrameReport::train_seconds`). Frames
     /// after the handoff (plain path tracing) are counted in `handed_off` instead, so the
     /// cache's per-frame cost is that of the frames that pay it.
     pub frame_seconds: Vec<[f64; 3]>,

@@ -18,9 +18,10 @@ pub struct FrameReport {
     pub targets_seconds: f64,
     /// Training the cache (OT): its part of the frame's wall time. Zero without a cache.
     pub train_seconds: f64,
-    /// The training step's own duration. The neural cache runs its step beside its inference,
-    /// so its `train_seconds` is only what the step adds beyond inference, and this is more;
-    /// otherwise the two are equal.
+    /// The training step's own duration. The neural cache runs the previous frame's step
+    /// beside this frame's path tracing, so its `train_seconds` is only the wait for the step
+    /// after tracing (and filing the frame's records), and this is more; otherwise the two are
+    /// equal.
     pub train_step_seconds: f64,
     /// Making a scratch film for a frame that keeps none (a warm-up frame).
     pub film_seconds: f64,
@@ -30,8 +31,9 @@ pub struct FrameReport {
     pub nonfinite_samples: u64,
     /// Training samples the cache refused (negative or not finite).
     pub dropped_training_samples: u64,
-    /// Per level, the training loss before the step (the neural cache: one entry, its steps'
-    /// mean relative L2 loss; none when it took no step).
+    /// Per level, the training loss before the step (the neural cache: one entry, the mean
+    /// relative L2 loss of the step taken during this frame, on the previous frame's records;
+    /// none when it took no step).
     pub loss: Vec<Option<f64>>,
     /// The Gaussian cache had handed the image off to plain path tracing.
     pub handed_off: bool,

@@ -280,10 +280,19 @@ pub struct NrcSequence {
 
 /// A frame's training step, not yet taken: its training paths' records, by tile, and the seed
 /// that draws its batches.
-#[derive(Debug)]
 struct PendingStep {
     tiles: Vec<Vec<TrainingRecord>>,
     shuffle: u64,
+}
+
+impl std::fmt::Debug for PendingStep {
+    /// The number of records, not the records (a frame files about a hundred thousand).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PendingStep")
+            .field("records", &self.tiles.iter().map(Vec::len).sum::<usize>())
+            .field("shuffle", &self.shuffle)
+            .finish()
+    }
 }
 
 impl PendingStep {

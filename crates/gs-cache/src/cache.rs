@@ -469,7 +469,7 @@ impl GsCache {
         let draw_camera = &cache_camera;
         // The levels are drawn side by side, as they train (see `LevelStep`): one level's
         // image is too small a problem to keep many cores busy through its serial parts.
-        let (images, states) = match self.config.lookup {
+        let (mut drawn, states): (Vec<Vec<[f32; 3]>>, Vec<_>) = match self.config.lookup {
             Lookup::Raster => self
                 .levels
                 .par_iter()
@@ -501,7 +501,6 @@ impl GsCache {
                     .unzip()
             }
         };
-        let mut drawn: Vec<Vec<[f32; 3]>> = images;
         drawn
             .par_iter_mut()
             .zip(&self.levels)

@@ -1,4 +1,5 @@
-//! The stochastic estimator for a camera's own rays, through a screen grid instead of the BVH.
+//! The stochastic estimator for a camera's own rays, a scanline at a time instead of through
+//! the BVH.
 //!
 //! The cache's ray-traced lookup traces one ray per cache pixel, all from the camera's centre,
 //! in `Center` depth (each hit at its Gaussian's centre depth along the camera's forward axis).
@@ -8,33 +9,43 @@
 //! farthest slot's hit before it may stop. Rays that share an origin need no BVH: the Gaussians
 //! a pixel's ray can meet are those whose silhouettes (the screen ellipse of the alpha >= 1/255
 //! ellipsoid seen from the camera) cover the pixel, and in `Center` depth every ray of the
-//! camera meets them in one order, their centres' depth. So each Gaussian is listed in the
-//! screen tiles its silhouette covers, each tile's list is sorted by centre depth once, and the
-//! rays of a tile's row walk its list front to back together, each ray testing only the
-//! Gaussians whose silhouette holds its pixel and stopping at the first Gaussian behind its
-//! farthest slot: nothing behind it can replace a slot's hit.
+//! camera meets them in one order, their centres' depth.
+//!
+//! So the Gaussians are sorted by centre depth once, and listed in that order in the bands of
+//! rows their silhouettes cover. A row of pixels walks its band's list once, front to back: for
+//! each Gaussian it solves for the pixels the silhouette covers on that row (a chord of the
+//! ellipse) and tests only those pixels' rays. Walking in depth order, a hit can never come
+//! before a slot's earlier hit, so a slot keeps the first hit it accepts, and a pixel is done
+//! once every slot has one; the row stops when every pixel is done. An earlier version listed
+//! the Gaussians per 8x8 tile and sorted each tile's list: a row then walked the tile's whole
+//! list, three quarters of it Gaussians that missed every one of its pixels, and the grid's
+//! building (a sort per tile) cost a third of the walk.
 //!
 //! The estimate is the BVH's ([`crate::estimators::trace_stochastic`]) bit for bit: the same
-//! intersections (every Gaussian the BVH would find is in the pixel's list; the response is
+//! intersections (every Gaussian the BVH would find is on the pixel's chord; the response is
 //! [`TraceGaussians::intersect`]'s), the same acceptance numbers, and the same closest accepted
 //! hit per slot, which does not depend on the order hits are met. Two cases can differ: two
-//! Gaussians at exactly the same depth (the BVH keeps the one it meets first, the grid the
+//! Gaussians at exactly the same depth (the BVH keeps the one it meets first, the walk the
 //! lower index), and a box that reaches behind the camera's plane. Such a box has no bounded
-//! silhouette: it is listed in every tile, and a ray takes it where it meets the box at or after
+//! silhouette: it is listed on every row, and a ray takes it where it meets the box at or after
 //! its origin; the BVH also visits it as a leaf-mate of a box the ray meets, where its ellipsoid
 //! can lie behind the camera.
 
-use crate::gaussians::{DepthMode, TraceGaussians};
-use crate::random::{RandomKind, SampleKey, acceptance, slot_acceptances};
-use glam::Vec3;
+use crate::gaussians::{Intersection, OriginTerms, TraceGaussians};
+use crate::random::{RandomKind, SLOT_LANES, SampleKey, acceptance, accepting_slots};
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
+use render_base::camera::RayDirections;
 use render_base::hash::Hash32;
 use splat_raster::Camera;
 
-/// Pixels along a tile's side: smaller tiles walk fewer Gaussians that miss the pixel but list
-/// each Gaussian more often. At the cache's 320x180 (one run each, 2 threads) 4, 8 and 16 gave
-/// 48.6, 46.7 and 51.1 ms of lookup a frame, within the runs' noise of each other.
-const TILE: u32 = 8;
+/// Rows per band: a Gaussian is listed once per band its silhouette reaches, and a row walks
+/// its band's list, skipping the Gaussians that miss the row. Smaller bands list Gaussians more
+/// often; larger ones make each row skip more.
+const BAND: u32 = 4;
+
+/// Pixels whose silhouette tests are made together (one vector of f32 lanes).
+const LANES: usize = 8;
 
 /// Boxes nearer the camera's plane than this (in depth units) are treated as reaching behind it.
 const NEAR: f32 = 1e-6;
@@ -46,6 +57,11 @@ const MAX_SLOTS: usize = 64;
 /// ellipse grown by this factor (in the ellipse's quadratic form): the test only saves
 /// `intersect` calls, so it must never refuse a ray that `intersect`, in f32, would accept.
 const SILHOUETTE_SLACK: f32 = 1.0 + 1.0 / 64.0;
+
+/// The chord a row walks is solved (in f64) for an ellipse grown a little more than the pixels'
+/// own test, and widened by a pixel each way: it may hold pixels the test refuses, never one
+/// the test (rounded in f32) would take.
+const CHORD_SLACK: f64 = SILHOUETTE_SLACK as f64 * (1.0 + 1.0 / 256.0);
 
 /// The camera's image by the stochastic estimator (Sun et al., Algorithm 1, with
 /// `samples_per_traversal` slots, section 3.5) in `Center` depth: per pixel the mean of `spp`
@@ -65,9 +81,19 @@ pub fn trace_camera_image(
     let grid = ScreenGrid::new(gaussians, camera);
     let slots = (samples_per_traversal.max(1) as usize).min(MAX_SLOTS);
     let spp = spp.max(1);
-    let (width, forward) = (camera.width, camera.axes().2);
-    let directions = camera.ray_directions();
-    let mut image = vec![Vec3::ZERO; width as usize * camera.height as usize];
+    let width = camera.width as usize;
+    let walk = Walk {
+        g: gaussians,
+        grid: &grid,
+        origin: camera.position,
+        forward: camera.axes().2,
+        directions: camera.ray_directions(),
+        width,
+        slots,
+        seed,
+        random,
+        background,
+    };
     // The walk compiled for AVX2 where the processor has it: the slots' acceptance numbers are
     // integer multiplies across slots, which the baseline x86-64 has no vector instruction for.
     // Both compilations give the same bits (no fused multiply-add; integers are exact).
@@ -75,274 +101,353 @@ pub fn trace_camera_image(
     let avx2 = std::arch::is_x86_feature_detected!("avx2");
     #[cfg(not(target_arch = "x86_64"))]
     let avx2 = false;
-    image
-        .par_chunks_mut(width as usize)
-        .enumerate()
-        .for_each(|(y, row)| {
-            let y = y as u32;
-            let mut hits = vec![EMPTY_SLOT; LANES * slots];
-            let mut states = vec![Hash32::default(); LANES * slots];
-            // A tile's row of pixels at a time: its rays share the tile's list.
-            for (tx, span) in row.chunks_mut(LANES).enumerate() {
-                let x0 = tx as u32 * TILE;
-                let rays: [CameraRay; LANES] = std::array::from_fn(|l| {
-                    let (px, py) = ((x0 + l as u32) as f32 + 0.5, y as f32 + 0.5);
-                    CameraRay {
-                        o: camera.position,
-                        d: directions.at(px, py),
-                        forward,
-                        pixel: [px, py],
-                    }
-                });
-                let rays = &rays[..span.len()];
-                let list = grid.list(tx as u32, y / TILE);
-                let mut sums = [glam::DVec3::ZERO; LANES];
-                for s in 0..spp {
-                    let keys: [SampleKey; LANES] =
-                        std::array::from_fn(|l| SampleKey::new(seed, y * width + x0 + l as u32, s));
-                    let walk = Walk {
-                        g: gaussians,
-                        random,
-                        background,
+    let mut image = vec![Vec3::ZERO; width * camera.height as usize];
+    image.par_chunks_mut(width).enumerate().for_each_init(
+        || Row::new(width, slots),
+        |row, (y, out)| {
+            row.start(&walk, y as u32);
+            for s in 0..spp {
+                if avx2 {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: `avx2` is true only where the processor runs AVX2 (checked by
+                    // `is_x86_feature_detected!` above).
+                    unsafe {
+                        walk.estimate_avx2(row, y as u32, s)
                     };
-                    let scratch = Scratch {
-                        hits: &mut hits,
-                        states: &mut states,
-                    };
-                    if avx2 {
-                        #[cfg(target_arch = "x86_64")]
-                        // SAFETY: `avx2` is true only where the processor runs AVX2 (checked
-                        // by `is_x86_feature_detected!` above).
-                        unsafe {
-                            walk.estimate_avx2(rays, &keys, list, slots, scratch, &mut sums)
-                        };
-                    } else {
-                        walk.estimate(rays, &keys, list, slots, scratch, &mut sums);
-                    }
-                }
-                for (out, sum) in span.iter_mut().zip(sums) {
-                    *out = (sum / spp as f64).as_vec3();
+                } else {
+                    walk.estimate(row, y as u32, s);
                 }
             }
-        });
+            for (out, sum) in out.iter_mut().zip(&row.sums) {
+                *out = (*sum / spp as f64).as_vec3();
+            }
+        },
+    );
     image
 }
 
-/// Pixels walked together: a tile's row.
-const LANES: usize = TILE as usize;
+/// A slot before any hit.
+const EMPTY_SLOT: u32 = u32::MAX;
 
-/// A slot before any hit: (distance, Gaussian, centre depth).
-const EMPTY_SLOT: (f32, usize, f32) = (f32::INFINITY, usize::MAX, f32::INFINITY);
-
-/// A camera ray through a pixel position; its hits are placed at their Gaussians' centre depth.
-struct CameraRay {
-    o: Vec3,
-    d: Vec3,
-    forward: Vec3,
-    pixel: [f32; 2],
+/// One row's working memory, kept from row to row of a thread.
+struct Row {
+    /// Each pixel's ray direction by component, padded to whole groups of [`LANES`] with zero
+    /// directions (which meet nothing).
+    directions: [Vec<f32>; 3],
+    /// Each pixel's ray direction along the camera's forward axis; a ray that does not point
+    /// forward meets nothing.
+    forward: Vec<f32>,
+    /// Each pixel's slots' hits (a Gaussian's index in the tracing arrays, or [`EMPTY_SLOT`]),
+    /// padded like `states`.
+    hits: Vec<u32>,
+    /// Each pixel's slots' acceptance hash states before a Gaussian's id
+    /// ([`SampleKey::slot_states`]), padded to whole vectors of [`SLOT_LANES`] slots.
+    states: Vec<Hash32>,
+    /// Each pixel's slots holding a hit, a bit a slot.
+    filled: Vec<u64>,
+    /// Per group of [`LANES`] pixels, those still taking part, a bit a pixel.
+    taking_part: Vec<u8>,
+    /// Each pixel's estimates summed.
+    sums: Vec<DVec3>,
 }
 
-/// One Gaussian in a tile's list.
-#[derive(Clone, Copy, Default)]
-struct Entry {
-    /// Its centre's depth along the camera's forward axis.
-    depth: f32,
-    index: u32,
-    /// Its silhouette: the pixels `p` with `(p - centre)^T Q (p - centre) <= 1` are those whose
-    /// rays meet its alpha >= 1/255 ellipsoid. `Q = 0` where no bounded silhouette exists (a
-    /// box reaching behind the camera): every pixel is tested.
-    centre: [f32; 2],
-    /// `Q`'s entries xx, xy, yy.
-    form: [f32; 3],
-    /// The box reaches behind the camera's plane: the ray must meet the box at or after its
-    /// origin, as the BVH requires.
-    reaches_behind: bool,
+impl Row {
+    fn new(width: usize, slots: usize) -> Self {
+        let padded = width.next_multiple_of(LANES);
+        Self {
+            directions: std::array::from_fn(|_| vec![0.0; padded]),
+            forward: vec![0.0; width],
+            hits: vec![EMPTY_SLOT; width * slots.next_multiple_of(SLOT_LANES)],
+            states: vec![Hash32::default(); width * slots.next_multiple_of(SLOT_LANES)],
+            filled: vec![0; width],
+            taking_part: vec![0; width.div_ceil(LANES)],
+            sums: vec![DVec3::ZERO; width],
+        }
+    }
+
+    /// Readies the row for row `y`'s estimates.
+    fn start(&mut self, walk: &Walk, y: u32) {
+        let py = y as f32 + 0.5;
+        for (x, ahead) in self.forward.iter_mut().enumerate() {
+            let d = walk.directions.at(x as f32 + 0.5, py);
+            for (component, v) in self.directions.iter_mut().zip(d.to_array()) {
+                component[x] = v;
+            }
+            *ahead = walk.forward.dot(d);
+        }
+        self.sums.fill(DVec3::ZERO);
+    }
 }
 
-/// An estimate's working memory, for `rays.len() * slots` slots: each slot's hit, and each
-/// slot's acceptance hash state before the Gaussian's id ([`SampleKey::slot_states`]).
-struct Scratch<'a> {
-    hits: &'a mut [(f32, usize, f32)],
-    states: &'a mut [Hash32],
-}
-
-/// What every estimate reads besides its rays and list.
+/// What every row's walk reads.
 struct Walk<'a> {
     g: &'a TraceGaussians,
+    grid: &'a ScreenGrid,
+    origin: Vec3,
+    forward: Vec3,
+    directions: RayDirections,
+    width: usize,
+    slots: usize,
+    seed: u32,
     random: RandomKind,
     background: Vec3,
 }
 
 impl Walk<'_> {
-    /// One estimate for each of `rays` (one row of a tile, all on the same `list`, sorted by
-    /// centre depth) with sample keys `keys`, added to `sums`: the mean of each ray's slots'
-    /// closest accepted colours. The list is walked front to back once for all the rays; a
-    /// ray takes part until the next Gaussian lies behind every one of its slots' hits, and the
-    /// walk stops when no ray takes part. Each ray meets exactly the hits it would meet alone.
+    /// Estimate `sample` for each pixel of row `y`, added to the row's sums: the mean of each
+    /// ray's slots' closest accepted colours. The row's band is walked front to back once for
+    /// all its rays; a ray takes part until every slot holds a hit, and the walk stops when no
+    /// ray takes part. Each ray meets exactly the hits it would meet alone.
     #[inline(always)]
-    fn estimate(
-        &self,
-        rays: &[CameraRay],
-        keys: &[SampleKey; LANES],
-        list: &[Entry],
-        slots: usize,
-        scratch: Scratch<'_>,
-        sums: &mut [glam::DVec3; LANES],
-    ) {
-        let g = self.g;
-        let n = rays.len();
-        let Scratch { hits, states } = scratch;
-        hits[..n * slots].fill(EMPTY_SLOT);
+    fn estimate(&self, row: &mut Row, y: u32, sample: u32) {
+        let (g, slots, width) = (self.g, self.slots, self.width);
+        let full = u64::MAX >> (64 - slots);
         let hashed = self.random == RandomKind::Hash;
+        let Row {
+            directions,
+            forward,
+            hits,
+            states,
+            filled,
+            taking_part,
+            sums,
+        } = row;
+        hits.fill(EMPTY_SLOT);
+        filled.fill(0);
+        taking_part.fill(0);
+        let mut left = 0usize;
+        for (x, &ahead) in forward.iter().enumerate() {
+            // Written so that NaN takes no part.
+            if ahead > 0.0 {
+                taking_part[x / LANES] |= 1 << (x % LANES);
+                left += 1;
+            }
+        }
+        let key = |x: usize| SampleKey::new(self.seed, y * width as u32 + x as u32, sample);
+        let padded = slots.next_multiple_of(SLOT_LANES);
         if hashed {
-            for (key, states) in keys.iter().zip(states.chunks_exact_mut(slots)).take(n) {
-                key.slot_states(states);
+            for (x, states) in states.chunks_exact_mut(padded).enumerate() {
+                key(x).slot_states(states);
             }
         }
-        // One Gaussian's acceptance numbers for a ray's slots.
-        let mut numbers = [0.0f32; MAX_SLOTS];
-        // Per ray, the centre depth of its farthest slot's hit: infinite while a slot is
-        // empty. `intersect` places a hit at `depth / fd`, which never decreases with the
-        // depth, so a Gaussian at or behind it cannot come before any of the ray's hits; one in
-        // front of it whose hit rounds to the same distance is walked and replaces nothing (a
-        // slot takes only a strictly nearer hit). A ray that does not point forward meets
-        // nothing (written so that NaN meets nothing too); lanes past the row's end take no
-        // part.
-        let mut farthest = [f32::NEG_INFINITY; LANES];
-        let mut px = [0.0f32; LANES];
-        for (l, r) in rays.iter().enumerate() {
-            px[l] = r.pixel[0];
-            if r.forward.dot(r.d) > 0.0 {
-                farthest[l] = f32::INFINITY;
-            }
-        }
-        let py = rays[0].pixel[1];
-        let mut walking = farthest.iter().fold(f32::NEG_INFINITY, |m, &f| m.max(f));
-        for e in list {
-            if !(e.depth < walking) {
+        let py = y as f32 + 0.5;
+        for &rank in self.grid.band(y / BAND) {
+            if left == 0 {
                 break;
             }
-            // The silhouette test for the row's pixels at once (it only saves `intersect`
-            // calls), and whether each ray still takes part.
-            let dy = py - e.centre[1];
-            let [qxx, qxy, qyy] = e.form;
-            let (cross, last) = (2.0 * qxy * dy, qyy * dy * dy);
-            let mut meets = [false; LANES];
-            for l in 0..LANES {
-                let dx = px[l] - e.centre[0];
-                meets[l] = (qxx * dx * dx + cross * dx + last <= SILHOUETTE_SLACK)
-                    & (e.depth < farthest[l]);
-            }
-            if !meets.iter().any(|&m| m) {
+            let p = &self.grid.placed[rank as usize];
+            if !(p.rows[0] <= y && y <= p.rows[1]) {
                 continue;
             }
-            let i = e.index as usize;
-            // The rays share their origin: its terms once for the row.
-            let origin = g.origin_terms(i, rays[0].o);
-            for (l, r) in rays.iter().enumerate() {
-                if !meets[l] || (e.reaches_behind && !meets_box(g, i, r)) {
+            let Some([x0, x1]) = p.chord(y) else {
+                continue;
+            };
+            let i = p.index as usize;
+            let origin = &self.grid.origins[rank as usize];
+            // The silhouette test's terms shared by the row.
+            let dy = py - p.centre[1];
+            let [qxx, qxy, qyy] = p.form;
+            let (cross, last) = (2.0 * qxy * dy, qyy * dy * dy);
+            for group in x0 as usize / LANES..=x1 as usize / LANES {
+                let alive = taking_part[group];
+                if alive == 0 {
                     continue;
                 }
-                let Some(h) = g.intersect_from(
-                    i,
-                    &origin,
-                    r.d,
-                    0.0,
-                    f32::INFINITY,
-                    DepthMode::Center,
-                    r.forward,
-                ) else {
-                    continue;
-                };
-                let lane = &mut hits[l * slots..(l + 1) * slots];
-                if hashed {
-                    // Every slot's number, then the slots that take the hit: the same choice as
-                    // numbering only the slots whose hit is farther (the numbers are pure).
-                    let numbers = &mut numbers[..slots];
-                    slot_acceptances(&states[l * slots..(l + 1) * slots], g.ids[i], numbers);
-                    for (slot, &u) in lane.iter_mut().zip(numbers.iter()) {
-                        if h.t < slot.0 && u < h.alpha {
-                            *slot = (h.t, i, e.depth);
-                        }
-                    }
-                } else {
-                    let p = r.o + h.t * r.d;
-                    for (s, slot) in lane.iter_mut().enumerate() {
-                        if h.t < slot.0
-                            && acceptance(self.random, &keys[l], g.ids[i], s as u32, p) < h.alpha
-                        {
-                            *slot = (h.t, i, e.depth);
-                        }
-                    }
+                // The silhouette test for the group's pixels at once (it only saves
+                // `intersect` calls).
+                let mut meets = 0u8;
+                for l in 0..LANES {
+                    let dx = (group * LANES + l) as f32 + 0.5 - p.centre[0];
+                    let inside = qxx * dx * dx + cross * dx + last <= SILHOUETTE_SLACK;
+                    meets |= (inside as u8) << l;
                 }
-                farthest[l] = lane.iter().fold(0.0f32, |m, s| m.max(s.2));
+                meets &= alive;
+                if meets == 0 {
+                    continue;
+                }
+                // The closest points of the group's rays at once (`intersect`'s formula, lane
+                // by lane), then each ray the silhouette let through.
+                let lanes = group * LANES..(group + 1) * LANES;
+                let lane_of =
+                    |c: &Vec<f32>| -> [f32; LANES] { c[lanes.clone()].try_into().unwrap() };
+                let [dx, dy, dz] = [
+                    lane_of(&directions[0]),
+                    lane_of(&directions[1]),
+                    lane_of(&directions[2]),
+                ];
+                let (_, q) = g.closest_points(i, origin, [&dx, &dy, &dz]);
+                while meets != 0 {
+                    let l = meets.trailing_zeros() as usize;
+                    meets &= meets - 1;
+                    let x = group * LANES + l;
+                    let d = Vec3::new(dx[l], dy[l], dz[l]);
+                    if p.reaches_behind && !meets_box(g, i, self.origin, d) {
+                        continue;
+                    }
+                    let Some(alpha) = g.alpha(i, q[l]) else {
+                        continue;
+                    };
+                    // `intersect`'s centre depth: the centre's depth over the direction's.
+                    let t = p.depth / forward[x];
+                    if !(t > 0.0 && t < f32::INFINITY) {
+                        continue;
+                    }
+                    let h = Intersection { t, alpha };
+                    // Walking in depth order, a hit comes at or behind every earlier one: the
+                    // slots without a hit take it where its number accepts it (the BVH's
+                    // "strictly nearer than the slot's hit" is "empty" here).
+                    let empty = !filled[x] & full;
+                    let mut taken = 0u64;
+                    if hashed {
+                        let vectors = states[x * padded..(x + 1) * padded].as_chunks().0;
+                        for (v, states) in vectors.iter().enumerate() {
+                            let accepted = accepting_slots(states, g.ids[i], h.alpha);
+                            taken |= (accepted as u64) << (v * SLOT_LANES);
+                        }
+                        taken &= empty;
+                    } else {
+                        let at = self.origin + h.t * d;
+                        let key = key(x);
+                        let mut open = empty;
+                        while open != 0 {
+                            let s = open.trailing_zeros();
+                            open &= open - 1;
+                            if acceptance(self.random, &key, g.ids[i], s, at) < h.alpha {
+                                taken |= 1 << s;
+                            }
+                        }
+                    }
+                    if taken == 0 {
+                        continue;
+                    }
+                    filled[x] |= taken;
+                    let slots_of_x = &mut hits[x * padded..(x + 1) * padded];
+                    while taken != 0 {
+                        let s = taken.trailing_zeros() as usize;
+                        taken &= taken - 1;
+                        slots_of_x[s] = i as u32;
+                    }
+                    let done = filled[x] == full;
+                    taking_part[group] &= !((done as u8) << l);
+                    left -= done as usize;
+                }
             }
-            walking = farthest.iter().fold(f32::NEG_INFINITY, |m, &f| m.max(f));
         }
-        for (l, r) in rays.iter().enumerate() {
-            let sum: Vec3 = hits[l * slots..(l + 1) * slots]
+        for (slots_of_x, sum) in hits.chunks_exact(padded).zip(sums.iter_mut()) {
+            let total: Vec3 = slots_of_x[..slots]
                 .iter()
-                .map(|&(_, i, _)| {
-                    if i == usize::MAX {
+                .map(|&i| {
+                    if i == EMPTY_SLOT {
                         self.background
                     } else {
-                        g.color(i, r.o)
+                        g.color(i as usize, self.origin)
                     }
                 })
                 .sum();
-            sums[l] += (sum / slots as f32).as_dvec3();
+            *sum += (total / slots as f32).as_dvec3();
         }
     }
-}
 
-impl Walk<'_> {
     /// [`Walk::estimate`] compiled for AVX2.
     ///
     /// # Safety
     /// The processor must support AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn estimate_avx2(
-        &self,
-        rays: &[CameraRay],
-        keys: &[SampleKey; LANES],
-        list: &[Entry],
-        slots: usize,
-        scratch: Scratch<'_>,
-        sums: &mut [glam::DVec3; LANES],
-    ) {
-        self.estimate(rays, keys, list, slots, scratch, sums)
+    unsafe fn estimate_avx2(&self, row: &mut Row, y: u32, sample: u32) {
+        self.estimate(row, y, sample)
     }
 }
 
 /// Whether the ray meets Gaussian `i`'s box at or after its origin (the BVH's test, for the
 /// boxes listed everywhere because they reach behind the camera).
-fn meets_box(g: &TraceGaussians, i: usize, r: &CameraRay) -> bool {
-    let inv = r.d.recip();
-    let a = (g.lower[i] - r.o) * inv;
-    let b = (g.upper[i] - r.o) * inv;
+fn meets_box(g: &TraceGaussians, i: usize, o: Vec3, d: Vec3) -> bool {
+    let inv = d.recip();
+    let a = (g.lower[i] - o) * inv;
+    let b = (g.upper[i] - o) * inv;
     let near = a.min(b).max_element().max(0.0);
     let far = a.max(b).min_element();
     near <= far
 }
 
-/// Per screen tile, the Gaussians whose silhouettes may cover it, by centre depth.
+/// The Gaussians in front of the camera, sorted by centre depth (ties by index), and per band
+/// of rows the ones whose silhouettes may reach it, in that order.
 struct ScreenGrid {
-    tiles_x: u32,
-    /// Each tile's list: `starts[t]..starts[t + 1]` of `entries`.
+    /// Each Gaussian placed on the screen, by depth: a Gaussian's place here is its rank.
+    placed: Vec<Placed>,
+    /// Each rank's [`OriginTerms`] from the camera's centre.
+    origins: Vec<OriginTerms>,
+    /// Band `b`'s ranks are `ranks[starts[b]..starts[b + 1]]`, ascending.
     starts: Vec<usize>,
-    /// Each tile's sorted by depth, ties by index.
-    entries: Vec<Entry>,
+    ranks: Vec<u32>,
 }
 
-/// Where a Gaussian goes in the grid: tiles `x0..=x1` by `y0..=y1`.
+/// One Gaussian on the screen.
 #[derive(Clone, Copy)]
-struct Cover {
-    x0: u32,
-    x1: u32,
-    y0: u32,
-    y1: u32,
-    entry: Entry,
+struct Placed {
+    /// Its centre's depth along the camera's forward axis.
+    depth: f32,
+    /// Its index in the tracing arrays.
+    index: u32,
+    /// Its silhouette: the pixels `p` with `(p - centre)^T Q (p - centre) <= 1` are those whose
+    /// rays meet its alpha >= 1/255 ellipsoid. `Q = 0` where no bounded silhouette exists (a
+    /// box reaching behind the camera, or rounding): every pixel of its rectangle is tested.
+    centre: [f32; 2],
+    /// `Q`'s entries xx, xy, yy.
+    form: [f32; 3],
+    /// The pixel columns and rows (inclusive) its silhouette may cover.
+    columns: [u32; 2],
+    rows: [u32; 2],
+    /// The box reaches behind the camera's plane: the ray must meet the box at or after its
+    /// origin, as the BVH requires.
+    reaches_behind: bool,
+    /// The silhouette's chords by row ([`Placed::chord_terms`]).
+    chord_terms: [f32; 3],
+}
+
+impl Placed {
+    /// The pixels of row `y` (inclusive) whose rays may meet it: its rectangle's columns, on a
+    /// bounded silhouette narrowed to the ellipse's chord at the row's centre (see
+    /// [`Placed::chord_terms`]); `None` where the chord misses the row.
+    #[inline]
+    fn chord(&self, y: u32) -> Option<[u32; 2]> {
+        let [k1, k2, k3] = self.chord_terms;
+        if !(k2 > 0.0) {
+            return Some(self.columns);
+        }
+        let dy = y as f32 + 0.5 - self.centre[1];
+        let squared = dy * dy * k1 + k2;
+        if !(squared >= 0.0) {
+            return None;
+        }
+        let (mid, half) = (self.centre[0] + dy * k3, squared.sqrt());
+        // Pixel x's centre is x + 0.5; a pixel wider each way.
+        let from = (mid - half - 1.5).ceil().max(self.columns[0] as f32);
+        let to = (mid + half + 0.5).floor().min(self.columns[1] as f32);
+        (from <= to).then_some([from as u32, to as u32])
+    }
+
+    /// The terms of [`Placed::chord`] for the silhouette `form`: the ellipse
+    /// `a dx^2 + 2 b dy dx + c dy^2 <= s`, grown to `s =` [`CHORD_SLACK`], meets the row at
+    /// `dy` from its centre where `dx = k3 dy +- sqrt(k1 dy^2 + k2)`, with
+    /// `k1 = (b^2 - a c) / a^2`, `k2 = s / a` and `k3 = -b / a`; `k2 = 0` where there is no
+    /// bounded silhouette (every column of the rectangle is walked). Solved in f64, rounded to
+    /// f32 and evaluated in f32: the chord must hold every pixel that the pixels' own test
+    /// (`SILHOUETTE_SLACK`, in f32) would take, and the larger slack moves the chord's ends
+    /// by more than the rounding can (at a chord's end, `k1 dy^2 + k2` has `k2 / 256` to
+    /// spare against a rounding error of about `k2 / 2^23`), a pixel's widening on top.
+    fn chord_terms(form: [f32; 3]) -> [f32; 3] {
+        let [a, b, c] = form.map(f64::from);
+        if !(a > 0.0) {
+            return [0.0; 3];
+        }
+        let terms = [(b * b - a * c) / (a * a), CHORD_SLACK / a, -b / a].map(|k| k as f32);
+        if terms.iter().all(|k| k.is_finite()) && terms[1] > 0.0 {
+            terms
+        } else {
+            [0.0; 3]
+        }
+    }
 }
 
 /// The camera's constants for placing Gaussians on its screen.
@@ -366,22 +471,24 @@ impl Screen {
         }
     }
 
-    /// Where Gaussian `i` (centre depth `depth`) goes: the tiles of the screen rectangle of its
-    /// box's corners, narrowed to its silhouette's; every tile when its box reaches behind the
+    /// Gaussian `i` (centre depth `depth`) on the screen: the pixel rectangle of its box's
+    /// corners, narrowed to its silhouette's; the whole screen when its box reaches behind the
     /// camera's plane; `None` when its centre is not in front of the camera (`intersect` never
     /// places a hit there) or it is off the screen.
-    fn cover(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<Cover> {
+    fn place(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<Placed> {
         if !(depth > 0.0) {
             return None;
         }
         let [w, h] = self.size;
-        let tile = |p: f64, n: f64| (p.clamp(0.0, n - 1.0) as u32) / TILE;
-        let everywhere = Entry {
+        let everywhere = Placed {
             depth,
             index: i as u32,
             centre: [0.0; 2],
             form: [0.0; 3],
+            columns: [0, w as u32 - 1],
+            rows: [0, h as u32 - 1],
             reaches_behind: true,
+            chord_terms: [0.0; 3],
         };
         let (lo, hi) = (g.lower[i].as_dvec3(), g.upper[i].as_dvec3());
         let (mut u0, mut u1, mut v0, mut v1) = (
@@ -398,13 +505,7 @@ impl Screen {
             );
             let c = self.to_camera * (corner - self.position);
             if !(c.z > NEAR as f64) {
-                return Some(Cover {
-                    x0: 0,
-                    x1: tile(w, w),
-                    y0: 0,
-                    y1: tile(h, h),
-                    entry: everywhere,
-                });
+                return Some(everywhere);
             }
             let (u, v) = (
                 self.half[0] + self.focal * c.x / c.z,
@@ -412,13 +513,14 @@ impl Screen {
             );
             (u0, u1, v0, v1) = (u0.min(u), u1.max(u), v0.min(v), v1.max(v));
         }
-        let mut entry = Entry {
+        let mut placed = Placed {
             reaches_behind: false,
             ..everywhere
         };
         if let Some((centre, form, reach)) = self.silhouette(g, i) {
-            entry.centre = [centre[0] as f32, centre[1] as f32];
-            entry.form = form.map(|q| q as f32);
+            placed.centre = [centre[0] as f32, centre[1] as f32];
+            placed.form = form.map(|q| q as f32);
+            placed.chord_terms = Placed::chord_terms(placed.form);
             u0 = u0.max(centre[0] - reach[0]);
             u1 = u1.min(centre[0] + reach[0]);
             v0 = v0.max(centre[1] - reach[1]);
@@ -430,13 +532,9 @@ impl Screen {
         if !(x1 >= 0.0 && y1 >= 0.0 && x0 < w && y0 < h && x0 <= x1 && y0 <= y1) {
             return None;
         }
-        Some(Cover {
-            x0: tile(x0, w),
-            x1: tile(x1, w),
-            y0: tile(y0, h),
-            y1: tile(y1, h),
-            entry,
-        })
+        placed.columns = [x0.max(0.0) as u32, x1.min(w - 1.0) as u32];
+        placed.rows = [y0.max(0.0) as u32, y1.min(h - 1.0) as u32];
+        Some(placed)
     }
 
     /// Gaussian `i`'s silhouette on the screen, in f64: its centre, its quadratic form
@@ -495,61 +593,52 @@ impl Screen {
 
 impl ScreenGrid {
     fn new(g: &TraceGaussians, camera: &Camera) -> Self {
-        let tiles_x = camera.width.div_ceil(TILE);
-        let tiles_y = camera.height.div_ceil(TILE);
-        let tiles = (tiles_x * tiles_y) as usize;
+        let bands = camera.height.div_ceil(BAND) as usize;
         let forward = camera.axes().2;
         let screen = Screen::new(camera);
-        let covers: Vec<Cover> = (0..g.len())
+        let mut placed: Vec<Placed> = (0..g.len())
             .into_par_iter()
             .filter_map(|i| {
-                // As `intersect` computes it, so that the walk's stop is exact.
+                // As `intersect` computes it, so that the walk's order is its hits' order.
                 let depth = (g.means[i] - camera.position).dot(forward);
-                screen.cover(g, i, depth)
+                screen.place(g, i, depth)
             })
             .collect();
-        // A counting sort by tile: counts, starts, then each Gaussian's entries in index order.
-        let tiles_of = |c: Cover| {
-            let Cover { x0, x1, y0, y1, .. } = c;
-            (y0..=y1).flat_map(move |ty| (x0..=x1).map(move |tx| (ty * tiles_x + tx) as usize))
-        };
-        let mut counts = vec![0usize; tiles];
-        for t in covers.iter().copied().flat_map(tiles_of) {
-            counts[t] += 1;
-        }
-        let mut starts = Vec::with_capacity(tiles + 1);
-        starts.push(0);
-        for c in &counts {
-            starts.push(starts.last().unwrap() + c);
-        }
-        let mut entries = vec![Entry::default(); starts[tiles]];
-        let mut next = starts[..tiles].to_vec();
-        for cover in &covers {
-            for t in tiles_of(*cover) {
-                entries[next[t]] = cover.entry;
-                next[t] += 1;
+        // By depth, ties by index (the keys are distinct): one order on any thread count.
+        placed.par_sort_unstable_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+        let origins = placed
+            .par_iter()
+            .map(|p| g.origin_terms(p.index as usize, camera.position))
+            .collect();
+        // A counting sort of the ranks by band, each band's in rank order.
+        let bands_of = |p: &Placed| (p.rows[0] / BAND) as usize..=(p.rows[1] / BAND) as usize;
+        let mut starts = vec![0usize; bands + 1];
+        for p in &placed {
+            for b in bands_of(p) {
+                starts[b + 1] += 1;
             }
         }
-        // Each tile's list by centre depth, ties by index: one order on any thread count.
-        let mut lists = Vec::with_capacity(tiles);
-        let mut rest = entries.as_mut_slice();
-        for c in &counts {
-            let (list, tail) = rest.split_at_mut(*c);
-            lists.push(list);
-            rest = tail;
+        for b in 0..bands {
+            starts[b + 1] += starts[b];
         }
-        lists.into_par_iter().for_each(|list| {
-            list.sort_unstable_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
-        });
+        let mut ranks = vec![0u32; starts[bands]];
+        let mut next = starts[..bands].to_vec();
+        for (rank, p) in placed.iter().enumerate() {
+            for b in bands_of(p) {
+                ranks[next[b]] = rank as u32;
+                next[b] += 1;
+            }
+        }
         Self {
-            tiles_x,
+            placed,
+            origins,
             starts,
-            entries,
+            ranks,
         }
     }
 
-    fn list(&self, tx: u32, ty: u32) -> &[Entry] {
-        let t = (ty * self.tiles_x + tx) as usize;
-        &self.entries[self.starts[t]..self.starts[t + 1]]
+    /// Band `b`'s ranks, front to back.
+    fn band(&self, b: u32) -> &[u32] {
+        &self.ranks[self.starts[b as usize]..self.starts[b as usize + 1]]
     }
 }

@@ -154,24 +154,8 @@ impl TraceGaussians {
         mode: DepthMode,
         forward: Vec3,
     ) -> Option<Intersection> {
-        let a = &self.canonical[i];
-        let oc = origin.canonical;
-        let dc = Vec3::new(a[0].dot(d), a[1].dot(d), a[2].dot(d));
-        let dd = dc.length_squared();
-        if !(dd > 0.0) {
-            return None;
-        }
-        let t_star = -oc.dot(dc) / dd;
-        // Squared canonical distance at the closest point, computed from the point itself
-        // (no cancellation for rays far from the Gaussian).
-        let q = (oc + t_star * dc).length_squared();
-        if !(q <= self.cutoff[i]) {
-            return None;
-        }
-        let alpha = (self.opacity[i] * (-0.5 * q).exp()).min(ALPHA_MAX as f32);
-        if !(alpha >= ALPHA_MIN as f32) {
-            return None;
-        }
+        let ([t_star], [q]) = self.closest_points(i, origin, [&[d.x], &[d.y], &[d.z]]);
+        let alpha = self.alpha(i, q)?;
         let t = match mode {
             DepthMode::Mean => t_star,
             DepthMode::Center => {
@@ -184,6 +168,46 @@ impl TraceGaussians {
             }
         };
         (t > t_min && t < t_max).then_some(Intersection { t, alpha })
+    }
+
+    /// For rays from one origin with directions `d` (given by component, a ray a lane), each
+    /// ray's closest point to Gaussian `i`: its distance along the ray, and its squared
+    /// canonical distance (NaN where a direction is zero in the Gaussian's frame). One formula for [`TraceGaussians::intersect_from`] (one
+    /// lane) and for rays traced together (`camera_grid`, eight): every lane computes exactly
+    /// what the one-ray code does, in the same order, so the two give the same bits.
+    #[inline(always)]
+    pub fn closest_points<const N: usize>(
+        &self,
+        i: usize,
+        origin: &OriginTerms,
+        d: [&[f32; N]; 3],
+    ) -> ([f32; N], [f32; N]) {
+        let a = &self.canonical[i];
+        let oc = origin.canonical;
+        let mut t = [0.0; N];
+        let q = std::array::from_fn(|l| {
+            let d = Vec3::new(d[0][l], d[1][l], d[2][l]);
+            let dc = Vec3::new(a[0].dot(d), a[1].dot(d), a[2].dot(d));
+            let dd = dc.length_squared();
+            let t_star = -oc.dot(dc) / dd;
+            // Squared canonical distance at the closest point, computed from the point itself
+            // (no cancellation for rays far from the Gaussian).
+            let q = (oc + t_star * dc).length_squared();
+            t[l] = t_star;
+            if dd > 0.0 { q } else { f32::NAN }
+        });
+        (t, q)
+    }
+
+    /// Gaussian `i`'s alpha where a ray passes at squared canonical distance `q` (from
+    /// [`TraceGaussians::closest_points`]): `None` outside its cut-off or below 1/255.
+    #[inline]
+    pub fn alpha(&self, i: usize, q: f32) -> Option<f32> {
+        if !(q <= self.cutoff[i]) {
+            return None;
+        }
+        let alpha = (self.opacity[i] * (-0.5 * q).exp()).min(ALPHA_MAX as f32);
+        (alpha >= ALPHA_MIN as f32).then_some(alpha)
     }
 
     /// How far past the depth of a hit the traversal must still look (and how far before it,

@@ -47,7 +47,7 @@ impl SampleKey {
     }
 
     /// The integer hash's state for each of slots `0..states.len()` before a Gaussian's id:
-    /// from them, [`slot_acceptances`] gives one Gaussian's acceptance numbers for every slot.
+    /// from them, [`accepting_slots`] tells which slots accept a Gaussian.
     pub fn slot_states(&self, states: &mut [Hash32]) {
         for (slot, state) in (0u32..).zip(states.iter_mut()) {
             *state = self.slot_state(slot);
@@ -110,14 +110,20 @@ pub fn acceptance(kind: RandomKind, key: &SampleKey, id: u32, slot: u32, p: Vec3
     }
 }
 
-/// [`acceptance`] with [`RandomKind::Hash`] for every slot at once, from the key's
-/// [`SampleKey::slot_states`]: one Gaussian's numbers for all the slots in a loop without
-/// branches, which the compiler vectorises across slots. `out[s]` is slot `s`'s number.
+/// Slots whose numbers are made together: one vector of eight 32-bit lanes.
+pub const SLOT_LANES: usize = 8;
+
+/// Which of eight slots accept Gaussian `id` at `alpha`, a bit a slot: [`acceptance`] with
+/// [`RandomKind::Hash`] for each slot from the key's [`SampleKey::slot_states`], in a loop
+/// without branches that the compiler turns into vector multiplies and one compare across the
+/// slots. Bit `s` is set where slot `s`'s number is below `alpha`.
 #[inline(always)]
-pub fn slot_acceptances(states: &[Hash32], id: u32, out: &mut [f32]) {
-    for (u, state) in out.iter_mut().zip(states) {
-        *u = unit_f32(state.absorb(id).finish());
+pub fn accepting_slots(states: &[Hash32; SLOT_LANES], id: u32, alpha: f32) -> u8 {
+    let mut accepted = 0u8;
+    for (s, state) in states.iter().enumerate() {
+        accepted |= ((unit_f32(state.absorb(id).finish()) < alpha) as u8) << s;
     }
+    accepted
 }
 
 #[cfg(test)]
@@ -143,9 +149,15 @@ mod tests {
                     assert_eq!(got.to_bits(), unit_f32(whole).to_bits());
                     let mut states = [Hash32::default(); 64];
                     key.slot_states(&mut states);
-                    let mut all = [0.0f32; 64];
-                    slot_acceptances(&states, id, &mut all);
-                    assert_eq!(all[slot as usize].to_bits(), got.to_bits());
+                    let chunk: &[Hash32; SLOT_LANES] = states
+                        [slot as usize / SLOT_LANES * SLOT_LANES..][..SLOT_LANES]
+                        .try_into()
+                        .unwrap();
+                    let bit = 1 << (slot as usize % SLOT_LANES);
+                    // Just above the number it accepts; at the number itself it refuses.
+                    let above = f32::from_bits(got.to_bits() + 1);
+                    assert_eq!(accepting_slots(chunk, id, above) & bit, bit);
+                    assert_eq!(accepting_slots(chunk, id, got) & bit, 0);
                 }
             }
         }

@@ -479,9 +479,10 @@ impl GsCache {
                 })
                 .unzip(),
             Lookup::Rt => {
-                // The lookup's rays all leave the camera's centre, so they are traced through
-                // a screen grid of depth-sorted lists rather than a BVH: the same image as the
-                // BVH's, bit for bit, without its traversal (`stochastic_rt::camera_grid`).
+                // The lookup's rays all leave the camera's centre, so they are traced a row
+                // at a time through the Gaussians' depth-sorted silhouettes rather than a BVH:
+                // the same image as the BVH's, bit for bit, without its traversal
+                // (`stochastic_rt::camera_grid`).
                 let samples = self.config.rt_samples.max(1);
                 let defaults = TraceSettings::default();
                 self.levels

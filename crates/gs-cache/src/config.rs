@@ -46,9 +46,9 @@ pub enum Lookup {
     Raster,
     /// Ray-trace each level with stochastic-rt's single-traversal stochastic estimator (Sun et
     /// al., 2025), `rt_samples` samples per traversal. The lookup's rays all leave the camera,
-    /// so they walk a screen grid of depth-sorted lists instead of a BVH, for the BVH's image at
-    /// a third of its cost (`stochastic_rt::camera_grid`); training still uses the rasteriser's
-    /// gradients.
+    /// so each row of pixels walks the Gaussians' depth-sorted silhouettes instead of a BVH,
+    /// for the BVH's image bit for bit at a small fraction of its cost
+    /// (`stochastic_rt::camera_grid`); training still uses the rasteriser's gradients.
     Rt,
 }
 

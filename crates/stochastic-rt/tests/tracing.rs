@@ -517,8 +517,8 @@ fn both_generators_are_unbiased_on_a_real_asset() {
     }
 }
 
-/// The cache's lookup traces its camera's rays through a screen grid of depth-sorted lists
-/// instead of the BVH: the image must be the BVH's bit for bit (the same hits, the same
+/// The cache's lookup traces its camera's rays a row at a time through the Gaussians'
+/// depth-sorted silhouettes instead of the BVH: the image must be the BVH's bit for bit (the same hits, the same
 /// acceptance numbers, the same closest accepted hit per slot), for 1, 8 and 64 slots, more
 /// than one estimate per pixel, both acceptance generators, and cameras from outside the cloud
 /// looking at it, at an angle, and from its edge.

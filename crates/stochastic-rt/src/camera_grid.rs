@@ -31,7 +31,7 @@
 //! its origin; the BVH also visits it as a leaf-mate of a box the ray meets, where its ellipsoid
 //! can lie behind the camera.
 
-use crate::gaussians::{Intersection, OriginTerms, TraceGaussians};
+use crate::gaussians::{OriginTerms, TraceGaussians};
 use crate::random::{RandomKind, SLOT_LANES, SampleKey, acceptance, accepting_slots};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -58,9 +58,9 @@ const MAX_SLOTS: usize = 64;
 /// `intersect` calls, so it must never refuse a ray that `intersect`, in f32, would accept.
 const SILHOUETTE_SLACK: f32 = 1.0 + 1.0 / 64.0;
 
-/// The chord a row walks is solved (in f64) for an ellipse grown a little more than the pixels'
-/// own test, and widened by a pixel each way: it may hold pixels the test refuses, never one
-/// the test (rounded in f32) would take.
+/// The chord a row walks is solved for an ellipse grown a little more than the pixels' own
+/// test, and widened by a pixel each way: it may hold pixels the test refuses, never one the
+/// test (rounded in f32) would take ([`Placed::chord_terms`]).
 const CHORD_SLACK: f64 = SILHOUETTE_SLACK as f64 * (1.0 + 1.0 / 256.0);
 
 /// The camera's image by the stochastic estimator (Sun et al., Algorithm 1, with
@@ -90,6 +90,7 @@ pub fn trace_camera_image(
         directions: camera.ray_directions(),
         width,
         slots,
+        padded_slots: slots.next_multiple_of(SLOT_LANES),
         seed,
         random,
         background,
@@ -103,7 +104,7 @@ pub fn trace_camera_image(
     let avx2 = false;
     let mut image = vec![Vec3::ZERO; width * camera.height as usize];
     image.par_chunks_mut(width).enumerate().for_each_init(
-        || Row::new(width, slots),
+        || Row::new(&walk),
         |row, (y, out)| {
             row.start(&walk, y as u32);
             for s in 0..spp {
@@ -152,13 +153,14 @@ struct Row {
 }
 
 impl Row {
-    fn new(width: usize, slots: usize) -> Self {
+    fn new(walk: &Walk) -> Self {
+        let width = walk.width;
         let padded = width.next_multiple_of(LANES);
         Self {
             directions: std::array::from_fn(|_| vec![0.0; padded]),
             forward: vec![0.0; width],
-            hits: vec![EMPTY_SLOT; width * slots.next_multiple_of(SLOT_LANES)],
-            states: vec![Hash32::default(); width * slots.next_multiple_of(SLOT_LANES)],
+            hits: vec![EMPTY_SLOT; width * walk.padded_slots],
+            states: vec![Hash32::default(); width * walk.padded_slots],
             filled: vec![0; width],
             taking_part: vec![0; width.div_ceil(LANES)],
             sums: vec![DVec3::ZERO; width],
@@ -188,6 +190,9 @@ struct Walk<'a> {
     directions: RayDirections,
     width: usize,
     slots: usize,
+    /// `slots` rounded up to whole vectors of [`SLOT_LANES`]: each pixel's share of the row's
+    /// slot arrays.
+    padded_slots: usize,
     seed: u32,
     random: RandomKind,
     background: Vec3,
@@ -224,7 +229,7 @@ impl Walk<'_> {
             }
         }
         let key = |x: usize| SampleKey::new(self.seed, y * width as u32 + x as u32, sample);
-        let padded = slots.next_multiple_of(SLOT_LANES);
+        let padded = self.padded_slots;
         if hashed {
             for (x, states) in states.chunks_exact_mut(padded).enumerate() {
                 key(x).slot_states(states);
@@ -292,7 +297,6 @@ impl Walk<'_> {
                     if !(t > 0.0 && t < f32::INFINITY) {
                         continue;
                     }
-                    let h = Intersection { t, alpha };
                     // Walking in depth order, a hit comes at or behind every earlier one: the
                     // slots without a hit take it where its number accepts it (the BVH's
                     // "strictly nearer than the slot's hit" is "empty" here).
@@ -301,18 +305,18 @@ impl Walk<'_> {
                     if hashed {
                         let vectors = states[x * padded..(x + 1) * padded].as_chunks().0;
                         for (v, states) in vectors.iter().enumerate() {
-                            let accepted = accepting_slots(states, g.ids[i], h.alpha);
+                            let accepted = accepting_slots(states, g.ids[i], alpha);
                             taken |= (accepted as u64) << (v * SLOT_LANES);
                         }
                         taken &= empty;
                     } else {
-                        let at = self.origin + h.t * d;
+                        let at = self.origin + t * d;
                         let key = key(x);
                         let mut open = empty;
                         while open != 0 {
                             let s = open.trailing_zeros();
                             open &= open - 1;
-                            if acceptance(self.random, &key, g.ids[i], s, at) < h.alpha {
+                            if acceptance(self.random, &key, g.ids[i], s, at) < alpha {
                                 taken |= 1 << s;
                             }
                         }
@@ -605,7 +609,10 @@ impl ScreenGrid {
             })
             .collect();
         // By depth, ties by index (the keys are distinct): one order on any thread count.
-        placed.par_sort_unstable_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+        placed.par_sort_unstable_by(|a, b| {
+            let by_depth = a.depth.total_cmp(&b.depth);
+            by_depth.then(a.index.cmp(&b.index))
+        });
         let origins = placed
             .par_iter()
             .map(|p| g.origin_terms(p.index as usize, camera.position))

@@ -480,9 +480,9 @@ impl GsCache {
                 .unzip(),
             Lookup::Rt => {
                 // The lookup's rays all leave the camera's centre, so they are traced a row
-                // at a time through the Gaussians' depth-sorted silhouettes rather than a BVH:
-                // the same image as the BVH's, bit for bit, without its traversal
-                // (`stochastic_rt::camera_grid`).
+                // at a time through the Gaussians' depth-sorted silhouettes rather than a BVH,
+                // and their slots drawn in depth order: the BVH estimator's law, without its
+                // traversal or a random number per hit (`stochastic_rt::camera_grid`).
                 let samples = self.config.rt_samples.max(1);
                 let defaults = TraceSettings::default();
                 self.levels
@@ -494,7 +494,6 @@ impl GsCache {
                             samples,
                             1,
                             defaults.seed,
-                            defaults.random,
                             defaults.background,
                         );
                         (img.into_iter().map(|c| c.to_array()).collect(), None)

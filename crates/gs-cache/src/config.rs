@@ -46,9 +46,10 @@ pub enum Lookup {
     Raster,
     /// Ray-trace each level with stochastic-rt's single-traversal stochastic estimator (Sun et
     /// al., 2025), `rt_samples` samples per traversal. The lookup's rays all leave the camera,
-    /// so each row of pixels walks the Gaussians' depth-sorted silhouettes instead of a BVH,
-    /// for the BVH's image bit for bit at a small fraction of its cost
-    /// (`stochastic_rt::camera_grid`); training still uses the rasteriser's gradients.
+    /// so each row of pixels walks the Gaussians' depth-sorted silhouettes instead of a BVH and
+    /// draws its slots in depth order: the BVH estimator's law (not its bits) at a small
+    /// fraction of its cost (`stochastic_rt::camera_grid`); training still uses the
+    /// rasteriser's gradients.
     Rt,
 }
 

@@ -81,9 +81,18 @@ impl RayDirections {
     /// [`Camera::ray_direction`] at `(px, py)`, bit for bit.
     #[inline]
     pub fn at(&self, px: f32, py: f32) -> Vec3 {
-        let cx = (px - self.half_width) / self.focal;
-        let cy = (py - self.half_height) / self.focal;
+        let [cx, cy] = self.on_plane(px, py);
         (self.rotation * Vec3::new(cx, cy, 1.0)).normalize()
+    }
+
+    /// Where the ray through `(px, py)` crosses the camera-space plane z = 1: the direction
+    /// `(x, y, 1)` that [`RayDirections::at`] rotates and normalises.
+    #[inline]
+    pub fn on_plane(&self, px: f32, py: f32) -> [f32; 2] {
+        [
+            (px - self.half_width) / self.focal,
+            (py - self.half_height) / self.focal,
+        ]
     }
 }
 

@@ -65,6 +65,8 @@ pub trait Lanes:
     fn and_not(m: Self::Mask, n: Self::Mask) -> Self::Mask;
     fn any(m: Self::Mask) -> bool;
     fn count(m: Self::Mask) -> u32;
+    /// Bit `i` set where lane `i` holds.
+    fn bits(m: Self::Mask) -> u32;
     /// All lanes false.
     fn no_lanes(token: Self::Token) -> Self::Mask;
     /// Lane `i` is `f(i)`.
@@ -332,6 +334,10 @@ impl Lanes for Portable {
         m.0.iter().map(|x| x & 1).sum()
     }
     #[inline(always)]
+    fn bits(m: PortableMask) -> u32 {
+        (0..4).map(|i| (m.0[i] & 1) << i).sum()
+    }
+    #[inline(always)]
     fn no_lanes(_: ()) -> PortableMask {
         PortableMask([0; 4])
     }
@@ -520,6 +526,10 @@ mod x86 {
             unsafe { _mm_movemask_ps(m.0) }.count_ones()
         }
         #[inline(always)]
+        fn bits(m: Sse2Mask) -> u32 {
+            unsafe { _mm_movemask_ps(m.0) as u32 }
+        }
+        #[inline(always)]
         fn no_lanes(_: ()) -> Sse2Mask {
             Sse2Mask(unsafe { _mm_setzero_ps() })
         }
@@ -659,6 +669,10 @@ mod x86 {
         #[inline(always)]
         fn count(m: Avx2Mask) -> u32 {
             unsafe { _mm256_movemask_ps(m.0) }.count_ones()
+        }
+        #[inline(always)]
+        fn bits(m: Avx2Mask) -> u32 {
+            unsafe { _mm256_movemask_ps(m.0) as u32 }
         }
         #[inline(always)]
         fn no_lanes(_: Avx2Token) -> Avx2Mask {
@@ -839,6 +853,9 @@ mod tests {
         }
         let m = L::mask_from_fn(token, |i| i == 1);
         assert_eq!(L::count(m), 1, "{name}");
+        // Lanes 1 and the last hold: their bits, and none above the width.
+        let m = L::mask_from_fn(token, |i| i == 1 || i == L::N - 1);
+        assert_eq!(L::bits(m), 2 | 1 << (L::N - 1), "{name}");
     }
 
     #[test]

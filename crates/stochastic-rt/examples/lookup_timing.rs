@@ -9,7 +9,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use splat_raster::{Camera, RasterConfig, render};
 use std::time::Instant;
-use stochastic_rt::{RandomKind, TraceGaussians, trace_camera_image};
+use stochastic_rt::{TraceGaussians, trace_camera_image};
 
 fn main() {
     const USAGE: &str = "usage: lookup_timing DIR WIDTH HEIGHT [ROUNDS]";
@@ -50,17 +50,7 @@ fn main() {
         let start = Instant::now();
         let images: Vec<Vec<Vec3>> = clouds
             .par_iter()
-            .map(|c| {
-                trace_camera_image(
-                    &TraceGaussians::new(c),
-                    &camera,
-                    8,
-                    1,
-                    1,
-                    RandomKind::Hash,
-                    Vec3::ZERO,
-                )
-            })
+            .map(|c| trace_camera_image(&TraceGaussians::new(c), &camera, 8, 1, 1, Vec3::ZERO))
             .collect();
         rt_ms.push(start.elapsed().as_secs_f64() * 1e3);
         checksum = images.iter().flatten().fold(0u64, |h, v| {

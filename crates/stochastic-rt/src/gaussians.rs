@@ -172,9 +172,9 @@ impl TraceGaussians {
 
     /// For rays from one origin with directions `d` (given by component, a ray a lane), each
     /// ray's closest point to Gaussian `i`: its distance along the ray, and its squared
-    /// canonical distance (NaN where a direction is zero in the Gaussian's frame). One formula for [`TraceGaussians::intersect_from`] (one
-    /// lane) and for rays traced together (`camera_grid`, eight): every lane computes exactly
-    /// what the one-ray code does, in the same order, so the two give the same bits.
+    /// canonical distance (NaN where a direction is zero in the Gaussian's frame). Every lane
+    /// computes exactly what [`TraceGaussians::intersect_from`]'s one lane does, in the same
+    /// order, so rays traced together get the one-ray code's bits.
     #[inline(always)]
     pub fn closest_points<const N: usize>(
         &self,

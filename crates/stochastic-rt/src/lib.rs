@@ -6,9 +6,9 @@
 //!   the ray-Gaussian response.
 //! - [`random`]: the acceptance numbers: an integer hash, or Sun et al.'s trigonometric hash.
 //! - [`scene`]: the BVH over the Gaussians' bounds (obvhs `Bvh2`).
-//! - [`camera_grid`]: the stochastic estimator for a camera's own rays in `Center` depth
-//!   a row of pixels at a time through the Gaussians' depth-sorted silhouettes instead of the
-//!   BVH (the cache's lookup).
+//! - [`camera_grid`]: the stochastic estimator for a camera's own rays in `Center` depth, a
+//!   row of pixels at a time through the Gaussians' depth-sorted silhouettes instead of the
+//!   BVH, its slots drawn in depth order from one number each (the cache's lookup).
 //! - [`estimators`]: `exact` (every hit, sorted, Eq. 3), `kbuffer` (K closest per pass,
 //!   3DGRT-style), `stochastic` (closest accepted hit, Eq. 6; N samples per traversal, section
 //!   3.5) and `stochastic-pass` (the Vulkan Gaussian-splatting sample's stochastic modes,

@@ -46,11 +46,16 @@ impl SampleKey {
         }
     }
 
-    /// The integer hash's state for each of slots `0..states.len()` before a Gaussian's id:
-    /// from them, [`accepting_slots`] tells which slots accept a Gaussian.
-    pub fn slot_states(&self, states: &mut [Hash32]) {
-        for (slot, state) in (0u32..).zip(states.iter_mut()) {
-            *state = self.slot_state(slot);
+    /// The numbers of slots `0..thresholds.len()` for a walk that meets a ray's hits in depth
+    /// order ([`crate::camera_grid`]), each in (0, 1]. A slot takes the hit across which the
+    /// ray's transmittance falls below its number: hit k, met at transmittance `T_k` with alpha
+    /// `a_k`, with probability `T_k - T_k (1 - a_k) = a_k T_k`, the probability an acceptance
+    /// test per hit gives it. Slots stay independent, so the estimate has the same law as Sun
+    /// et al.'s, from one number a slot instead of one a hit.
+    pub fn slot_thresholds(&self, thresholds: &mut [f32]) {
+        for (slot, threshold) in (0u32..).zip(thresholds.iter_mut()) {
+            // `unit_f32` is in [0, 1); one less it is in (0, 1], exactly (24 bits).
+            *threshold = 1.0 - unit_f32(self.slot_state(slot).absorb(THRESHOLD_WORD).finish());
         }
     }
 
@@ -110,21 +115,9 @@ pub fn acceptance(kind: RandomKind, key: &SampleKey, id: u32, slot: u32, p: Vec3
     }
 }
 
-/// Slots whose numbers are made together: one vector of eight 32-bit lanes.
-pub const SLOT_LANES: usize = 8;
-
-/// Which of eight slots accept Gaussian `id` at `alpha`, a bit a slot: [`acceptance`] with
-/// [`RandomKind::Hash`] for each slot from the key's [`SampleKey::slot_states`], in a loop
-/// without branches that the compiler turns into vector multiplies and one compare across the
-/// slots. Bit `s` is set where slot `s`'s number is below `alpha`.
-#[inline(always)]
-pub fn accepting_slots(states: &[Hash32; SLOT_LANES], id: u32, alpha: f32) -> u8 {
-    let mut accepted = 0u8;
-    for (s, state) in states.iter().enumerate() {
-        accepted |= ((unit_f32(state.absorb(id).finish()) < alpha) as u8) << s;
-    }
-    accepted
-}
+/// The last word of a slot's threshold key ([`SampleKey::slot_thresholds`]), where an
+/// acceptance number's key has a Gaussian's id.
+const THRESHOLD_WORD: u32 = u32::MAX;
 
 #[cfg(test)]
 mod tests {
@@ -147,18 +140,29 @@ mod tests {
                     ]);
                     let got = acceptance(RandomKind::Hash, &key, id, slot, Vec3::ZERO);
                     assert_eq!(got.to_bits(), unit_f32(whole).to_bits());
-                    let mut states = [Hash32::default(); 64];
-                    key.slot_states(&mut states);
-                    let chunk: &[Hash32; SLOT_LANES] = states
-                        [slot as usize / SLOT_LANES * SLOT_LANES..][..SLOT_LANES]
-                        .try_into()
-                        .unwrap();
-                    let bit = 1 << (slot as usize % SLOT_LANES);
-                    // Just above the number it accepts; at the number itself it refuses.
-                    let above = f32::from_bits(got.to_bits() + 1);
-                    assert_eq!(accepting_slots(chunk, id, above) & bit, bit);
-                    assert_eq!(accepting_slots(chunk, id, got) & bit, 0);
                 }
+            }
+        }
+    }
+
+    /// A slot's threshold is one less the hash of its key with [`THRESHOLD_WORD`] for the
+    /// Gaussian's id, in (0, 1]: the same numbers as hashed one by one.
+    #[test]
+    fn slot_thresholds_are_the_hashed_keys() {
+        for (seed, pixel, sample) in [(0u32, 0u32, 0u32), (1, 57_599, 3), (u32::MAX, 12_345, 1023)]
+        {
+            let key = SampleKey::new(seed, pixel, sample);
+            for slots in [1usize, 8, 64] {
+                let mut got = vec![0.0f32; slots];
+                key.slot_thresholds(&mut got);
+                let want: Vec<f32> = (0..slots as u32)
+                    .map(|slot| {
+                        let word = sample.wrapping_add(slot.wrapping_mul(0x632b_e5ab));
+                        1.0 - unit_f32(hash32(&[seed, pixel, word, THRESHOLD_WORD]))
+                    })
+                    .collect();
+                assert_eq!(got, want);
+                assert!(got.iter().all(|&t| t > 0.0 && t <= 1.0));
             }
         }
     }

@@ -755,23 +755,24 @@ impl ScreenGrid {
         let frame = CameraFrame::new(camera);
         // Placed and faced in the tracing arrays' order, which reads them in sequence; then
         // sorted by a small key and gathered.
-        let by_index: Vec<(Placed, Facing)> = (0..g.len())
+        let by_index: Vec<Option<(Placed, Facing)>> = (0..g.len())
             .into_par_iter()
-            .filter_map(|i| {
+            .map(|i| {
                 let placed = screen.place(g, i, depth_of(g, camera, forward, i))?;
                 Some((placed, Facing::new(g, i, &frame)))
             })
             .collect();
-        let mut order: Vec<(f32, u32)> = by_index
-            .iter()
-            .enumerate()
-            .map(|(k, (p, _))| (p.depth, k as u32))
+        let mut order: Vec<(f32, u32)> = (0u32..)
+            .zip(&by_index)
+            .filter_map(|(i, p)| Some((p.as_ref()?.0.depth, i)))
             .collect();
-        // By depth, ties by index (the keys are distinct, and `by_index` is in index order):
+        // By depth, ties by index (the keys are distinct):
         // one order on any thread count.
         order.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let (placed, facing): (Vec<Placed>, Vec<Facing>) =
-            order.par_iter().map(|&(_, k)| by_index[k as usize]).unzip();
+        let (placed, facing): (Vec<Placed>, Vec<Facing>) = order
+            .par_iter()
+            .map(|&(_, i)| by_index[i as usize].expect("ranked Gaussians are placed"))
+            .unzip();
 
         // A counting sort of the ranks by band, each band's in rank order.
         let bands_of = |p: &Placed| (p.rows[0] / BAND) as usize..=(p.rows[1] / BAND) as usize;

@@ -154,7 +154,7 @@ impl TraceGaussians {
         mode: DepthMode,
         forward: Vec3,
     ) -> Option<Intersection> {
-        let ([t_star], [q]) = self.closest_points(i, origin, [&[d.x], &[d.y], &[d.z]]);
+        let (t_star, q) = self.closest_point(i, origin, d);
         let alpha = self.alpha(i, q)?;
         let t = match mode {
             DepthMode::Mean => t_star,
@@ -170,37 +170,23 @@ impl TraceGaussians {
         (t > t_min && t < t_max).then_some(Intersection { t, alpha })
     }
 
-    /// For rays from one origin with directions `d` (given by component, a ray a lane), each
-    /// ray's closest point to Gaussian `i`: its distance along the ray, and its squared
-    /// canonical distance (NaN where a direction is zero in the Gaussian's frame). Every lane
-    /// computes exactly what [`TraceGaussians::intersect_from`]'s one lane does, in the same
-    /// order, so rays traced together get the one-ray code's bits.
+    /// The ray's closest point to Gaussian `i`: its distance along the ray (direction `d`),
+    /// and its squared canonical distance (NaN where `d` is zero in the Gaussian's frame).
     #[inline(always)]
-    pub fn closest_points<const N: usize>(
-        &self,
-        i: usize,
-        origin: &OriginTerms,
-        d: [&[f32; N]; 3],
-    ) -> ([f32; N], [f32; N]) {
+    pub fn closest_point(&self, i: usize, origin: &OriginTerms, d: Vec3) -> (f32, f32) {
         let a = &self.canonical[i];
         let oc = origin.canonical;
-        let mut t = [0.0; N];
-        let q = std::array::from_fn(|l| {
-            let d = Vec3::new(d[0][l], d[1][l], d[2][l]);
-            let dc = Vec3::new(a[0].dot(d), a[1].dot(d), a[2].dot(d));
-            let dd = dc.length_squared();
-            let t_star = -oc.dot(dc) / dd;
-            // Squared canonical distance at the closest point, computed from the point itself
-            // (no cancellation for rays far from the Gaussian).
-            let q = (oc + t_star * dc).length_squared();
-            t[l] = t_star;
-            if dd > 0.0 { q } else { f32::NAN }
-        });
-        (t, q)
+        let dc = Vec3::new(a[0].dot(d), a[1].dot(d), a[2].dot(d));
+        let dd = dc.length_squared();
+        let t_star = -oc.dot(dc) / dd;
+        // Squared canonical distance at the closest point, computed from the point itself (no
+        // cancellation for rays far from the Gaussian).
+        let q = (oc + t_star * dc).length_squared();
+        (t_star, if dd > 0.0 { q } else { f32::NAN })
     }
 
     /// Gaussian `i`'s alpha where a ray passes at squared canonical distance `q` (from
-    /// [`TraceGaussians::closest_points`]): `None` outside its cut-off or below 1/255.
+    /// [`TraceGaussians::closest_point`]): `None` outside its cut-off or below 1/255.
     #[inline]
     pub fn alpha(&self, i: usize, q: f32) -> Option<f32> {
         if !(q <= self.cutoff[i]) {

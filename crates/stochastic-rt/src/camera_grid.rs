@@ -154,7 +154,7 @@ pub fn reference_image(
     let plane = camera.ray_directions();
     let (width, height) = (camera.width, camera.height);
     let isa = Isa::detect();
-    let mut thresholds = vec![0.0f32; slots];
+    let mut thresholds = vec![0.0f32; slots + 1];
     let mut image = Vec::with_capacity((width * height) as usize);
     for y in 0..height {
         let w = plane.on_plane(0.5, y as f32 + 0.5)[1];
@@ -162,20 +162,20 @@ pub fn reference_image(
             let u = plane.on_plane(x as f32 + 0.5, y as f32 + 0.5)[0];
             let mut sum = DVec3::ZERO;
             for s in 0..spp.max(1) {
-                SampleKey::new(seed, y * width + x, s).slot_thresholds(&mut thresholds);
-                let (mut t, mut open, mut colour) = (1.0f32, all_slots(slots), Vec3::ZERO);
-                let mut next = largest_open(&thresholds, open);
+                let mut next =
+                    draw_thresholds(&SampleKey::new(seed, y * width + x, s), &mut thresholds);
+                let (mut t, mut filled, mut colour) = (1.0f32, 0, Vec3::ZERO);
                 for f in &facing {
-                    if open == 0 {
+                    if filled == slots {
                         break;
                     }
                     let alpha = FacingRow::new(f, w).alpha_on(isa, u);
                     t *= 1.0 - alpha;
                     if t < next {
-                        next = fill_slots(&thresholds, &mut open, &mut colour, t, f.color);
+                        next = fill_slots(&thresholds, &mut filled, &mut colour, t, f.color);
                     }
                 }
-                sum += estimate(colour, open, slots, background).as_dvec3();
+                sum += estimate(colour, filled, slots, background).as_dvec3();
             }
             image.push((sum / spp.max(1) as f64).as_vec3());
         }
@@ -189,42 +189,72 @@ fn slot_count(samples_per_traversal: u32) -> usize {
     (samples_per_traversal.max(1) as usize).min(MAX_SLOTS)
 }
 
-/// A bit for each of `slots` slots (1 to 64).
-fn all_slots(slots: usize) -> u64 {
-    u64::MAX >> (64 - slots)
+/// A ray's slots' thresholds ([`SampleKey::slot_thresholds`]) into `sorted` (one entry more
+/// than the slots), largest first and -1 after them; returns the largest, the first the
+/// transmittance must fall below.
+///
+/// The estimate is the mean of the slots' colours, so the slots are interchangeable, and the
+/// transmittance only falls, so the slots a ray has filled are always those with the largest
+/// thresholds: a ray's state is how many it has filled, and its next threshold the largest
+/// of the rest, `sorted[filled]` (-1, which no transmittance falls below, when all are). No
+/// mask of open slots is searched, and no branch taken per slot.
+#[inline(always)]
+fn draw_thresholds(key: &SampleKey, sorted: &mut [f32]) -> f32 {
+    let slots = sorted.len() - 1;
+    key.slot_thresholds(&mut sorted[..slots]);
+    sort_descending(&mut sorted[..slots]);
+    sorted[slots] = -1.0;
+    sorted[0]
 }
 
-/// The largest threshold among the `open` slots, or -1 when none is open (a transmittance,
-/// never negative, then never falls below it).
+/// `values` sorted largest first; a sorting network for 8 (the lookup's default slots: min and
+/// max, no branches), the standard library's sort otherwise.
 #[inline(always)]
-fn largest_open(thresholds: &[f32], open: u64) -> f32 {
-    let mut largest = -1.0f32;
-    for (s, &threshold) in thresholds.iter().enumerate() {
-        if (open >> s) & 1 == 1 {
-            largest = largest.max(threshold);
+fn sort_descending(values: &mut [f32]) {
+    if let Ok(eight) = <&mut [f32; 8]>::try_from(&mut *values) {
+        // Knuth's 19-comparator network for 8 (TAOCP 5.3.4), in six layers, unrolled on
+        // locals. The thresholds are never NaN, so a plain comparison orders them.
+        let mut v = *eight;
+        macro_rules! order {
+            ($(($i:literal, $j:literal)),*) => {$(
+                let (a, b) = (v[$i], v[$j]);
+                let larger = a > b;
+                (v[$i], v[$j]) = (if larger { a } else { b }, if larger { b } else { a });
+            )*};
         }
+        order!((0, 2), (1, 3), (4, 6), (5, 7));
+        order!((0, 4), (1, 5), (2, 6), (3, 7));
+        order!((0, 1), (2, 3), (4, 5), (6, 7));
+        order!((2, 4), (3, 5));
+        order!((1, 4), (3, 6));
+        order!((1, 2), (3, 4), (5, 6));
+        *eight = v;
+    } else {
+        values.sort_unstable_by(|a, b| b.total_cmp(a));
     }
-    largest
 }
 
 /// A ray's slots after its transmittance fell to `t` across a hit of colour `color`: every
-/// open slot whose threshold is above `t` takes the hit (closes, and adds the colour). Returns
-/// the next threshold ([`largest_open`] of the slots left open).
+/// unfilled slot whose threshold is above `t` takes the hit (adds the colour). `sorted` and
+/// `filled` as [`draw_thresholds`] describes them; returns the next threshold.
 #[inline(always)]
-fn fill_slots(thresholds: &[f32], open: &mut u64, colour: &mut Vec3, t: f32, color: Vec3) -> f32 {
-    let mut taken = 0u64;
-    for (s, &threshold) in thresholds.iter().enumerate() {
-        taken |= ((t < threshold) as u64) << s;
-    }
-    taken &= *open;
-    *open &= !taken;
-    *colour += taken.count_ones() as f32 * color;
-    largest_open(thresholds, *open)
+fn fill_slots(sorted: &[f32], filled: &mut usize, colour: &mut Vec3, t: f32, color: Vec3) -> f32 {
+    let slots = sorted.len() - 1;
+    // The filled slots' thresholds are above every earlier transmittance, so above `t`: the
+    // count of thresholds above `t` is the slots filled now (NaN counts none).
+    let above = sorted[..slots]
+        .iter()
+        .map(|&u| (t < u) as usize)
+        .sum::<usize>();
+    let reached = above.max(*filled);
+    *colour += (reached - *filled) as f32 * color;
+    *filled = reached;
+    sorted[reached]
 }
 
-/// One estimate: the mean of the slots' colours, `background` for each slot left open.
-fn estimate(colour: Vec3, open: u64, slots: usize, background: Vec3) -> Vec3 {
-    (colour + open.count_ones() as f32 * background) / slots as f32
+/// One estimate: the mean of the slots' colours, `background` for each slot left unfilled.
+fn estimate(colour: Vec3, filled: usize, slots: usize, background: Vec3) -> Vec3 {
+    (colour + (slots - filled) as f32 * background) / slots as f32
 }
 
 /// Gaussian `i`'s centre depth along the camera's forward axis, as
@@ -238,13 +268,14 @@ fn depth_of(g: &TraceGaussians, camera: &Camera, forward: Vec3, i: usize) -> f32
 struct Row {
     /// Each pixel's transmittance so far.
     transmittance: Vec<f32>,
-    /// Each pixel's next threshold ([`largest_open`]): the transmittance falling below it
+    /// Each pixel's next threshold ([`draw_thresholds`]): the transmittance falling below it
     /// fills a slot.
     next: Vec<f32>,
-    /// Each pixel's slots' thresholds ([`SampleKey::slot_thresholds`]).
+    /// Each pixel's slots' thresholds, largest first, and -1 ([`draw_thresholds`]): `slots + 1`
+    /// a pixel.
     thresholds: Vec<f32>,
-    /// Each pixel's slots still open (without a hit), a bit a slot.
-    open: Vec<u64>,
+    /// Each pixel's slots filled (with a hit).
+    filled: Vec<usize>,
     /// Each pixel's filled slots' colours summed.
     colour: Vec<Vec3>,
     /// Per group of [`LANES`] pixels, those still taking part, a bit a pixel.
@@ -259,8 +290,8 @@ impl Row {
         Self {
             transmittance: vec![1.0; padded],
             next: vec![-1.0; padded],
-            thresholds: vec![0.0; walk.width * walk.slots],
-            open: vec![0; walk.width],
+            thresholds: vec![0.0; walk.width * (walk.slots + 1)],
+            filled: vec![0; walk.width],
             colour: vec![Vec3::ZERO; walk.width],
             taking_part: vec![0; padded / LANES],
             sums: vec![DVec3::ZERO; walk.width],
@@ -316,23 +347,22 @@ impl<'a> Walk<'a> {
             transmittance,
             next,
             thresholds,
-            open,
+            filled,
             colour,
             taking_part,
             sums,
         } = row;
         transmittance.fill(1.0);
-        open.fill(all_slots(slots));
+        filled.fill(0);
         colour.fill(Vec3::ZERO);
         taking_part.fill(0);
         for (x, (thresholds, next)) in thresholds
-            .chunks_exact_mut(slots)
+            .chunks_exact_mut(slots + 1)
             .zip(next.iter_mut())
             .enumerate()
         {
-            SampleKey::new(self.seed, y * width as u32 + x as u32, sample)
-                .slot_thresholds(thresholds);
-            *next = largest_open(thresholds, all_slots(slots));
+            let key = SampleKey::new(self.seed, y * width as u32 + x as u32, sample);
+            *next = draw_thresholds(&key, thresholds);
             taking_part[x / LANES] |= 1 << (x % LANES);
         }
         let mut left = width;
@@ -370,17 +400,17 @@ impl<'a> Walk<'a> {
                     let l = crossed.trailing_zeros() as usize;
                     crossed &= crossed - 1;
                     let x = group * LANES + l;
-                    let own = &thresholds[x * slots..(x + 1) * slots];
+                    let own = &thresholds[x * (slots + 1)..(x + 1) * (slots + 1)];
                     let t = transmittance[x];
-                    next[x] = fill_slots(own, &mut open[x], &mut colour[x], t, facing.color);
-                    let done = open[x] == 0;
+                    next[x] = fill_slots(own, &mut filled[x], &mut colour[x], t, facing.color);
+                    let done = filled[x] == slots;
                     taking_part[group] &= !((done as u8) << l);
                     left -= done as usize;
                 }
             }
         }
         for (x, sum) in sums.iter_mut().enumerate() {
-            *sum += estimate(colour[x], open[x], slots, self.background).as_dvec3();
+            *sum += estimate(colour[x], filled[x], slots, self.background).as_dvec3();
         }
     }
 
@@ -813,6 +843,67 @@ mod tests {
     use crate::DepthMode;
     use render_base::hash::{hash32, unit_f32};
     use splat_raster::{ColorModel, GaussianCloud};
+
+    /// The sorting network orders every input of 8 as the standard library's sort does: all
+    /// 256 inputs of zeros and ones (by the 0-1 principle, enough for a comparator network),
+    /// and hashed thresholds with ties. Reversing one comparator, or leaving one out, fails it.
+    #[test]
+    fn the_sorting_network_sorts_eight() {
+        let check = |values: [f32; 8]| {
+            let mut by_network = values;
+            sort_descending(&mut by_network);
+            let mut by_std = values;
+            by_std.sort_unstable_by(|a, b| b.total_cmp(a));
+            assert_eq!(
+                by_network.map(f32::to_bits),
+                by_std.map(f32::to_bits),
+                "{values:?}"
+            );
+        };
+        for bits in 0u32..256 {
+            check(std::array::from_fn(|k| ((bits >> k) & 1) as f32));
+        }
+        for n in 0..2_000u32 {
+            // Quantised to 16 levels so that ties are common.
+            check(std::array::from_fn(|k| {
+                (unit_f32(hash32(&[n, k as u32])) * 16.0).floor() / 16.0
+            }));
+        }
+        // Other lengths go to the standard library's sort.
+        let mut five = [0.25f32, 1.0, 0.5, 0.75, 0.125];
+        sort_descending(&mut five);
+        assert_eq!(five, [1.0, 0.75, 0.5, 0.25, 0.125]);
+    }
+
+    /// Filling from sorted thresholds counts the thresholds above the transmittance: slots
+    /// filled earlier stay filled, the colour grows by the newly filled count, and the next
+    /// threshold is the largest unfilled one (-1 when all are filled).
+    #[test]
+    fn filling_sorted_slots_takes_every_threshold_above_the_transmittance() {
+        let sorted = [0.9f32, 0.6, 0.6, 0.2, -1.0];
+        let (mut filled, mut colour) = (0usize, Vec3::ZERO);
+        let red = Vec3::X;
+        assert_eq!(fill_slots(&sorted, &mut filled, &mut colour, 0.7, red), 0.6);
+        assert_eq!((filled, colour), (1, red));
+        // Both equal thresholds at once.
+        assert_eq!(
+            fill_slots(&sorted, &mut filled, &mut colour, 0.5, Vec3::Y),
+            0.2
+        );
+        assert_eq!((filled, colour), (3, Vec3::new(1.0, 2.0, 0.0)));
+        // NaN fills nothing.
+        assert_eq!(
+            fill_slots(&sorted, &mut filled, &mut colour, f32::NAN, red),
+            0.2
+        );
+        assert_eq!(filled, 3);
+        assert_eq!(
+            fill_slots(&sorted, &mut filled, &mut colour, 0.0, Vec3::Z),
+            -1.0
+        );
+        assert_eq!((filled, colour), (4, Vec3::new(1.0, 2.0, 1.0)));
+        assert_eq!(estimate(colour, filled, 4, Vec3::ONE), colour / 4.0);
+    }
 
     /// A ray's alpha from the camera's shared terms ([`Facing`], [`FacingRow::alpha`]: the
     /// line's distance by a cross product in f32, the lanes' `exp`) is

@@ -424,6 +424,9 @@ fn project_and_bin<F: Real>(
 const RADIX_MIN: usize = 96;
 
 /// Writes the splat indices of a tile's `keys` to `list` in depth order, ties in index order.
+/// A key is a depth's f32 bits (positive, so ordered as the depths) above a 32-bit index;
+/// `list` has one entry a key. The stochastic ray tracer's camera grid orders its Gaussians
+/// with it too.
 ///
 /// The keys arrive in index order (the chunks' lists concatenated), so a stable sort on the
 /// depth bits alone gives the order of sorting the whole keys. Long lists take a least
@@ -431,7 +434,7 @@ const RADIX_MIN: usize = 96;
 /// share (the exponent byte usually is) and scattering the last pass straight into `list`:
 /// at the 300-odd entries of a 300k-Gaussian frame's tile it is about twice as fast as
 /// comparison sorting them, with no branch to mispredict.
-fn depth_order(keys: &mut [u64], scratch: &mut Vec<u64>, list: &mut [u32]) {
+pub fn depth_order(keys: &mut [u64], scratch: &mut Vec<u64>, list: &mut [u32]) {
     if keys.len() < RADIX_MIN {
         keys.sort_unstable();
         for (e, k) in list.iter_mut().zip(keys.iter()) {

@@ -51,6 +51,7 @@ type Baseline = splat_raster::lanes::Sse2;
 #[cfg(not(target_arch = "x86_64"))]
 type Baseline = splat_raster::lanes::Portable;
 use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
+use splat_raster::raster::depth_order;
 
 /// Rows per band: a Gaussian is listed once per band its silhouette reaches, and a row walks
 /// its band's list, skipping the Gaussians that miss the row. Smaller bands list Gaussians more
@@ -793,16 +794,17 @@ impl ScreenGrid {
                 Some((placed, Facing::new(g, i, &frame)))
             })
             .collect();
-        let mut order: Vec<(f32, u32)> = (0u32..)
+        // By depth, ties by index: one order on any thread count. A placed depth is positive,
+        // so its bits order as it does ([`depth_order`]'s keys).
+        let mut keys: Vec<u64> = (0u64..)
             .zip(&by_index)
-            .filter_map(|(i, p)| Some((p.as_ref()?.0.depth, i)))
+            .filter_map(|(i, p)| Some((p.as_ref()?.0.depth.to_bits() as u64) << 32 | i))
             .collect();
-        // By depth, ties by index (the keys are distinct):
-        // one order on any thread count.
-        order.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut order = vec![0u32; keys.len()];
+        depth_order(&mut keys, &mut Vec::new(), &mut order);
         let (placed, facing): (Vec<Placed>, Vec<Facing>) = order
             .par_iter()
-            .map(|&(_, i)| by_index[i as usize].expect("ranked Gaussians are placed"))
+            .map(|&i| by_index[i as usize].expect("ranked Gaussians are placed"))
             .unzip();
 
         // A counting sort of the ranks by band, each band's in rank order.

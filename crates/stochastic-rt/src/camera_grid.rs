@@ -351,7 +351,7 @@ impl<'a> Walk<'a> {
             filled,
             colour,
             taking_part,
-            sums,
+            ..
         } = row;
         transmittance.fill(1.0);
         filled.fill(0);
@@ -368,50 +368,95 @@ impl<'a> Walk<'a> {
         }
         let mut left = width;
         let w = self.plane.on_plane(0.5, y as f32 + 0.5)[1];
-        for (rank, p) in self.grid.band(y / BAND) {
+        let (mut lo, mut hi) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for chunk in self.grid.band(y / BAND) {
             if left == 0 {
                 break;
             }
-            if !(p.rows[0] <= y && y <= p.rows[1]) {
-                continue;
-            }
-            let Some([x0, x1]) = p.chord(y) else {
-                continue;
-            };
-            let facing = &self.grid.facing[*rank as usize];
-            let on_row = FacingRow::new(facing, w);
-            for group in x0 as usize / LANES..=x1 as usize / LANES {
-                let alive = taking_part[group];
-                if alive == 0 {
+            // The chunk's chords on this row in lanes; then its Gaussians that meet the row, in
+            // depth order.
+            let mut meets = chunk.chords::<L>(token, y, &mut lo, &mut hi);
+            while meets != 0 {
+                let l = meets.trailing_zeros() as usize;
+                meets &= meets - 1;
+                let (from, to) = (lo[l].ceil(), hi[l].floor());
+                if !(from <= to) {
                     continue;
                 }
-                // Every lane's transmittance moves (a miss's alpha is 0, which leaves it as it
-                // was, bit for bit); the lanes that fall below their next threshold fill slots.
-                let mut crossed = 0u8;
-                for first in (group * LANES..(group + 1) * LANES).step_by(L::N) {
-                    let alpha = on_row.alpha::<L>(token, L::load(token, &self.columns[first..]));
-                    let t = L::load(token, &transmittance[first..]);
-                    let t = t * (L::splat(token, 1.0) - alpha);
-                    t.store(&mut transmittance[first..]);
-                    let falls = t.lt(L::load(token, &next[first..]));
-                    crossed |= (L::bits(falls) << (first - group * LANES)) as u8;
-                }
-                crossed &= alive;
-                while crossed != 0 {
-                    let l = crossed.trailing_zeros() as usize;
-                    crossed &= crossed - 1;
-                    let x = group * LANES + l;
-                    let own = &thresholds[x * (slots + 1)..(x + 1) * (slots + 1)];
-                    let t = transmittance[x];
-                    next[x] = fill_slots(own, &mut filled[x], &mut colour[x], t, facing.color);
-                    let done = filled[x] == slots;
-                    taking_part[group] &= !((done as u8) << l);
-                    left -= done as usize;
-                }
+                let facing = &self.grid.facing[chunk.rank[l] as usize];
+                let on_row = FacingRow::new(facing, w);
+                self.walk_chord::<L>(
+                    token,
+                    (from as usize, to as usize),
+                    facing.color,
+                    &on_row,
+                    row,
+                    &mut left,
+                );
             }
         }
+        let Row {
+            filled,
+            colour,
+            sums,
+            ..
+        } = row;
         for (x, sum) in sums.iter_mut().enumerate() {
             *sum += estimate(colour[x], filled[x], slots, self.background).as_dvec3();
+        }
+    }
+
+    /// One Gaussian on the pixels `from..=to` of a row: each taking part moves its
+    /// transmittance, and fills its slots where it falls below its next threshold.
+    #[inline(always)]
+    fn walk_chord<L: Lanes>(
+        &self,
+        token: L::Token,
+        (from, to): (usize, usize),
+        color: Vec3,
+        on_row: &FacingRow,
+        row: &mut Row,
+        left: &mut usize,
+    ) {
+        let slots = self.slots;
+        let Row {
+            transmittance,
+            next,
+            thresholds,
+            filled,
+            colour,
+            taking_part,
+            ..
+        } = row;
+        for group in from / LANES..=to / LANES {
+            let alive = taking_part[group];
+            if alive == 0 {
+                continue;
+            }
+            // Every lane's transmittance moves (a miss's alpha is 0, which leaves it as it
+            // was, bit for bit); the lanes that fall below their next threshold fill slots.
+            let mut crossed = 0u8;
+            for first in (group * LANES..(group + 1) * LANES).step_by(L::N) {
+                let u = L::load(token, &self.columns[first..]);
+                let alpha = on_row.alpha::<L>(token, u);
+                let t = L::load(token, &transmittance[first..]);
+                let t = t * (L::splat(token, 1.0) - alpha);
+                t.store(&mut transmittance[first..]);
+                let falls = t.lt(L::load(token, &next[first..]));
+                crossed |= (L::bits(falls) << (first - group * LANES)) as u8;
+            }
+            crossed &= alive;
+            while crossed != 0 {
+                let l = crossed.trailing_zeros() as usize;
+                crossed &= crossed - 1;
+                let x = group * LANES + l;
+                let own = &thresholds[x * (slots + 1)..(x + 1) * (slots + 1)];
+                let t = transmittance[x];
+                next[x] = fill_slots(own, &mut filled[x], &mut colour[x], t, color);
+                let done = filled[x] == slots;
+                taking_part[group] &= !((done as u8) << l);
+                *left -= done as usize;
+            }
         }
     }
 
@@ -561,10 +606,89 @@ impl FacingRow {
 struct ScreenGrid {
     /// Each rank's terms for its alphas on the camera's rays.
     facing: Vec<Facing>,
-    /// Band `b`'s Gaussians are `listed[starts[b]..starts[b + 1]]`, by rank, each with its
-    /// placement: a row reads its band's in order, not scattered over the ranks.
+    /// Band `b`'s Gaussians are `listed[starts[b]..starts[b + 1]]`, in depth order, a
+    /// [`LANES`] of them a chunk: a row reads its band's in order, not scattered over the
+    /// ranks, and solves a chunk's chords together.
     starts: Vec<usize>,
-    listed: Vec<(u32, Placed)>,
+    listed: Vec<ListedChunk>,
+}
+
+/// [`LANES`] Gaussians of a band's list, by lane: their ranks, and what their chords on a row
+/// need ([`Placed::chord_terms`]). Lanes past the end of the list meet no row.
+#[derive(Clone, Copy)]
+struct ListedChunk {
+    rank: [u32; LANES],
+    /// The first and last row (inclusive) each may cover; +inf and -inf in an empty lane.
+    rows: [[f32; LANES]; 2],
+    /// The first and last column (inclusive).
+    columns: [[f32; LANES]; 2],
+    /// The silhouette's centre, x and y.
+    centre: [[f32; LANES]; 2],
+    /// [`Placed::chord_terms`].
+    terms: [[f32; LANES]; 3],
+}
+
+impl ListedChunk {
+    const EMPTY: Self = Self {
+        rank: [0; LANES],
+        rows: [[f32::INFINITY; LANES], [f32::NEG_INFINITY; LANES]],
+        columns: [[0.0; LANES]; 2],
+        centre: [[0.0; LANES]; 2],
+        terms: [[0.0; LANES]; 3],
+    };
+
+    fn set(&mut self, lane: usize, rank: u32, p: &Placed) {
+        self.rank[lane] = rank;
+        for k in 0..2 {
+            self.rows[k][lane] = p.rows[k] as f32;
+            self.columns[k][lane] = p.columns[k] as f32;
+            self.centre[k][lane] = p.centre[k];
+        }
+        for k in 0..3 {
+            self.terms[k][lane] = p.chord_terms[k];
+        }
+    }
+
+    /// The lanes whose Gaussians may meet row `y` (a bit each), with the bounds of the pixels
+    /// they may meet there: `ceil(lo)..=floor(hi)` (empty when that is). A bounded silhouette
+    /// (`k2 > 0`) is narrowed to the ellipse's chord at the row's centre,
+    /// `dx = k3 dy +- sqrt(k1 dy^2 + k2)`, a pixel wider each way (pixel x's centre is
+    /// x + 0.5); the rest keep their rectangle's columns. Each lane's arithmetic is the scalar
+    /// one, rounded alike (no fused multiply-adds).
+    #[inline(always)]
+    fn chords<L: Lanes>(
+        &self,
+        token: L::Token,
+        y: u32,
+        lo: &mut [f32; LANES],
+        hi: &mut [f32; LANES],
+    ) -> u32 {
+        let c = |v: f32| L::splat(token, v);
+        let (row, centre) = (y as f32, y as f32 + 0.5);
+        let mut meets = 0;
+        for first in (0..LANES).step_by(L::N) {
+            let load = |v: &[f32; LANES]| L::load(token, &v[first..]);
+            let in_rows = load(&self.rows[0]).le(c(row)) & c(row).le(load(&self.rows[1]));
+            let [k1, k2, k3] = self.terms.each_ref().map(load);
+            let (columns_from, columns_to) = (load(&self.columns[0]), load(&self.columns[1]));
+            let dy = c(centre) - load(&self.centre[1]);
+            let squared = dy * dy * k1 + k2;
+            let (mid, half) = (load(&self.centre[0]) + dy * k3, squared.sqrt());
+            // NaN (no chord) fails `le` and `ge`; `max` and `min` give their second operand.
+            let bounded = k2.gt(c(0.0));
+            let from = L::select(
+                bounded,
+                (mid - half - c(1.5)).max(columns_from),
+                columns_from,
+            );
+            let to = L::select(bounded, (mid + half + c(0.5)).min(columns_to), columns_to);
+            let chord = squared.ge(c(0.0)) | L::and_not(in_rows, bounded);
+            from.store(&mut lo[first..]);
+            to.store(&mut hi[first..]);
+            meets |= L::bits(in_rows & chord & from.le(to)) << first;
+        }
+        meets
+    }
 }
 
 /// One Gaussian on the screen.
@@ -585,28 +709,7 @@ struct Placed {
 }
 
 impl Placed {
-    /// The pixels of row `y` (inclusive) whose rays may meet it: its rectangle's columns, on a
-    /// bounded silhouette narrowed to the ellipse's chord at the row's centre (see
-    /// [`Placed::chord_terms`]); `None` where the chord misses the row.
-    #[inline]
-    fn chord(&self, y: u32) -> Option<[u32; 2]> {
-        let [k1, k2, k3] = self.chord_terms;
-        if !(k2 > 0.0) {
-            return Some(self.columns);
-        }
-        let dy = y as f32 + 0.5 - self.centre[1];
-        let squared = dy * dy * k1 + k2;
-        if !(squared >= 0.0) {
-            return None;
-        }
-        let (mid, half) = (self.centre[0] + dy * k3, squared.sqrt());
-        // Pixel x's centre is x + 0.5; a pixel wider each way.
-        let from = (mid - half - 1.5).ceil().max(self.columns[0] as f32);
-        let to = (mid + half + 0.5).floor().min(self.columns[1] as f32);
-        (from <= to).then_some([from as u32, to as u32])
-    }
-
-    /// The terms of [`Placed::chord`] for the silhouette's quadratic form (xx, xy, yy): the
+    /// The terms of [`ListedChunk::chords`] for the silhouette's quadratic form (xx, xy, yy): the
     /// ellipse `a dx^2 + 2 b dy dx + c dy^2 <= s`, grown to `s =` [`SILHOUETTE_SLACK`], meets
     /// the row at `dy` from its centre where `dx = k3 dy +- sqrt(k1 dy^2 + k2)`, with
     /// `k1 = (b^2 - a c) / a^2`, `k2 = s / a` and `k3 = -b / a`; `k2 = 0` where there is no
@@ -807,22 +910,24 @@ impl ScreenGrid {
             .map(|&i| by_index[i as usize].expect("ranked Gaussians are placed"))
             .unzip();
 
-        // A counting sort of the ranks by band, each band's in rank order.
+        // A counting sort of the ranks by band, each band's in rank order, each band's list
+        // padded to whole chunks.
         let bands_of = |p: &Placed| (p.rows[0] / BAND) as usize..=(p.rows[1] / BAND) as usize;
-        let mut starts = vec![0usize; bands + 1];
+        let mut counts = vec![0usize; bands];
         for p in &placed {
             for b in bands_of(p) {
-                starts[b + 1] += 1;
+                counts[b] += 1;
             }
         }
+        let mut starts = vec![0usize; bands + 1];
         for b in 0..bands {
-            starts[b + 1] += starts[b];
+            starts[b + 1] = starts[b] + counts[b].div_ceil(LANES) * LANES;
         }
-        let mut listed = vec![(0u32, Placed::default()); starts[bands]];
+        let mut listed = vec![ListedChunk::EMPTY; starts[bands] / LANES];
         let mut next = starts[..bands].to_vec();
         for (rank, p) in placed.iter().enumerate() {
             for b in bands_of(p) {
-                listed[next[b]] = (rank as u32, *p);
+                listed[next[b] / LANES].set(next[b] % LANES, rank as u32, p);
                 next[b] += 1;
             }
         }
@@ -833,9 +938,9 @@ impl ScreenGrid {
         }
     }
 
-    /// Band `b`'s Gaussians, front to back, with their ranks.
-    fn band(&self, b: u32) -> &[(u32, Placed)] {
-        &self.listed[self.starts[b as usize]..self.starts[b as usize + 1]]
+    /// Band `b`'s Gaussians, front to back, in chunks.
+    fn band(&self, b: u32) -> &[ListedChunk] {
+        &self.listed[self.starts[b as usize] / LANES..self.starts[b as usize + 1] / LANES]
     }
 }
 

@@ -11,10 +11,11 @@
 //! ellipsoid seen from the camera) cover the pixel, and in `Center` depth every ray of the
 //! camera meets them in one order, their centres' depth.
 //!
-//! So the Gaussians are sorted by centre depth once, and listed in that order in the bands of
-//! rows their silhouettes cover. A row of pixels walks its band's list once, front to back: for
-//! each Gaussian it solves for the pixels the silhouette covers on that row (a chord of the
-//! ellipse) and evaluates only those pixels' rays, eight at a time.
+//! So the Gaussians are sorted by centre depth once (a radix sort of their depths' bits), and
+//! listed in that order in the bands of rows their silhouettes cover, eight to a chunk, lane by
+//! lane. A row of pixels walks its band's list once, front to back: for a chunk's Gaussians at
+//! once it solves for the pixels each silhouette covers on that row (a chord of the ellipse),
+//! and evaluates only those pixels' rays, eight at a time.
 //!
 //! **The estimate.** Sun et al.'s multi-sample estimator (Algorithm 1, section 3.5) gives each
 //! of a ray's slots the closest hit its own acceptance test takes, each hit tested with a fresh
@@ -23,10 +24,12 @@
 //! the same law from one number a slot ([`SampleKey::slot_thresholds`]): a slot takes the hit
 //! across which the transmittance falls below its number. A hit then costs a multiply and a
 //! compare, not a hash per slot, and a ray is done once its transmittance is below every
-//! slot's number. The image has the same expectation and the same variance as
-//! [`crate::trace_image`]'s with `Estimator::Stochastic` and `DepthMode::Center` (both drawn
-//! from that law), not the same bits; `tests/tracing.rs` checks its mean against the exact
-//! composite, and [`reference_image`] defines it pixel by pixel.
+//! slot's number. The slots are interchangeable (the estimate is their mean), so a ray keeps
+//! its numbers sorted, and its state is how many it has filled ([`draw_thresholds`]). The
+//! image has the same expectation and the same variance as [`crate::trace_image`]'s with
+//! `Estimator::Stochastic` and `DepthMode::Center` (both drawn from that law), not the same
+//! bits; `tests/tracing.rs` checks its mean against the exact composite, and
+//! [`reference_image`] defines it pixel by pixel.
 //!
 //! **A ray's alphas** are computed from terms each Gaussian shares across the camera's rays
 //! ([`Facing`]): in the Gaussian's canonical frame a ray `(u, w, 1)` (camera space, on the

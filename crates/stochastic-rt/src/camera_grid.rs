@@ -25,7 +25,7 @@
 //! across which the transmittance falls below its number. A hit then costs a multiply and a
 //! compare, not a hash per slot, and a ray is done once its transmittance is below every
 //! slot's number. The slots are interchangeable (the estimate is their mean), so a ray keeps
-//! its numbers sorted, and its state is how many it has filled ([`draw_thresholds`]). The
+//! its numbers sorted, and its state is how many it has filled (`draw_thresholds`). The
 //! image has the same expectation and the same variance as [`crate::trace_image`]'s with
 //! `Estimator::Stochastic` and `DepthMode::Center` (both drawn from that law), not the same
 //! bits; `tests/tracing.rs` checks its mean against the exact composite, and

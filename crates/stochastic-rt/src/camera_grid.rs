@@ -246,10 +246,12 @@ fn fill_slots(sorted: &[f32], filled: &mut usize, colour: &mut Vec3, t: f32, col
     let slots = sorted.len() - 1;
     // The filled slots' thresholds are above every earlier transmittance, so above `t`: the
     // count of thresholds above `t` is the slots filled now (NaN counts none).
-    let above = sorted[..slots]
-        .iter()
-        .map(|&u| (t < u) as usize)
-        .sum::<usize>();
+    let count = |values: &[f32]| values.iter().map(|&u| (t < u) as usize).sum::<usize>();
+    // Eight (the lookup's default) as a fixed-length array: the count unrolled.
+    let above = match <&[f32; 8]>::try_from(&sorted[..slots]) {
+        Ok(eight) => count(eight),
+        Err(_) => count(&sorted[..slots]),
+    };
     let reached = above.max(*filled);
     *colour += (reached - *filled) as f32 * color;
     *filled = reached;
@@ -271,10 +273,10 @@ fn depth_of(g: &TraceGaussians, camera: &Camera, forward: Vec3, i: usize) -> f32
 /// whole groups of [`LANES`].
 struct Row {
     /// Each pixel's transmittance so far.
-    transmittance: Vec<f32>,
+    transmittance: Vec<[f32; LANES]>,
     /// Each pixel's next threshold ([`draw_thresholds`]): the transmittance falling below it
     /// fills a slot.
-    next: Vec<f32>,
+    next: Vec<[f32; LANES]>,
     /// Each pixel's slots' thresholds, largest first, and -1 ([`draw_thresholds`]): `slots + 1`
     /// a pixel.
     thresholds: Vec<f32>,
@@ -292,8 +294,8 @@ impl Row {
     fn new(walk: &Walk) -> Self {
         let padded = walk.width.next_multiple_of(LANES);
         Self {
-            transmittance: vec![1.0; padded],
-            next: vec![-1.0; padded],
+            transmittance: vec![[1.0; LANES]; padded / LANES],
+            next: vec![[-1.0; LANES]; padded / LANES],
             thresholds: vec![0.0; walk.width * (walk.slots + 1)],
             filled: vec![0; walk.width],
             colour: vec![Vec3::ZERO; walk.width],
@@ -309,7 +311,7 @@ struct Walk<'a> {
     plane: RayDirections,
     /// Each column's ray on the camera's plane z = 1 (its x), padded to whole groups of
     /// [`LANES`] (the padding's lanes never take part).
-    columns: Vec<f32>,
+    columns: Vec<[f32; LANES]>,
     width: usize,
     slots: usize,
     seed: u32,
@@ -326,8 +328,10 @@ impl<'a> Walk<'a> {
     ) -> Self {
         let plane = camera.ray_directions();
         let width = camera.width as usize;
-        let columns = (0..width.next_multiple_of(LANES))
-            .map(|x| plane.on_plane(x as f32 + 0.5, 0.5)[0])
+        let columns = (0..width.div_ceil(LANES))
+            .map(|group| {
+                std::array::from_fn(|l| plane.on_plane((group * LANES + l) as f32 + 0.5, 0.5)[0])
+            })
             .collect();
         Self {
             grid,
@@ -356,17 +360,13 @@ impl<'a> Walk<'a> {
             taking_part,
             ..
         } = row;
-        transmittance.fill(1.0);
+        transmittance.fill([1.0; LANES]);
         filled.fill(0);
         colour.fill(Vec3::ZERO);
         taking_part.fill(0);
-        for (x, (thresholds, next)) in thresholds
-            .chunks_exact_mut(slots + 1)
-            .zip(next.iter_mut())
-            .enumerate()
-        {
+        for (x, thresholds) in thresholds.chunks_exact_mut(slots + 1).enumerate() {
             let key = SampleKey::new(self.seed, y * width as u32 + x as u32, sample);
-            *next = draw_thresholds(&key, thresholds);
+            next[x / LANES][x % LANES] = draw_thresholds(&key, thresholds);
             taking_part[x / LANES] |= 1 << (x % LANES);
         }
         let mut left = width;
@@ -390,7 +390,8 @@ impl<'a> Walk<'a> {
                 let on_row = FacingRow::new(facing, w);
                 self.walk_chord::<L>(
                     token,
-                    (from as usize, to as usize),
+                    // Whole numbers in 0..width: exact as i32.
+                    (from as i32 as usize, to as i32 as usize),
                     facing.color,
                     &on_row,
                     row,
@@ -439,14 +440,17 @@ impl<'a> Walk<'a> {
             // Every lane's transmittance moves (a miss's alpha is 0, which leaves it as it
             // was, bit for bit); the lanes that fall below their next threshold fill slots.
             let mut crossed = 0u8;
-            for first in (group * LANES..(group + 1) * LANES).step_by(L::N) {
-                let u = L::load(token, &self.columns[first..]);
-                let alpha = on_row.alpha::<L>(token, u);
-                let t = L::load(token, &transmittance[first..]);
+            let (columns, here, next_here) = (
+                &self.columns[group],
+                &mut transmittance[group],
+                &next[group],
+            );
+            for first in (0..LANES).step_by(L::N) {
+                let alpha = on_row.alpha::<L>(token, L::load(token, &columns[first..]));
+                let t = L::load(token, &here[first..]);
                 let t = t * (L::splat(token, 1.0) - alpha);
-                t.store(&mut transmittance[first..]);
-                let falls = t.lt(L::load(token, &next[first..]));
-                crossed |= (L::bits(falls) << (first - group * LANES)) as u8;
+                t.store(&mut here[first..]);
+                crossed |= (L::bits(t.lt(L::load(token, &next_here[first..]))) << first) as u8;
             }
             crossed &= alive;
             while crossed != 0 {
@@ -454,8 +458,8 @@ impl<'a> Walk<'a> {
                 crossed &= crossed - 1;
                 let x = group * LANES + l;
                 let own = &thresholds[x * (slots + 1)..(x + 1) * (slots + 1)];
-                let t = transmittance[x];
-                next[x] = fill_slots(own, &mut filled[x], &mut colour[x], t, color);
+                let t = transmittance[group][l];
+                next[group][l] = fill_slots(own, &mut filled[x], &mut colour[x], t, color);
                 let done = filled[x] == slots;
                 taking_part[group] &= !((done as u8) << l);
                 *left -= done as usize;
@@ -891,27 +895,29 @@ impl ScreenGrid {
         let forward = camera.axes().2;
         let screen = Screen::new(camera);
         let frame = CameraFrame::new(camera);
-        // Placed and faced in the tracing arrays' order, which reads them in sequence; then
-        // sorted by a small key and gathered.
-        let by_index: Vec<Option<(Placed, Facing)>> = (0..g.len())
+        // Placed in the tracing arrays' order, which reads them in sequence; then sorted, and
+        // faced in depth order (a Gaussian's facing terms are written once, where the walk
+        // reads them).
+        let by_index: Vec<Option<Placed>> = (0..g.len())
             .into_par_iter()
-            .map(|i| {
-                let placed = screen.place(g, i, depth_of(g, camera, forward, i))?;
-                Some((placed, Facing::new(g, i, &frame)))
-            })
+            .map(|i| screen.place(g, i, depth_of(g, camera, forward, i)))
             .collect();
         // By depth, ties by index: one order on any thread count. A placed depth is positive,
         // so its bits order as it does ([`depth_order`]'s keys).
         let mut keys: Vec<u64> = (0u64..)
             .zip(&by_index)
-            .filter_map(|(i, p)| Some((p.as_ref()?.0.depth.to_bits() as u64) << 32 | i))
+            .filter_map(|(i, p)| Some((p.as_ref()?.depth.to_bits() as u64) << 32 | i))
             .collect();
         let mut order = vec![0u32; keys.len()];
         depth_order(&mut keys, &mut Vec::new(), &mut order);
-        let (placed, facing): (Vec<Placed>, Vec<Facing>) = order
+        let placed: Vec<Placed> = order
             .par_iter()
             .map(|&i| by_index[i as usize].expect("ranked Gaussians are placed"))
-            .unzip();
+            .collect();
+        let facing: Vec<Facing> = order
+            .par_iter()
+            .map(|&i| Facing::new(g, i as usize, &frame))
+            .collect();
 
         // A counting sort of the ranks by band, each band's in rank order, each band's list
         // padded to whole chunks.

@@ -68,16 +68,18 @@ impl TraceGaussians {
     /// zero or infinite scale) and too faint (opacity below 1/255) ones are left out.
     pub fn new(cloud: &GaussianCloud<f32>) -> Self {
         let stride = cloud.color_stride();
+        // Room for every Gaussian from the start: the arrays are filled without regrowing.
+        let n = cloud.len();
         let mut out = TraceGaussians {
-            ids: Vec::new(),
-            means: Vec::new(),
-            canonical: Vec::new(),
-            opacity: Vec::new(),
-            cutoff: Vec::new(),
-            lower: Vec::new(),
-            upper: Vec::new(),
+            ids: Vec::with_capacity(n),
+            means: Vec::with_capacity(n),
+            canonical: Vec::with_capacity(n),
+            opacity: Vec::with_capacity(n),
+            cutoff: Vec::with_capacity(n),
+            lower: Vec::with_capacity(n),
+            upper: Vec::with_capacity(n),
             max_half_diagonal: 0.0,
-            colors: Vec::new(),
+            colors: Vec::with_capacity(n * stride),
             color_model: cloud.color_model,
         };
         // Each Gaussian's terms in parallel (the exponentials and the rotation are most of the

@@ -24,12 +24,12 @@
 //! the same law from one number a slot ([`SampleKey::slot_thresholds`]): a slot takes the hit
 //! across which the transmittance falls below its number. A hit then costs a multiply and a
 //! compare, not a hash per slot, and a ray is done once its transmittance is below every
-//! slot's number. The slots are interchangeable (the estimate is their mean), so a ray keeps
-//! its numbers sorted, and its state is how many it has filled (`draw_thresholds`). The
-//! image has the same expectation and the same variance as [`crate::trace_image`]'s with
-//! `Estimator::Stochastic` and `DepthMode::Center` (both drawn from that law), not the same
-//! bits; `tests/tracing.rs` checks its mean against the exact composite, and
-//! [`reference_image`] defines it pixel by pixel.
+//! slot's number. The slots are interchangeable (the estimate is their mean), so a ray's
+//! state is how many it has filled, and its next number the largest of the rest
+//! (`draw_thresholds`). The image has the same expectation and the same variance as
+//! [`crate::trace_image`]'s with `Estimator::Stochastic` and `DepthMode::Center` (both drawn
+//! from that law), not the same bits; `tests/tracing.rs` checks its mean against the exact
+//! composite, and [`reference_image`] defines it pixel by pixel.
 //!
 //! **A ray's alphas** are computed from terms each Gaussian shares across the camera's rays
 //! ([`Facing`]): in the Gaussian's canonical frame a ray `(u, w, 1)` (camera space, on the
@@ -158,7 +158,7 @@ pub fn reference_image(
     let plane = camera.ray_directions();
     let (width, height) = (camera.width, camera.height);
     let isa = Isa::detect();
-    let mut thresholds = vec![0.0f32; slots + 1];
+    let mut thresholds = vec![0.0f32; slots];
     let mut image = Vec::with_capacity((width * height) as usize);
     for y in 0..height {
         let w = plane.on_plane(0.5, y as f32 + 0.5)[1];
@@ -193,69 +193,59 @@ fn slot_count(samples_per_traversal: u32) -> usize {
     (samples_per_traversal.max(1) as usize).min(MAX_SLOTS)
 }
 
-/// A ray's slots' thresholds ([`SampleKey::slot_thresholds`]) into `sorted` (one entry more
-/// than the slots), largest first and -1 after them; returns the largest, the first the
-/// transmittance must fall below.
+/// A ray's slots' thresholds ([`SampleKey::slot_thresholds`]) into `thresholds`; returns the
+/// largest, the first the transmittance must fall below.
 ///
 /// The estimate is the mean of the slots' colours, so the slots are interchangeable, and the
-/// transmittance only falls, so the slots a ray has filled are always those with the largest
-/// thresholds: a ray's state is how many it has filled, and its next threshold the largest
-/// of the rest, `sorted[filled]` (-1, which no transmittance falls below, when all are). No
-/// mask of open slots is searched, and no branch taken per slot.
+/// transmittance only falls, so the slots a ray has filled are always those whose thresholds
+/// are above its transmittance: its state is how many it has filled, and its next threshold
+/// the largest of the others ([`largest_not_above`]). Nothing is sorted, no mask of open
+/// slots is kept, and no branch is taken per slot.
 #[inline(always)]
-fn draw_thresholds(key: &SampleKey, sorted: &mut [f32]) -> f32 {
-    let slots = sorted.len() - 1;
-    key.slot_thresholds(&mut sorted[..slots]);
-    sort_descending(&mut sorted[..slots]);
-    sorted[slots] = -1.0;
-    sorted[0]
+fn draw_thresholds(key: &SampleKey, thresholds: &mut [f32]) -> f32 {
+    key.slot_thresholds(thresholds);
+    largest_not_above(thresholds, f32::INFINITY)
 }
 
-/// `values` sorted largest first; a sorting network for 8 (the lookup's default slots: min and
-/// max, no branches), the standard library's sort otherwise.
+/// The largest of `thresholds` not above `t`, or -1 (which no transmittance falls below)
+/// when every one is. Thresholds are never NaN; a NaN `t` is above none of them.
 #[inline(always)]
-fn sort_descending(values: &mut [f32]) {
-    if let Ok(eight) = <&mut [f32; 8]>::try_from(&mut *values) {
-        // Knuth's 19-comparator network for 8 (TAOCP 5.3.4), in six layers, unrolled on
-        // locals. The thresholds are never NaN, so a plain comparison orders them.
-        let mut v = *eight;
-        macro_rules! order {
-            ($(($i:literal, $j:literal)),*) => {$(
-                let (a, b) = (v[$i], v[$j]);
-                let larger = a > b;
-                (v[$i], v[$j]) = (if larger { a } else { b }, if larger { b } else { a });
-            )*};
-        }
-        order!((0, 2), (1, 3), (4, 6), (5, 7));
-        order!((0, 4), (1, 5), (2, 6), (3, 7));
-        order!((0, 1), (2, 3), (4, 5), (6, 7));
-        order!((2, 4), (3, 5));
-        order!((1, 4), (3, 6));
-        order!((1, 2), (3, 4), (5, 6));
-        *eight = v;
-    } else {
-        values.sort_unstable_by(|a, b| b.total_cmp(a));
+fn largest_not_above(thresholds: &[f32], t: f32) -> f32 {
+    let pick = |values: &[f32]| {
+        values.iter().fold(-1.0f32, |largest, &u| {
+            let u = if t < u { -1.0 } else { u };
+            if u > largest { u } else { largest }
+        })
+    };
+    // Eight (the lookup's default) as a fixed-length array: unrolled.
+    match <&[f32; 8]>::try_from(thresholds) {
+        Ok(eight) => pick(eight),
+        Err(_) => pick(thresholds),
     }
 }
 
 /// A ray's slots after its transmittance fell to `t` across a hit of colour `color`: every
-/// unfilled slot whose threshold is above `t` takes the hit (adds the colour). `sorted` and
-/// `filled` as [`draw_thresholds`] describes them; returns the next threshold.
+/// unfilled slot whose threshold is above `t` takes the hit (adds the colour). `filled` as
+/// [`draw_thresholds`] describes it; returns the next threshold.
 #[inline(always)]
-fn fill_slots(sorted: &[f32], filled: &mut usize, colour: &mut Vec3, t: f32, color: Vec3) -> f32 {
-    let slots = sorted.len() - 1;
+fn fill_slots(
+    thresholds: &[f32],
+    filled: &mut usize,
+    colour: &mut Vec3,
+    t: f32,
+    color: Vec3,
+) -> f32 {
     // The filled slots' thresholds are above every earlier transmittance, so above `t`: the
     // count of thresholds above `t` is the slots filled now (NaN counts none).
     let count = |values: &[f32]| values.iter().map(|&u| (t < u) as usize).sum::<usize>();
-    // Eight (the lookup's default) as a fixed-length array: the count unrolled.
-    let above = match <&[f32; 8]>::try_from(&sorted[..slots]) {
+    let above = match <&[f32; 8]>::try_from(thresholds) {
         Ok(eight) => count(eight),
-        Err(_) => count(&sorted[..slots]),
+        Err(_) => count(thresholds),
     };
     let reached = above.max(*filled);
     *colour += (reached - *filled) as f32 * color;
     *filled = reached;
-    sorted[reached]
+    largest_not_above(thresholds, t)
 }
 
 /// One estimate: the mean of the slots' colours, `background` for each slot left unfilled.
@@ -277,8 +267,7 @@ struct Row {
     /// Each pixel's next threshold ([`draw_thresholds`]): the transmittance falling below it
     /// fills a slot.
     next: Vec<[f32; LANES]>,
-    /// Each pixel's slots' thresholds, largest first, and -1 ([`draw_thresholds`]): `slots + 1`
-    /// a pixel.
+    /// Each pixel's slots' thresholds ([`draw_thresholds`]), `slots` a pixel.
     thresholds: Vec<f32>,
     /// Each pixel's slots filled (with a hit).
     filled: Vec<usize>,
@@ -296,7 +285,7 @@ impl Row {
         Self {
             transmittance: vec![[1.0; LANES]; padded / LANES],
             next: vec![[-1.0; LANES]; padded / LANES],
-            thresholds: vec![0.0; walk.width * (walk.slots + 1)],
+            thresholds: vec![0.0; walk.width * walk.slots],
             filled: vec![0; walk.width],
             colour: vec![Vec3::ZERO; walk.width],
             taking_part: vec![0; padded / LANES],
@@ -364,7 +353,7 @@ impl<'a> Walk<'a> {
         filled.fill(0);
         colour.fill(Vec3::ZERO);
         taking_part.fill(0);
-        for (x, thresholds) in thresholds.chunks_exact_mut(slots + 1).enumerate() {
+        for (x, thresholds) in thresholds.chunks_exact_mut(slots).enumerate() {
             let key = SampleKey::new(self.seed, y * width as u32 + x as u32, sample);
             next[x / LANES][x % LANES] = draw_thresholds(&key, thresholds);
             taking_part[x / LANES] |= 1 << (x % LANES);
@@ -457,7 +446,7 @@ impl<'a> Walk<'a> {
                 let l = crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
                 let x = group * LANES + l;
-                let own = &thresholds[x * (slots + 1)..(x + 1) * (slots + 1)];
+                let own = &thresholds[x * slots..(x + 1) * slots];
                 let t = transmittance[group][l];
                 next[group][l] = fill_slots(own, &mut filled[x], &mut colour[x], t, color);
                 let done = filled[x] == slots;
@@ -960,65 +949,41 @@ mod tests {
     use render_base::hash::{hash32, unit_f32};
     use splat_raster::{ColorModel, GaussianCloud};
 
-    /// The sorting network orders every input of 8 as the standard library's sort does: all
-    /// 256 inputs of zeros and ones (by the 0-1 principle, enough for a comparator network),
-    /// and hashed thresholds with ties. Reversing one comparator, or leaving one out, fails it.
+    /// Filling counts the thresholds above the transmittance, in any order: slots filled
+    /// earlier stay filled, the colour grows by the newly filled count, and the next threshold
+    /// is the largest not above the transmittance (-1 when all are filled); for four slots
+    /// and for eight (the unrolled path).
     #[test]
-    fn the_sorting_network_sorts_eight() {
-        let check = |values: [f32; 8]| {
-            let mut by_network = values;
-            sort_descending(&mut by_network);
-            let mut by_std = values;
-            by_std.sort_unstable_by(|a, b| b.total_cmp(a));
-            assert_eq!(
-                by_network.map(f32::to_bits),
-                by_std.map(f32::to_bits),
-                "{values:?}"
-            );
-        };
-        for bits in 0u32..256 {
-            check(std::array::from_fn(|k| ((bits >> k) & 1) as f32));
-        }
-        for n in 0..2_000u32 {
-            // Quantised to 16 levels so that ties are common.
-            check(std::array::from_fn(|k| {
-                (unit_f32(hash32(&[n, k as u32])) * 16.0).floor() / 16.0
-            }));
-        }
-        // Other lengths go to the standard library's sort.
-        let mut five = [0.25f32, 1.0, 0.5, 0.75, 0.125];
-        sort_descending(&mut five);
-        assert_eq!(five, [1.0, 0.75, 0.5, 0.25, 0.125]);
-    }
-
-    /// Filling from sorted thresholds counts the thresholds above the transmittance: slots
-    /// filled earlier stay filled, the colour grows by the newly filled count, and the next
-    /// threshold is the largest unfilled one (-1 when all are filled).
-    #[test]
-    fn filling_sorted_slots_takes_every_threshold_above_the_transmittance() {
-        let sorted = [0.9f32, 0.6, 0.6, 0.2, -1.0];
+    fn filling_takes_every_threshold_above_the_transmittance() {
+        let four = [0.6f32, 0.2, 0.9, 0.6];
+        let eight = [0.6f32, 0.2, 0.9, 0.6, 0.05, 0.95, 0.3, 0.3];
+        assert_eq!(largest_not_above(&four, f32::INFINITY), 0.9);
+        assert_eq!(largest_not_above(&eight, f32::INFINITY), 0.95);
         let (mut filled, mut colour) = (0usize, Vec3::ZERO);
         let red = Vec3::X;
-        assert_eq!(fill_slots(&sorted, &mut filled, &mut colour, 0.7, red), 0.6);
+        assert_eq!(fill_slots(&four, &mut filled, &mut colour, 0.7, red), 0.6);
         assert_eq!((filled, colour), (1, red));
         // Both equal thresholds at once.
         assert_eq!(
-            fill_slots(&sorted, &mut filled, &mut colour, 0.5, Vec3::Y),
+            fill_slots(&four, &mut filled, &mut colour, 0.5, Vec3::Y),
             0.2
         );
         assert_eq!((filled, colour), (3, Vec3::new(1.0, 2.0, 0.0)));
         // NaN fills nothing.
+        fill_slots(&four, &mut filled, &mut colour, f32::NAN, red);
+        assert_eq!((filled, colour), (3, Vec3::new(1.0, 2.0, 0.0)));
         assert_eq!(
-            fill_slots(&sorted, &mut filled, &mut colour, f32::NAN, red),
-            0.2
-        );
-        assert_eq!(filled, 3);
-        assert_eq!(
-            fill_slots(&sorted, &mut filled, &mut colour, 0.0, Vec3::Z),
+            fill_slots(&four, &mut filled, &mut colour, 0.0, Vec3::Z),
             -1.0
         );
         assert_eq!((filled, colour), (4, Vec3::new(1.0, 2.0, 1.0)));
         assert_eq!(estimate(colour, filled, 4, Vec3::ONE), colour / 4.0);
+        // Eight: 0.95, 0.9 and both 0.6 are above 0.55; next the largest below, 0.3 (twice).
+        let (mut filled, mut colour) = (0usize, Vec3::ZERO);
+        assert_eq!(fill_slots(&eight, &mut filled, &mut colour, 0.55, red), 0.3);
+        assert_eq!((filled, colour), (4, 4.0 * red));
+        assert_eq!(fill_slots(&eight, &mut filled, &mut colour, 0.1, red), 0.05);
+        assert_eq!(filled, 7);
     }
 
     /// A ray's alpha from the camera's shared terms ([`Facing`], [`FacingRow::alpha`]: the

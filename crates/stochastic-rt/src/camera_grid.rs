@@ -280,6 +280,22 @@ struct Row {
 }
 
 impl Row {
+    /// Every pixel of row `y` at the start of `sample`: its slots' numbers drawn, none filled,
+    /// the transmittance 1. Inlined into the walk, in its lanes' instruction set.
+    #[inline(always)]
+    fn start(&mut self, walk: &Walk, y: u32, sample: u32) {
+        let width = walk.width;
+        self.transmittance.fill([1.0; LANES]);
+        self.filled.fill(0);
+        self.colour.fill(Vec3::ZERO);
+        self.taking_part.fill(0);
+        for (x, thresholds) in self.thresholds.chunks_exact_mut(walk.slots).enumerate() {
+            let key = SampleKey::new(walk.seed, y * width as u32 + x as u32, sample);
+            self.next[x / LANES][x % LANES] = draw_thresholds(&key, thresholds);
+            self.taking_part[x / LANES] |= 1 << (x % LANES);
+        }
+    }
+
     fn new(walk: &Walk) -> Self {
         let padded = walk.width.next_multiple_of(LANES);
         Self {
@@ -340,24 +356,7 @@ impl<'a> Walk<'a> {
     #[inline(always)]
     fn estimate<L: Lanes>(&self, token: L::Token, row: &mut Row, y: u32, sample: u32) {
         let (slots, width) = (self.slots, self.width);
-        let Row {
-            transmittance,
-            next,
-            thresholds,
-            filled,
-            colour,
-            taking_part,
-            ..
-        } = row;
-        transmittance.fill([1.0; LANES]);
-        filled.fill(0);
-        colour.fill(Vec3::ZERO);
-        taking_part.fill(0);
-        for (x, thresholds) in thresholds.chunks_exact_mut(slots).enumerate() {
-            let key = SampleKey::new(self.seed, y * width as u32 + x as u32, sample);
-            next[x / LANES][x % LANES] = draw_thresholds(&key, thresholds);
-            taking_part[x / LANES] |= 1 << (x % LANES);
-        }
+        row.start(self, y, sample);
         let mut left = width;
         let w = self.plane.on_plane(0.5, y as f32 + 0.5)[1];
         let (mut lo, mut hi) = ([0.0f32; LANES], [0.0f32; LANES]);

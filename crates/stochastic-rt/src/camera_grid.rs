@@ -648,8 +648,8 @@ impl ListedChunk {
     /// they may meet there: `ceil(lo)..=floor(hi)` (empty when that is). A bounded silhouette
     /// (`k2 > 0`) is narrowed to the ellipse's chord at the row's centre,
     /// `dx = k3 dy +- sqrt(k1 dy^2 + k2)`, a pixel wider each way (pixel x's centre is
-    /// x + 0.5); the rest keep their rectangle's columns. Each lane's arithmetic is the scalar
-    /// one, rounded alike (no fused multiply-adds).
+    /// x + 0.5); the rest keep their rectangle's columns. Plain multiplies and adds (no fused
+    /// multiply-adds), so AVX2 and the baseline's lanes give the same chords.
     #[inline(always)]
     fn chords<L: Lanes>(
         &self,

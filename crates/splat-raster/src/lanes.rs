@@ -88,6 +88,16 @@ pub trait Lanes:
         v.map(Self::reduce_sum)
     }
 
+    /// The largest lane (exact: any order gives it). Lanes are not NaN where it is used.
+    #[inline(always)]
+    fn reduce_max(self) -> f32 {
+        let mut v = [0.0f32; 16];
+        self.store(&mut v);
+        v[1..Self::N]
+            .iter()
+            .fold(v[0], |largest, &x| if x > largest { x } else { largest })
+    }
+
     /// The lanes' sum, added in a fixed order, so it is the same on every run.
     #[inline(always)]
     fn reduce_sum(self) -> f32 {
@@ -539,6 +549,13 @@ mod x86 {
             Sse2Mask(Self::load_bits((), &bits).0)
         }
         #[inline(always)]
+        fn reduce_max(self) -> f32 {
+            unsafe {
+                let pairs = _mm_max_ps(self.0, _mm_movehl_ps(self.0, self.0));
+                _mm_cvtss_f32(_mm_max_ss(pairs, _mm_shuffle_ps::<1>(pairs, pairs)))
+            }
+        }
+        #[inline(always)]
         fn reduce8(v: [Self; 8]) -> [f32; 8] {
             // Two 4x4 transposes (columns become vectors), then three adds each.
             let quad = |a: __m128, b: __m128, c: __m128, d: __m128| unsafe {
@@ -682,6 +699,17 @@ mod x86 {
         fn mask_from_fn(t: Avx2Token, f: impl Fn(usize) -> bool) -> Avx2Mask {
             let bits: [u32; 8] = std::array::from_fn(|i| if f(i) { u32::MAX } else { 0 });
             Avx2Mask(Self::load_bits(t, &bits).0)
+        }
+        #[inline(always)]
+        fn reduce_max(self) -> f32 {
+            // The halves' larger lanes, then as SSE.
+            let halves = unsafe {
+                _mm_max_ps(
+                    _mm256_castps256_ps128(self.0),
+                    _mm256_extractf128_ps::<1>(self.0),
+                )
+            };
+            Sse2(halves).reduce_max()
         }
         #[inline(always)]
         fn reduce8(v: [Self; 8]) -> [f32; 8] {
@@ -841,6 +869,18 @@ mod tests {
         );
         let sum: f32 = a[..L::N].iter().sum();
         assert_eq!(va.reduce_sum(), sum, "{name}");
+        // The largest lane wherever it is, negative lanes included.
+        for top in 0..L::N {
+            let lanes: Vec<f32> = (0..16)
+                .map(|i| if i == top { 7.5 } else { -(i as f32) - 1.0 })
+                .collect();
+            assert_eq!(
+                L::load(token, &lanes).reduce_max(),
+                7.5,
+                "{name}: lane {top}"
+            );
+        }
+        assert_eq!(L::splat(token, -3.0).reduce_max(), -3.0, "{name}");
         // Eight vectors reduced at once: vector j holds j * 100 + lane, so sums are exact.
         let vs: [L; 8] = std::array::from_fn(|j| {
             let lanes: Vec<f32> = (0..16).map(|i| (j * 100 + i) as f32).collect();

@@ -39,6 +39,7 @@
 //! (tested: at most 2.1e-4 relative, on needle-thin Gaussians seen from afar).
 
 use crate::gaussians::TraceGaussians;
+use crate::isa::{Baseline, Isa};
 use crate::random::SampleKey;
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
@@ -48,11 +49,6 @@ use splat_raster::Camera;
 use splat_raster::lanes::{Avx2, Avx2Token};
 use splat_raster::lanes::{Lanes, exp};
 
-/// The lanes every processor of the target runs: SSE2 on x86-64, plain arrays elsewhere.
-#[cfg(target_arch = "x86_64")]
-type Baseline = splat_raster::lanes::Sse2;
-#[cfg(not(target_arch = "x86_64"))]
-type Baseline = splat_raster::lanes::Portable;
 use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
 use splat_raster::raster::depth_order;
 
@@ -111,26 +107,6 @@ pub fn trace_camera_image(
     image
 }
 
-/// Which lanes evaluate the rays: AVX2 with FMA where the processor has them, else the
-/// baseline's. Images differ between the two in the last bits (the fused multiply-adds); on
-/// one machine they are the same on any number of threads.
-#[derive(Clone, Copy)]
-enum Isa {
-    #[cfg(target_arch = "x86_64")]
-    Avx2(Avx2Token),
-    Baseline,
-}
-
-impl Isa {
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(token) = Avx2Token::detect() {
-            return Isa::Avx2(token);
-        }
-        Isa::Baseline
-    }
-}
-
 /// [`trace_camera_image`]'s image by its definition: for each pixel, every Gaussian in front
 /// of the camera in depth order, its alpha on the pixel's ray, and the slots filled as the
 /// transmittance falls. No grid, no chords, no lanes but the one ray's: O(pixels x Gaussians),
@@ -166,8 +142,8 @@ pub fn reference_image(
             let u = plane.on_plane(x as f32 + 0.5, y as f32 + 0.5)[0];
             let mut sum = DVec3::ZERO;
             for s in 0..spp.max(1) {
-                let mut next =
-                    draw_thresholds(&SampleKey::new(seed, y * width + x, s), &mut thresholds);
+                let key = SampleKey::new(seed, y * width + x, s);
+                let mut next = draw_thresholds::<Baseline>((), &key, &mut thresholds);
                 let (mut t, mut filled, mut colour) = (1.0f32, 0, Vec3::ZERO);
                 for f in &facing {
                     if filled == slots {
@@ -176,7 +152,14 @@ pub fn reference_image(
                     let alpha = FacingRow::new(f, w).alpha_on(isa, u);
                     t *= 1.0 - alpha;
                     if t < next {
-                        next = fill_slots(&thresholds, &mut filled, &mut colour, t, f.color);
+                        next = fill_slots::<Baseline>(
+                            (),
+                            &thresholds,
+                            &mut filled,
+                            &mut colour,
+                            t,
+                            f.color,
+                        );
                     }
                 }
                 sum += estimate(colour, filled, slots, background).as_dvec3();
@@ -199,36 +182,48 @@ fn slot_count(samples_per_traversal: u32) -> usize {
 /// The estimate is the mean of the slots' colours, so the slots are interchangeable, and the
 /// transmittance only falls, so the slots a ray has filled are always those whose thresholds
 /// are above its transmittance: its state is how many it has filled, and its next threshold
-/// the largest of the others ([`largest_not_above`]). Nothing is sorted, no mask of open
-/// slots is kept, and no branch is taken per slot.
+/// the largest of the others ([`above_and_next`]). Nothing is sorted, no mask of open slots
+/// is kept, and no branch is taken per slot.
 #[inline(always)]
-fn draw_thresholds(key: &SampleKey, thresholds: &mut [f32]) -> f32 {
+fn draw_thresholds<L: Lanes>(token: L::Token, key: &SampleKey, thresholds: &mut [f32]) -> f32 {
     key.slot_thresholds(thresholds);
-    largest_not_above(thresholds, f32::INFINITY)
+    above_and_next::<L>(token, thresholds, f32::INFINITY).1
 }
 
-/// The largest of `thresholds` not above `t`, or -1 (which no transmittance falls below)
-/// when every one is. Thresholds are never NaN; a NaN `t` is above none of them.
+/// How many of `thresholds` are above `t`, and the largest not above it, or -1 (which no
+/// transmittance falls below) when every one is. Thresholds are never NaN; a NaN `t` is above
+/// none of them. Both are exact, so the same in any lanes: eight thresholds (the lookup's
+/// default) are compared in `L`'s lanes at once, other counts one by one.
 #[inline(always)]
-fn largest_not_above(thresholds: &[f32], t: f32) -> f32 {
-    let pick = |values: &[f32]| {
-        values.iter().fold(-1.0f32, |largest, &u| {
-            let u = if t < u { -1.0 } else { u };
-            if u > largest { u } else { largest }
-        })
-    };
-    // Eight (the lookup's default) as a fixed-length array: unrolled.
-    match <&[f32; 8]>::try_from(thresholds) {
-        Ok(eight) => pick(eight),
-        Err(_) => pick(thresholds),
+fn above_and_next<L: Lanes>(token: L::Token, thresholds: &[f32], t: f32) -> (usize, f32) {
+    if let Ok(eight) = <&[f32; 8]>::try_from(thresholds) {
+        let (t, none) = (L::splat(token, t), L::splat(token, -1.0));
+        let (mut above, mut largest) = (0, none);
+        for first in (0..8).step_by(L::N) {
+            let u = L::load(token, &eight[first..]);
+            let is_above = t.lt(u);
+            above += L::count(is_above) as usize;
+            largest = L::select(is_above, none, u).max(largest);
+        }
+        return (above, largest.reduce_max());
     }
+    thresholds
+        .iter()
+        .fold((0, -1.0f32), |(above, largest), &u| {
+            if t < u {
+                (above + 1, largest)
+            } else {
+                (above, if u > largest { u } else { largest })
+            }
+        })
 }
 
 /// A ray's slots after its transmittance fell to `t` across a hit of colour `color`: every
 /// unfilled slot whose threshold is above `t` takes the hit (adds the colour). `filled` as
 /// [`draw_thresholds`] describes it; returns the next threshold.
 #[inline(always)]
-fn fill_slots(
+fn fill_slots<L: Lanes>(
+    token: L::Token,
     thresholds: &[f32],
     filled: &mut usize,
     colour: &mut Vec3,
@@ -237,15 +232,11 @@ fn fill_slots(
 ) -> f32 {
     // The filled slots' thresholds are above every earlier transmittance, so above `t`: the
     // count of thresholds above `t` is the slots filled now (NaN counts none).
-    let count = |values: &[f32]| values.iter().map(|&u| (t < u) as usize).sum::<usize>();
-    let above = match <&[f32; 8]>::try_from(thresholds) {
-        Ok(eight) => count(eight),
-        Err(_) => count(thresholds),
-    };
+    let (above, next) = above_and_next::<L>(token, thresholds, t);
     let reached = above.max(*filled);
     *colour += (reached - *filled) as f32 * color;
     *filled = reached;
-    largest_not_above(thresholds, t)
+    next
 }
 
 /// One estimate: the mean of the slots' colours, `background` for each slot left unfilled.
@@ -283,7 +274,7 @@ impl Row {
     /// Every pixel of row `y` at the start of `sample`: its slots' numbers drawn, none filled,
     /// the transmittance 1. Inlined into the walk, in its lanes' instruction set.
     #[inline(always)]
-    fn start(&mut self, walk: &Walk, y: u32, sample: u32) {
+    fn start<L: Lanes>(&mut self, token: L::Token, walk: &Walk, y: u32, sample: u32) {
         let width = walk.width;
         self.transmittance.fill([1.0; LANES]);
         self.filled.fill(0);
@@ -291,7 +282,7 @@ impl Row {
         self.taking_part.fill(0);
         for (x, thresholds) in self.thresholds.chunks_exact_mut(walk.slots).enumerate() {
             let key = SampleKey::new(walk.seed, y * width as u32 + x as u32, sample);
-            self.next[x / LANES][x % LANES] = draw_thresholds(&key, thresholds);
+            self.next[x / LANES][x % LANES] = draw_thresholds::<L>(token, &key, thresholds);
             self.taking_part[x / LANES] |= 1 << (x % LANES);
         }
     }
@@ -356,30 +347,28 @@ impl<'a> Walk<'a> {
     #[inline(always)]
     fn estimate<L: Lanes>(&self, token: L::Token, row: &mut Row, y: u32, sample: u32) {
         let (slots, width) = (self.slots, self.width);
-        row.start(self, y, sample);
+        row.start::<L>(token, self, y, sample);
         let mut left = width;
         let w = self.plane.on_plane(0.5, y as f32 + 0.5)[1];
-        let (mut lo, mut hi) = ([0.0f32; LANES], [0.0f32; LANES]);
+        let (mut first, mut last) = ([0u32; LANES], [0u32; LANES]);
         for chunk in self.grid.band(y / BAND) {
             if left == 0 {
                 break;
             }
             // The chunk's chords on this row in lanes; then its Gaussians that meet the row, in
             // depth order.
-            let mut meets = chunk.chords::<L>(token, y, &mut lo, &mut hi);
+            let mut meets = chunk.chords::<L>(token, y, &mut first, &mut last);
             while meets != 0 {
                 let l = meets.trailing_zeros() as usize;
                 meets &= meets - 1;
-                let (from, to) = (lo[l].ceil(), hi[l].floor());
-                if !(from <= to) {
-                    continue;
-                }
                 let facing = &self.grid.facing[chunk.rank[l] as usize];
                 let on_row = FacingRow::new(facing, w);
                 self.walk_chord::<L>(
                     token,
-                    // Whole numbers in 0..width: exact as i32.
-                    (from as i32 as usize, to as i32 as usize),
+                    (
+                        (first[l] - PIXEL_BIAS_BITS) as usize,
+                        (last[l] - PIXEL_BIAS_BITS) as usize,
+                    ),
                     facing.color,
                     &on_row,
                     row,
@@ -447,7 +436,8 @@ impl<'a> Walk<'a> {
                 let x = group * LANES + l;
                 let own = &thresholds[x * slots..(x + 1) * slots];
                 let t = transmittance[group][l];
-                next[group][l] = fill_slots(own, &mut filled[x], &mut colour[x], t, color);
+                next[group][l] =
+                    fill_slots::<L>(token, own, &mut filled[x], &mut colour[x], t, color);
                 let done = filled[x] == slots;
                 taking_part[group] &= !((done as u8) << l);
                 *left -= done as usize;
@@ -644,19 +634,20 @@ impl ListedChunk {
         }
     }
 
-    /// The lanes whose Gaussians may meet row `y` (a bit each), with the bounds of the pixels
-    /// they may meet there: `ceil(lo)..=floor(hi)` (empty when that is). A bounded silhouette
-    /// (`k2 > 0`) is narrowed to the ellipse's chord at the row's centre,
-    /// `dx = k3 dy +- sqrt(k1 dy^2 + k2)`, a pixel wider each way (pixel x's centre is
-    /// x + 0.5); the rest keep their rectangle's columns. Plain multiplies and adds (no fused
-    /// multiply-adds), so AVX2 and the baseline's lanes give the same chords.
+    /// The lanes whose Gaussians meet a pixel of row `y` (a bit each), with the first and last
+    /// pixel they may meet there, `ceil(lo)..=floor(hi)`, as the bits of those whole numbers
+    /// plus [`PIXEL_BIAS`]. A bounded silhouette (`k2 > 0`) is narrowed to the ellipse's
+    /// chord at the row's centre, `dx = k3 dy +- sqrt(k1 dy^2 + k2)`, a pixel wider each way
+    /// (pixel x's centre is x + 0.5); the rest keep their rectangle's columns. Plain multiplies
+    /// and adds (no fused multiply-adds), so AVX2 and the baseline's lanes give the same
+    /// chords.
     #[inline(always)]
     fn chords<L: Lanes>(
         &self,
         token: L::Token,
         y: u32,
-        lo: &mut [f32; LANES],
-        hi: &mut [f32; LANES],
+        first_pixel: &mut [u32; LANES],
+        last_pixel: &mut [u32; LANES],
     ) -> u32 {
         let c = |v: f32| L::splat(token, v);
         let (row, centre) = (y as f32, y as f32 + 0.5);
@@ -669,22 +660,35 @@ impl ListedChunk {
             let dy = c(centre) - load(&self.centre[1]);
             let squared = dy * dy * k1 + k2;
             let (mid, half) = (load(&self.centre[0]) + dy * k3, squared.sqrt());
-            // NaN (no chord) fails `le` and `ge`; `max` and `min` give their second operand.
+            // NaN (no chord) fails `le` and `ge`; `max` and `min` give their second operand,
+            // so `lo` and `hi` are in the rectangle's columns, 0..=32767 (`MAX_IMAGE_SIDE`).
             let bounded = k2.gt(c(0.0));
-            let from = L::select(
+            let lo = L::select(
                 bounded,
                 (mid - half - c(1.5)).max(columns_from),
                 columns_from,
             );
-            let to = L::select(bounded, (mid + half + c(0.5)).min(columns_to), columns_to);
+            let hi = L::select(bounded, (mid + half + c(0.5)).min(columns_to), columns_to);
+            // Adding 2^23 rounds to the nearest whole number, exactly (the spacing of floats
+            // there is 1); one more or less where that went the wrong way.
+            let bias = c(PIXEL_BIAS);
+            let (lo_near, hi_near) = (lo + bias, hi + bias);
+            let from = L::select((lo_near - bias).lt(lo), lo_near + c(1.0), lo_near);
+            let to = L::select((hi_near - bias).gt(hi), hi_near - c(1.0), hi_near);
             let chord = squared.ge(c(0.0)) | L::and_not(in_rows, bounded);
-            from.store(&mut lo[first..]);
-            to.store(&mut hi[first..]);
+            from.store_bits(&mut first_pixel[first..]);
+            to.store_bits(&mut last_pixel[first..]);
             meets |= L::bits(in_rows & chord & from.le(to)) << first;
         }
         meets
     }
 }
+
+/// 2^23: a whole number `n` in `0..2^23` plus this is a float whose bits are
+/// [`PIXEL_BIAS_BITS`] plus `n`, so a pixel's index goes from lanes to an integer without a
+/// conversion.
+const PIXEL_BIAS: f32 = 8_388_608.0;
+const PIXEL_BIAS_BITS: u32 = PIXEL_BIAS.to_bits();
 
 /// One Gaussian on the screen.
 #[derive(Clone, Copy, Default)]
@@ -728,7 +732,6 @@ impl Placed {
 /// The camera's constants for placing Gaussians on its screen.
 struct Screen {
     position: glam::DVec3,
-    /// World to camera space (+X right, +Y down, +Z forward).
     /// World to camera space (+X right, +Y down, +Z forward).
     to_camera: glam::DMat3,
     focal: f64,
@@ -951,38 +954,56 @@ mod tests {
     /// Filling counts the thresholds above the transmittance, in any order: slots filled
     /// earlier stay filled, the colour grows by the newly filled count, and the next threshold
     /// is the largest not above the transmittance (-1 when all are filled); for four slots
-    /// and for eight (the unrolled path).
+    /// (one by one) and for eight (in lanes), in every width of lanes this processor runs.
     #[test]
     fn filling_takes_every_threshold_above_the_transmittance() {
+        check_filling::<splat_raster::lanes::Portable>(());
+        check_filling::<Baseline>(());
+        #[cfg(target_arch = "x86_64")]
+        if let Some(token) = Avx2Token::detect() {
+            check_filling::<Avx2>(token);
+        }
+    }
+
+    fn check_filling<L: Lanes>(token: L::Token) {
+        let fill = |thresholds: &[f32], filled: &mut usize, colour: &mut Vec3, t, color| {
+            fill_slots::<L>(token, thresholds, filled, colour, t, color)
+        };
         let four = [0.6f32, 0.2, 0.9, 0.6];
-        let eight = [0.6f32, 0.2, 0.9, 0.6, 0.05, 0.95, 0.3, 0.3];
-        assert_eq!(largest_not_above(&four, f32::INFINITY), 0.9);
-        assert_eq!(largest_not_above(&eight, f32::INFINITY), 0.95);
+        let key = SampleKey::new(1, 2, 3);
+        let mut drawn = [0.0f32; 8];
+        let largest = draw_thresholds::<L>(token, &key, &mut drawn);
+        assert_eq!(largest, drawn.iter().fold(0.0f32, |a, &b| a.max(b)));
+        assert_eq!(above_and_next::<L>(token, &four, f32::INFINITY), (0, 0.9));
         let (mut filled, mut colour) = (0usize, Vec3::ZERO);
         let red = Vec3::X;
-        assert_eq!(fill_slots(&four, &mut filled, &mut colour, 0.7, red), 0.6);
+        assert_eq!(fill(&four, &mut filled, &mut colour, 0.7, red), 0.6);
         assert_eq!((filled, colour), (1, red));
         // Both equal thresholds at once.
-        assert_eq!(
-            fill_slots(&four, &mut filled, &mut colour, 0.5, Vec3::Y),
-            0.2
-        );
+        assert_eq!(fill(&four, &mut filled, &mut colour, 0.5, Vec3::Y), 0.2);
         assert_eq!((filled, colour), (3, Vec3::new(1.0, 2.0, 0.0)));
         // NaN fills nothing.
-        fill_slots(&four, &mut filled, &mut colour, f32::NAN, red);
+        fill(&four, &mut filled, &mut colour, f32::NAN, red);
         assert_eq!((filled, colour), (3, Vec3::new(1.0, 2.0, 0.0)));
-        assert_eq!(
-            fill_slots(&four, &mut filled, &mut colour, 0.0, Vec3::Z),
-            -1.0
-        );
+        assert_eq!(fill(&four, &mut filled, &mut colour, 0.0, Vec3::Z), -1.0);
         assert_eq!((filled, colour), (4, Vec3::new(1.0, 2.0, 1.0)));
         assert_eq!(estimate(colour, filled, 4, Vec3::ONE), colour / 4.0);
-        // Eight: 0.95, 0.9 and both 0.6 are above 0.55; next the largest below, 0.3 (twice).
+        // Eight, the largest in each lane in turn: all of them next, and none above 1.
+        for top in 0..8 {
+            let mut eight = [0.6f32, 0.2, 0.9, 0.6, 0.05, 0.7, 0.3, 0.3];
+            eight[top] = 0.95;
+            assert_eq!(above_and_next::<L>(token, &eight, 1.0), (0, 0.95), "{top}");
+            assert_eq!(above_and_next::<L>(token, &eight, f32::NAN), (0, 0.95));
+        }
+        // 0.95, 0.9 and both 0.6 are above 0.55; next the largest below, 0.3 (twice).
+        let eight = [0.6f32, 0.2, 0.9, 0.6, 0.05, 0.95, 0.3, 0.3];
         let (mut filled, mut colour) = (0usize, Vec3::ZERO);
-        assert_eq!(fill_slots(&eight, &mut filled, &mut colour, 0.55, red), 0.3);
+        assert_eq!(fill(&eight, &mut filled, &mut colour, 0.55, red), 0.3);
         assert_eq!((filled, colour), (4, 4.0 * red));
-        assert_eq!(fill_slots(&eight, &mut filled, &mut colour, 0.1, red), 0.05);
+        assert_eq!(fill(&eight, &mut filled, &mut colour, 0.1, red), 0.05);
         assert_eq!(filled, 7);
+        assert_eq!(fill(&eight, &mut filled, &mut colour, 0.01, red), -1.0);
+        assert_eq!((filled, colour), (8, 8.0 * red));
     }
 
     /// A ray's alpha from the camera's shared terms ([`Facing`], [`FacingRow::alpha`]: the

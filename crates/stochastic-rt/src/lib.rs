@@ -4,6 +4,7 @@
 //!
 //! - [`gaussians`]: per-Gaussian data for tracing (canonical transforms, cut-offs, bounds) and
 //!   the ray-Gaussian response.
+//! - `isa`: which SIMD lanes run (AVX2 with FMA, or the baseline).
 //! - [`random`]: the acceptance numbers: an integer hash, or Sun et al.'s trigonometric hash.
 //! - [`scene`]: the BVH over the Gaussians' bounds (obvhs `Bvh2`).
 //! - [`camera_grid`]: the stochastic estimator for a camera's own rays in `Center` depth, a
@@ -18,6 +19,7 @@
 pub mod camera_grid;
 pub mod estimators;
 pub mod gaussians;
+mod isa;
 pub mod random;
 pub mod scene;
 

@@ -613,7 +613,7 @@ fn print_frame_costs(session: &Session, what: &str, frames: &[FrameReport]) {
     parts.push(("other", mean(&|r| r.other_seconds())));
     let parts: Vec<String> = parts
         .iter()
-        .map(|(name, ms)| format!("{name} {ms:.1} ms"))
+        .map(|(name, ms)| format!("{name} {} ms", milliseconds(*ms)))
         .collect();
     let step = mean(&|r| r.train_step_seconds);
     let beside = if step > mean(&|r| r.train_seconds) + 0.05 {
@@ -626,6 +626,16 @@ fn print_frame_costs(session: &Session, what: &str, frames: &[FrameReport]) {
         mean(&|r| r.seconds),
         parts.join(" + ")
     );
+}
+
+/// A part of a frame's time in milliseconds to three significant figures at most (a
+/// lookup at a small size takes well under a millisecond; one decimal hid its changes).
+fn milliseconds(ms: f64) -> String {
+    match ms {
+        ms if ms < 1.0 => format!("{ms:.3}"),
+        ms if ms < 10.0 => format!("{ms:.2}"),
+        ms => format!("{ms:.1}"),
+    }
 }
 
 /// Prints the unbiased cache's choice of continuation per level and the bound on its gain.

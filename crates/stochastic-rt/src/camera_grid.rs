@@ -467,7 +467,7 @@ impl<'a> Walk<'a> {
     }
 }
 
-/// The camera's centre and axes in f64, for [`Facing::new`].
+/// The camera's centre and axes in f64, for [`Seen::new`].
 struct CameraFrame {
     position: DVec3,
     /// Camera-space axes (+X right, +Y down, +Z forward) in world space, as columns.
@@ -507,16 +507,38 @@ struct Facing {
 
 impl Facing {
     fn new(g: &TraceGaussians, i: usize, frame: &CameraFrame) -> Self {
-        let rows = g.canonical[i].map(|r| r.as_dvec3());
-        let in_canonical = |v: DVec3| DVec3::new(rows[0].dot(v), rows[1].dot(v), rows[2].dot(v));
-        let o = in_canonical(frame.position - g.means[i].as_dvec3());
-        let axes = [frame.axes.x_axis, frame.axes.y_axis, frame.axes.z_axis].map(in_canonical);
+        Self::seen(g, i, &Seen::new(g, i, frame), frame)
+    }
+
+    /// [`Facing::new`] from the terms the silhouette shares ([`Seen`]).
+    fn seen(g: &TraceGaussians, i: usize, seen: &Seen, frame: &CameraFrame) -> Self {
+        let (o, axes) = (seen.offset, seen.axes);
         Self {
             axes: axes.map(|k| k.as_vec3()),
             moments: axes.map(|k| o.cross(k).as_vec3()),
             opacity: g.opacity[i],
             cutoff: g.cutoff[i],
             color: g.color(i, frame.position.as_vec3()),
+        }
+    }
+}
+
+/// A Gaussian's canonical frame (`C = S^-1 R^T`) seen from the camera, in f64: what its
+/// silhouette ([`Screen::silhouette`]) and its facing terms ([`Facing`]) share, made once.
+struct Seen {
+    /// `o = C (camera - mean)`.
+    offset: DVec3,
+    /// The camera's axes in the canonical frame: `K_x`, `K_y`, `K_z`.
+    axes: [DVec3; 3],
+}
+
+impl Seen {
+    fn new(g: &TraceGaussians, i: usize, frame: &CameraFrame) -> Self {
+        let rows = g.canonical[i].map(|r| r.as_dvec3());
+        let in_canonical = |v: DVec3| DVec3::new(rows[0].dot(v), rows[1].dot(v), rows[2].dot(v));
+        Self {
+            offset: in_canonical(frame.position - g.means[i].as_dvec3()),
+            axes: [frame.axes.x_axis, frame.axes.y_axis, frame.axes.z_axis].map(in_canonical),
         }
     }
 }
@@ -731,6 +753,7 @@ impl Placed {
 
 /// The camera's constants for placing Gaussians on its screen.
 struct Screen {
+    frame: CameraFrame,
     position: glam::DVec3,
     /// World to camera space (+X right, +Y down, +Z forward).
     to_camera: glam::DMat3,
@@ -742,6 +765,7 @@ struct Screen {
 impl Screen {
     fn new(camera: &Camera) -> Self {
         Self {
+            frame: CameraFrame::new(camera),
             position: camera.position.as_dvec3(),
             to_camera: glam::DMat3::from_quat(camera.rotation.as_dquat().inverse()),
             focal: camera.focal_pixels() as f64,
@@ -750,11 +774,12 @@ impl Screen {
         }
     }
 
-    /// Gaussian `i` (centre depth `depth`) on the screen: the pixel rectangle of its
-    /// silhouette (of its box's corners where it has no bounded silhouette); the whole screen
-    /// when its box reaches behind the camera's plane; `None` when its centre is not in front
-    /// of the camera (`intersect` never places a hit there) or it is off the screen.
-    fn place(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<Placed> {
+    /// Gaussian `i` (centre depth `depth`) on the screen, with its facing terms: the pixel
+    /// rectangle of its silhouette (of its box's corners where it has no bounded silhouette);
+    /// the whole screen when its box reaches behind the camera's plane; `None` when its centre
+    /// is not in front of the camera (`intersect` never places a hit there) or it is off the
+    /// screen.
+    fn place(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<(Placed, Facing)> {
         if !(depth > 0.0) {
             return None;
         }
@@ -766,6 +791,8 @@ impl Screen {
             rows: [0, h as u32 - 1],
             chord_terms: [0.0; 3],
         };
+        let seen = Seen::new(g, i, &self.frame);
+        let facing = || Facing::seen(g, i, &seen, &self.frame);
         let (lo, hi) = (g.lower[i].as_dvec3(), g.upper[i].as_dvec3());
         // The box's nearest corner's depth: its centre's, less its half-extents along the
         // camera's forward axis.
@@ -773,10 +800,10 @@ impl Screen {
         let nearest =
             forward.dot(0.5 * (lo + hi) - self.position) - forward.abs().dot(0.5 * (hi - lo));
         if !(nearest > NEAR as f64) {
-            return Some(everywhere);
+            return Some((everywhere, facing()));
         }
         let mut placed = everywhere;
-        let [u0, u1, v0, v1] = match self.silhouette(g, i) {
+        let [u0, u1, v0, v1] = match self.silhouette(&seen, g.cutoff[i]) {
             Some((centre, form, reach)) => {
                 placed.centre = [centre[0] as f32, centre[1] as f32];
                 placed.chord_terms = Placed::chord_terms(form);
@@ -790,14 +817,9 @@ impl Screen {
             None => self.box_rectangle(lo, hi),
         };
         // The pixels whose centres the rectangle covers, a pixel wider each way for rounding.
-        let (x0, x1) = ((u0 - 1.5).floor(), (u1 + 0.5).ceil());
-        let (y0, y1) = ((v0 - 1.5).floor(), (v1 + 0.5).ceil());
-        if !(x1 >= 0.0 && y1 >= 0.0 && x0 < w && y0 < h && x0 <= x1 && y0 <= y1) {
-            return None;
-        }
-        placed.columns = [x0.max(0.0) as u32, x1.min(w - 1.0) as u32];
-        placed.rows = [y0.max(0.0) as u32, y1.min(h - 1.0) as u32];
-        Some(placed)
+        placed.columns = pixel_span(u0 - 1.5, u1 + 0.5, w)?;
+        placed.rows = pixel_span(v0 - 1.5, v1 + 0.5, h)?;
+        Some((placed, facing()))
     }
 
     /// The screen rectangle [u0, u1, v0, v1] of a box wholly in front of the camera: its
@@ -836,18 +858,13 @@ impl Screen {
     /// `v^T P v <= 0` for `P = (|a|^2 - cutoff) K^T K - g g^T`, `K = C R`, `g = K^T a`; completing
     /// the square in `u` gives the ellipse `(u - u0)^T P2 (u - u0) <= k`, `u0 = -P2^-1 p`,
     /// `k = p^T P2^-1 p - p33`, with `P2` the upper-left 2x2 of `P` and `p` its last column.
-    fn silhouette(&self, g: &TraceGaussians, i: usize) -> Option<([f64; 2], [f64; 3], [f64; 2])> {
-        let rows = g.canonical[i].map(|r| r.as_dvec3());
-        let a = rows.map(|r| r.dot(self.position - g.means[i].as_dvec3()));
-        let a = glam::DVec3::from_array(a);
-        // K's rows: each canonical row in camera space (R^T = to_camera).
-        let k_rows = rows.map(|r| self.to_camera * r);
-        let outside = a.length_squared() - g.cutoff[i] as f64;
-        let gv = k_rows[0] * a.x + k_rows[1] * a.y + k_rows[2] * a.z;
-        let entry = |r: usize, c: usize| {
-            let ktk: f64 = k_rows.iter().map(|k| k[r] * k[c]).sum();
-            outside * ktk - gv[r] * gv[c]
-        };
+    fn silhouette(&self, seen: &Seen, cutoff: f32) -> Option<([f64; 2], [f64; 3], [f64; 2])> {
+        // K's columns are the camera's axes in the canonical frame: (K^T K)_rc = K_r . K_c,
+        // and g = K^T a has g_c = K_c . a.
+        let (a, k) = (seen.offset, seen.axes);
+        let outside = a.length_squared() - cutoff as f64;
+        let gv = [k[0].dot(a), k[1].dot(a), k[2].dot(a)];
+        let entry = |r: usize, c: usize| outside * k[r].dot(k[c]) - gv[r] * gv[c];
         let (p00, p01, p11) = (entry(0, 0), entry(0, 1), entry(1, 1));
         let (p02, p12, p22) = (entry(0, 2), entry(1, 2), entry(2, 2));
         let det = p00 * p11 - p01 * p01;
@@ -880,16 +897,30 @@ impl Screen {
     }
 }
 
+/// The whole pixels from `floor(from)` to `ceil(to)`, clipped to `0..size` (a whole number of
+/// pixels); `None` when none is left or either end is NaN. Without `floor` and `ceil`, which
+/// are a call to libm each on the x86-64 baseline (a tenth of placing a Gaussian): a
+/// non-negative number's floor is its truncation, and the clipping commutes with both.
+fn pixel_span(from: f64, to: f64, size: f64) -> Option<[u32; 2]> {
+    // floor(from) < size and ceil(to) >= 0, written so that NaN fails.
+    if !(from < size && to > -1.0) {
+        return None;
+    }
+    // Both in (-1, size), size at most `MAX_IMAGE_SIDE`: exact as u32 (negatives give 0).
+    let first = from.max(0.0) as u32;
+    let to = to.min(size - 1.0);
+    let last = to as u32 + ((to as u32 as f64) < to) as u32;
+    (first <= last).then_some([first, last])
+}
+
 impl ScreenGrid {
     fn new(g: &TraceGaussians, camera: &Camera) -> Self {
         let bands = camera.height.div_ceil(BAND) as usize;
         let forward = camera.axes().2;
         let screen = Screen::new(camera);
-        let frame = CameraFrame::new(camera);
-        // Placed in the tracing arrays' order, which reads them in sequence; then sorted, and
-        // faced in depth order (a Gaussian's facing terms are written once, where the walk
-        // reads them).
-        let by_index: Vec<Option<Placed>> = (0..g.len())
+        // Placed (and faced: the silhouette and the facing terms share their canonical
+        // frame) in the tracing arrays' order, which reads them in sequence; then sorted.
+        let by_index: Vec<Option<(Placed, Facing)>> = (0..g.len())
             .into_par_iter()
             .map(|i| screen.place(g, i, depth_of(g, camera, forward, i)))
             .collect();
@@ -897,18 +928,13 @@ impl ScreenGrid {
         // so its bits order as it does ([`depth_order`]'s keys).
         let mut keys: Vec<u64> = (0u64..)
             .zip(&by_index)
-            .filter_map(|(i, p)| Some((p.as_ref()?.depth.to_bits() as u64) << 32 | i))
+            .filter_map(|(i, p)| Some((p.as_ref()?.0.depth.to_bits() as u64) << 32 | i))
             .collect();
         let mut order = vec![0u32; keys.len()];
         depth_order(&mut keys, &mut Vec::new(), &mut order);
-        let placed: Vec<Placed> = order
-            .par_iter()
-            .map(|&i| by_index[i as usize].expect("ranked Gaussians are placed"))
-            .collect();
-        let facing: Vec<Facing> = order
-            .par_iter()
-            .map(|&i| Facing::new(g, i as usize, &frame))
-            .collect();
+        let ranked = |i: &u32| by_index[*i as usize].expect("ranked Gaussians are placed");
+        let placed: Vec<Placed> = order.par_iter().map(|i| ranked(i).0).collect();
+        let facing: Vec<Facing> = order.par_iter().map(|i| ranked(i).1).collect();
 
         // A counting sort of the ranks by band, each band's in rank order, each band's list
         // padded to whole chunks.

@@ -17,7 +17,7 @@ use splat_raster::raster::ForwardState;
 use splat_raster::{Camera, GaussianCloud, PixelGrads, RasterConfig, backward, render};
 use std::sync::OnceLock;
 use std::time::Instant;
-use stochastic_rt::{TraceGaussians, TraceSettings, trace_camera_image};
+use stochastic_rt::{CameraTracer, TraceGaussians, TraceSettings};
 
 /// One level: the Gaussians for paths of one length, and their optimiser state.
 #[derive(Debug, Clone)]
@@ -242,6 +242,10 @@ pub struct GsCache {
     /// frame's targets are tens of megabytes at 1280x720, and allocating them afresh cost a
     /// serial 8 ms and their first writes 11 ms of page faults a frame (issue 31).
     spare_targets: Option<TrainingTargets>,
+    /// Each level's tracing arrays and camera-grid memory for the ray-traced lookup, kept
+    /// from frame to frame for the same reason: fresh, they made the lookup a third slower in
+    /// page faults (issue 31).
+    tracers: Vec<(TraceGaussians, CameraTracer)>,
 }
 
 fn adamw_config(config: &CacheConfig) -> AdamWConfig {
@@ -355,6 +359,7 @@ impl GsCache {
             raster: RasterConfig::default(),
             continuation: None,
             spare_targets: None,
+            tracers: Vec::new(),
         })
     }
 
@@ -485,11 +490,15 @@ impl GsCache {
                 // traversal or a random number per hit (`stochastic_rt::camera_grid`).
                 let samples = self.config.rt_samples.max(1);
                 let defaults = TraceSettings::default();
+                self.tracers
+                    .resize_with(self.levels.len(), Default::default);
                 self.levels
                     .par_iter()
-                    .map(|l| {
-                        let img = trace_camera_image(
-                            &TraceGaussians::new(&l.cloud),
+                    .zip(&mut self.tracers)
+                    .map(|(l, (gaussians, tracer))| {
+                        gaussians.prepare(&l.cloud);
+                        let img = tracer.trace(
+                            gaussians,
                             draw_camera,
                             samples,
                             1,

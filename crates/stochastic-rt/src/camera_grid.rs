@@ -77,7 +77,8 @@ const SILHOUETTE_SLACK: f64 = 1.0 + 1.0 / 64.0;
 /// `samples_per_traversal` slots, section 3.5) in `Center` depth: per pixel the mean of `spp`
 /// estimates, each the mean of its slots' colours (`background` for a slot the ray leaves
 /// empty), the slots drawn in depth order (see the module docs). The same on any number of
-/// threads; AVX2 and the baseline's lanes differ in the last bits ([`Isa`]).
+/// threads; AVX2 and the baseline's lanes differ in the last bits (`Isa`). A caller that
+/// traces every frame keeps a [`CameraTracer`] instead.
 pub fn trace_camera_image(
     gaussians: &TraceGaussians,
     camera: &Camera,
@@ -86,25 +87,71 @@ pub fn trace_camera_image(
     seed: u32,
     background: Vec3,
 ) -> Vec<Vec3> {
-    let grid = ScreenGrid::new(gaussians, camera);
-    let walk = Walk::new(&grid, camera, samples_per_traversal, seed, background);
-    let spp = spp.max(1);
-    let width = walk.width;
-    let isa = Isa::detect();
-    let mut image = vec![Vec3::ZERO; width * camera.height as usize];
-    image.par_chunks_mut(width).enumerate().for_each_init(
-        || Row::new(&walk),
-        |row, (y, out)| {
-            row.sums.fill(DVec3::ZERO);
-            for s in 0..spp {
-                walk.estimate_on(isa, row, y as u32, s);
-            }
-            for (out, sum) in out.iter_mut().zip(&row.sums) {
-                *out = (*sum / spp as f64).as_vec3();
-            }
-        },
-    );
-    image
+    CameraTracer::default().trace(
+        gaussians,
+        camera,
+        samples_per_traversal,
+        spp,
+        seed,
+        background,
+    )
+}
+
+/// [`trace_camera_image`] with its working memory kept from call to call: the grid's arrays
+/// (a few hundred bytes a Gaussian) are rewritten, not allocated afresh. On the cache's saved
+/// levels at 80x45, fresh arrays made the lookup a third slower in page faults alone
+/// (BENCHMARKS.md).
+#[derive(Default)]
+pub struct CameraTracer {
+    grid: ScreenGrid,
+}
+
+impl std::fmt::Debug for CameraTracer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CameraTracer")
+            .field("ranked", &self.grid.facing.len())
+            .finish_non_exhaustive()
+    }
+}
+
+/// A copy holds no working memory (it is only that).
+impl Clone for CameraTracer {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl CameraTracer {
+    /// [`trace_camera_image`]'s image, the same bits.
+    pub fn trace(
+        &mut self,
+        gaussians: &TraceGaussians,
+        camera: &Camera,
+        samples_per_traversal: u32,
+        spp: u32,
+        seed: u32,
+        background: Vec3,
+    ) -> Vec<Vec3> {
+        self.grid.rebuild(gaussians, camera);
+        let walk = Walk::new(&self.grid, camera, samples_per_traversal, seed, background);
+        let spp = spp.max(1);
+        let width = walk.width;
+        let isa = Isa::detect();
+        let mut image = vec![Vec3::ZERO; width * camera.height as usize];
+        image.par_chunks_mut(width).enumerate().for_each_init(
+            || Row::new(&walk),
+            |row, (y, out)| {
+                row.sums.fill(DVec3::ZERO);
+                for s in 0..spp {
+                    walk.estimate_on(isa, row, y as u32, s);
+                }
+                for (out, sum) in out.iter_mut().zip(&row.sums) {
+                    *out = (*sum / spp as f64).as_vec3();
+                }
+            },
+        );
+        image
+    }
 }
 
 /// [`trace_camera_image`]'s image by its definition: for each pixel, every Gaussian in front
@@ -610,6 +657,7 @@ impl FacingRow {
 
 /// The Gaussians in front of the camera, sorted by centre depth (ties by index), and per band
 /// of rows the ones whose silhouettes may reach it, in that order.
+#[derive(Default)]
 struct ScreenGrid {
     /// Each rank's terms for its alphas on the camera's rays.
     facing: Vec<Facing>,
@@ -618,6 +666,20 @@ struct ScreenGrid {
     /// ranks, and solves a chunk's chords together.
     starts: Vec<usize>,
     listed: Vec<ListedChunk>,
+    /// The building's working memory, kept for the next camera or cloud.
+    scratch: GridScratch,
+}
+
+/// What [`ScreenGrid::rebuild`] makes and drops: kept so that a grid rebuilt every frame
+/// writes to memory it already has (fresh, it cost the kernel a page fault each 4 KiB).
+#[derive(Default)]
+struct GridScratch {
+    by_index: Vec<Option<(Placed, Facing)>>,
+    keys: Vec<u64>,
+    sort: Vec<u64>,
+    order: Vec<u32>,
+    placed: Vec<Placed>,
+    next: Vec<usize>,
 }
 
 /// [`LANES`] Gaussians of a band's list, by lane: their ranks, and what their chords on a row
@@ -914,53 +976,69 @@ fn pixel_span(from: f64, to: f64, size: f64) -> Option<[u32; 2]> {
 }
 
 impl ScreenGrid {
-    fn new(g: &TraceGaussians, camera: &Camera) -> Self {
+    /// The grid of `g` seen by `camera`, in the memory this grid holds.
+    fn rebuild(&mut self, g: &TraceGaussians, camera: &Camera) {
         let bands = camera.height.div_ceil(BAND) as usize;
         let forward = camera.axes().2;
         let screen = Screen::new(camera);
+        let GridScratch {
+            by_index,
+            keys,
+            sort,
+            order,
+            placed,
+            next,
+        } = &mut self.scratch;
         // Placed (and faced: the silhouette and the facing terms share their canonical
         // frame) in the tracing arrays' order, which reads them in sequence; then sorted.
-        let by_index: Vec<Option<(Placed, Facing)>> = (0..g.len())
-            .into_par_iter()
-            .map(|i| screen.place(g, i, depth_of(g, camera, forward, i)))
-            .collect();
+        by_index.clear();
+        by_index.par_extend(
+            (0..g.len())
+                .into_par_iter()
+                .map(|i| screen.place(g, i, depth_of(g, camera, forward, i))),
+        );
         // By depth, ties by index: one order on any thread count. A placed depth is positive,
         // so its bits order as it does ([`depth_order`]'s keys).
-        let mut keys: Vec<u64> = (0u64..)
-            .zip(&by_index)
-            .filter_map(|(i, p)| Some((p.as_ref()?.0.depth.to_bits() as u64) << 32 | i))
-            .collect();
-        let mut order = vec![0u32; keys.len()];
-        depth_order(&mut keys, &mut Vec::new(), &mut order);
+        keys.clear();
+        keys.extend(
+            (0u64..)
+                .zip(by_index.iter())
+                .filter_map(|(i, p)| Some((p.as_ref()?.0.depth.to_bits() as u64) << 32 | i)),
+        );
+        order.clear();
+        order.resize(keys.len(), 0);
+        depth_order(keys, sort, order);
         let ranked = |i: &u32| by_index[*i as usize].expect("ranked Gaussians are placed");
-        let placed: Vec<Placed> = order.par_iter().map(|i| ranked(i).0).collect();
-        let facing: Vec<Facing> = order.par_iter().map(|i| ranked(i).1).collect();
+        placed.clear();
+        placed.par_extend(order.par_iter().map(|i| ranked(i).0));
+        self.facing.clear();
+        self.facing
+            .par_extend(order.par_iter().map(|i| ranked(i).1));
 
         // A counting sort of the ranks by band, each band's in rank order, each band's list
         // padded to whole chunks.
         let bands_of = |p: &Placed| (p.rows[0] / BAND) as usize..=(p.rows[1] / BAND) as usize;
-        let mut counts = vec![0usize; bands];
-        for p in &placed {
+        let starts = &mut self.starts;
+        starts.clear();
+        starts.resize(bands + 1, 0);
+        for p in placed.iter() {
             for b in bands_of(p) {
-                counts[b] += 1;
+                starts[b + 1] += 1;
             }
         }
-        let mut starts = vec![0usize; bands + 1];
         for b in 0..bands {
-            starts[b + 1] = starts[b] + counts[b].div_ceil(LANES) * LANES;
+            starts[b + 1] = starts[b] + starts[b + 1].div_ceil(LANES) * LANES;
         }
-        let mut listed = vec![ListedChunk::EMPTY; starts[bands] / LANES];
-        let mut next = starts[..bands].to_vec();
+        self.listed.clear();
+        self.listed
+            .resize(starts[bands] / LANES, ListedChunk::EMPTY);
+        next.clear();
+        next.extend_from_slice(&starts[..bands]);
         for (rank, p) in placed.iter().enumerate() {
             for b in bands_of(p) {
-                listed[next[b] / LANES].set(next[b] % LANES, rank as u32, p);
+                self.listed[next[b] / LANES].set(next[b] % LANES, rank as u32, p);
                 next[b] += 1;
             }
-        }
-        Self {
-            facing,
-            starts,
-            listed,
         }
     }
 

@@ -68,58 +68,129 @@ pub struct OriginTerms {
     canonical: Vec3,
 }
 
-impl TraceGaussians {
-    /// Prepares every Gaussian that can contribute; non-finite, degenerate (zero quaternion,
-    /// a log-scale outside [`EXP_MIN`, `EXP_MAX`], that is a scale below 1.6e-38 or above
-    /// 1.6e38) and too faint (opacity below 1/255) ones are left out.
-    ///
-    /// [`PREPARE_BLOCK`] Gaussians a task, in parallel, each block in SIMD lanes (the
-    /// exponentials, the rotation and the box were nine tenths of a scalar preparation's
-    /// 750 instructions, and the cache's ray-traced lookup prepares its clouds every frame);
-    /// then the blocks are joined in order: the same arrays on any thread count. The lanes'
-    /// `exp` and `ln` round differently from libm (within 3e-7 relative), and AVX2's fused
-    /// multiply-adds from the baseline's, so the terms can differ between processors in their
-    /// last bits; every test and every bound here holds for either.
-    pub fn new(cloud: &GaussianCloud<f32>) -> Self {
-        let isa = Isa::detect();
-        let blocks: Vec<TraceGaussians> = (0..cloud.len().div_ceil(PREPARE_BLOCK))
-            .into_par_iter()
-            .map(|b| {
-                let range = b * PREPARE_BLOCK..((b + 1) * PREPARE_BLOCK).min(cloud.len());
-                let mut out = TraceGaussians::with_capacity(cloud, range.len());
-                prepare_on(isa, cloud, range, &mut out);
-                out
-            })
-            .collect();
-        let mut out = TraceGaussians::with_capacity(cloud, cloud.len());
-        for block in &blocks {
-            out.ids.extend_from_slice(&block.ids);
-            out.means.extend_from_slice(&block.means);
-            out.canonical.extend_from_slice(&block.canonical);
-            out.opacity.extend_from_slice(&block.opacity);
-            out.cutoff.extend_from_slice(&block.cutoff);
-            out.lower.extend_from_slice(&block.lower);
-            out.upper.extend_from_slice(&block.upper);
-            out.colors.extend_from_slice(&block.colors);
-            out.max_half_diagonal = out.max_half_diagonal.max(block.max_half_diagonal);
+/// No Gaussians (RGB colours): arrays for [`TraceGaussians::prepare`] to fill.
+impl Default for TraceGaussians {
+    fn default() -> Self {
+        TraceGaussians {
+            ids: Vec::new(),
+            means: Vec::new(),
+            canonical: Vec::new(),
+            opacity: Vec::new(),
+            cutoff: Vec::new(),
+            lower: Vec::new(),
+            upper: Vec::new(),
+            max_half_diagonal: 0.0,
+            colors: Vec::new(),
+            color_model: ColorModel::Rgb,
         }
+    }
+}
+
+impl TraceGaussians {
+    /// Prepares every Gaussian that can contribute ([`TraceGaussians::prepare`]).
+    pub fn new(cloud: &GaussianCloud<f32>) -> Self {
+        let mut out = Self::default();
+        out.prepare(cloud);
         out
     }
 
-    /// No Gaussians yet, with room for `n` of `cloud`'s.
-    fn with_capacity(cloud: &GaussianCloud<f32>, n: usize) -> Self {
-        TraceGaussians {
-            ids: Vec::with_capacity(n),
-            means: Vec::with_capacity(n),
-            canonical: Vec::with_capacity(n),
-            opacity: Vec::with_capacity(n),
-            cutoff: Vec::with_capacity(n),
-            lower: Vec::with_capacity(n),
-            upper: Vec::with_capacity(n),
-            max_half_diagonal: 0.0,
-            colors: Vec::with_capacity(n * cloud.color_stride()),
-            color_model: cloud.color_model,
+    /// Replaces these Gaussians with `cloud`'s that can contribute, in the memory these hold:
+    /// a cache traces its clouds every frame, and fresh arrays cost more in page faults than
+    /// the preparation itself. Non-finite, degenerate (zero quaternion, a log-scale outside
+    /// [`EXP_MIN`, `EXP_MAX`], that is a scale below 1.6e-38 or above 1.6e38) and too faint
+    /// (opacity below 1/255) ones are left out.
+    ///
+    /// [`PREPARE_BLOCK`] Gaussians a task, in parallel, each block in SIMD lanes (the
+    /// exponentials, the rotation and the box were nine tenths of a scalar preparation's
+    /// 750 instructions) and written to its own part of the arrays; then the blocks' kept
+    /// Gaussians are moved together in order: the same arrays on any thread count. The lanes'
+    /// `exp` and `ln` round differently from libm (within 3e-7 relative), and AVX2's fused
+    /// multiply-adds from the baseline's, so the terms can differ between processors in their
+    /// last bits; every test and every bound here holds for either.
+    pub fn prepare(&mut self, cloud: &GaussianCloud<f32>) {
+        self.prepare_in(Isa::detect(), cloud);
+    }
+
+    /// [`TraceGaussians::prepare`] in `isa`'s lanes.
+    fn prepare_in(&mut self, isa: Isa, cloud: &GaussianCloud<f32>) {
+        let (n, stride) = (cloud.len(), cloud.color_stride());
+        self.color_model = cloud.color_model;
+        // Each array `n` long (the values are overwritten; the memory is kept).
+        fn sized<T: Clone>(v: &mut Vec<T>, n: usize, fill: T) {
+            v.clear();
+            v.resize(n, fill);
         }
+        sized(&mut self.ids, n, 0);
+        sized(&mut self.means, n, Vec3::ZERO);
+        sized(&mut self.canonical, n, [Vec3::ZERO; 3]);
+        sized(&mut self.opacity, n, 0.0);
+        sized(&mut self.cutoff, n, 0.0);
+        sized(&mut self.lower, n, Vec3::ZERO);
+        sized(&mut self.upper, n, Vec3::ZERO);
+        sized(&mut self.colors, n * stride, 0.0);
+        let chunks = (
+            self.ids.par_chunks_mut(PREPARE_BLOCK),
+            self.means.par_chunks_mut(PREPARE_BLOCK),
+            self.canonical.par_chunks_mut(PREPARE_BLOCK),
+            self.opacity.par_chunks_mut(PREPARE_BLOCK),
+            self.cutoff.par_chunks_mut(PREPARE_BLOCK),
+            self.lower.par_chunks_mut(PREPARE_BLOCK),
+            self.upper.par_chunks_mut(PREPARE_BLOCK),
+            self.colors.par_chunks_mut(PREPARE_BLOCK * stride),
+        );
+        let blocks: Vec<(usize, f32)> = chunks
+            .into_par_iter()
+            .enumerate()
+            .map(
+                |(b, (ids, means, canonical, opacity, cutoff, lower, upper, colors))| {
+                    let range = b * PREPARE_BLOCK..((b + 1) * PREPARE_BLOCK).min(n);
+                    let mut block = Block {
+                        ids,
+                        means,
+                        canonical,
+                        opacity,
+                        cutoff,
+                        lower,
+                        upper,
+                        colors,
+                        stride,
+                        kept: 0,
+                        largest_half_diagonal: 0.0,
+                    };
+                    prepare_on(isa, cloud, range, &mut block);
+                    (block.kept, block.largest_half_diagonal)
+                },
+            )
+            .collect();
+        // Each block's kept Gaussians lie at its start: move them after the previous
+        // blocks' (nothing moves until a Gaussian is left out).
+        let mut end = 0;
+        self.max_half_diagonal = 0.0;
+        for (b, &(kept, largest)) in blocks.iter().enumerate() {
+            let start = b * PREPARE_BLOCK;
+            if start != end {
+                let from = start..start + kept;
+                self.ids.copy_within(from.clone(), end);
+                self.means.copy_within(from.clone(), end);
+                self.canonical.copy_within(from.clone(), end);
+                self.opacity.copy_within(from.clone(), end);
+                self.cutoff.copy_within(from.clone(), end);
+                self.lower.copy_within(from.clone(), end);
+                self.upper.copy_within(from, end);
+                let colors = start * stride..(start + kept) * stride;
+                self.colors.copy_within(colors, end * stride);
+            }
+            end += kept;
+            self.max_half_diagonal = self.max_half_diagonal.max(largest);
+        }
+        self.ids.truncate(end);
+        self.means.truncate(end);
+        self.canonical.truncate(end);
+        self.opacity.truncate(end);
+        self.cutoff.truncate(end);
+        self.lower.truncate(end);
+        self.upper.truncate(end);
+        self.colors.truncate(end * stride);
     }
 
     pub fn len(&self) -> usize {
@@ -284,8 +355,25 @@ fn sh0_basis() -> f32 {
 /// hide a task's cost, few enough that a cache's clouds (thousands) spread over the cores.
 const PREPARE_BLOCK: usize = 1024;
 
+/// One task's part of [`TraceGaussians::prepare`]'s arrays: its kept Gaussians are written
+/// from the start, in order.
+struct Block<'a> {
+    ids: &'a mut [u32],
+    means: &'a mut [Vec3],
+    canonical: &'a mut [[Vec3; 3]],
+    opacity: &'a mut [f32],
+    cutoff: &'a mut [f32],
+    lower: &'a mut [Vec3],
+    upper: &'a mut [Vec3],
+    colors: &'a mut [f32],
+    stride: usize,
+    /// Gaussians written so far.
+    kept: usize,
+    largest_half_diagonal: f32,
+}
+
 /// [`prepare`] in `isa`'s lanes.
-fn prepare_on(isa: Isa, cloud: &GaussianCloud<f32>, range: Range<usize>, out: &mut TraceGaussians) {
+fn prepare_on(isa: Isa, cloud: &GaussianCloud<f32>, range: Range<usize>, out: &mut Block) {
     match isa {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
@@ -305,12 +393,12 @@ unsafe fn prepare_avx2_fma(
     token: Avx2Token,
     cloud: &GaussianCloud<f32>,
     range: Range<usize>,
-    out: &mut TraceGaussians,
+    out: &mut Block,
 ) {
     prepare::<Avx2>(token, cloud, range, out)
 }
 
-/// Gaussians `range` of `cloud` in tracing form, appended to `out` in order, `L::N` at a
+/// Gaussians `range` of `cloud` in tracing form, written to `out` in order, `L::N` at a
 /// time (the last lanes of the last group past the range are masked out).
 ///
 /// Per Gaussian: the unit quaternion's rotation `R`, the scales `s = e^log_scale`, the
@@ -322,13 +410,13 @@ fn prepare<L: Lanes>(
     token: L::Token,
     cloud: &GaussianCloud<f32>,
     range: Range<usize>,
-    out: &mut TraceGaussians,
+    out: &mut Block,
 ) {
     let c = |v: f32| L::splat(token, v);
     let (zero, one, two) = (c(0.0), c(1.0), c(2.0));
     // Written so that NaN and infinities fail.
     let finite = |x: L| x.ge(c(f32::MIN)) & x.le(c(f32::MAX));
-    let stride = cloud.color_stride();
+    let stride = out.stride;
     for g0 in range.clone().step_by(L::N) {
         let lanes = (range.end - g0).min(L::N);
         let field = |values: &[f32], width: usize, k: usize| {
@@ -419,10 +507,10 @@ fn prepare<L: Lanes>(
         }
         let diagonal = length(half[0], half[1], half[2]);
         let largest = L::keep(keep, diagonal).reduce_max();
-        out.max_half_diagonal = out.max_half_diagonal.max(largest);
+        out.largest_half_diagonal = out.largest_half_diagonal.max(largest);
 
-        // Out of the lanes: a group kept whole is appended at once (extending by exact-size
-        // iterators, no capacity check a value); otherwise its kept Gaussians one at a time.
+        // Out of the lanes: a group kept whole is written at once, otherwise its kept
+        // Gaussians one at a time.
         let all = (1u32 << lanes) - 1;
         let mut keep = L::bits(keep) & all;
         let colors = &cloud.colors[g0 * stride..(g0 + lanes) * stride];
@@ -447,30 +535,45 @@ fn prepare<L: Lanes>(
         let at =
             |k: usize, i: usize| Vec3::new(lanes_of[k][i], lanes_of[k + 1][i], lanes_of[k + 2][i]);
         let (mean, half) = (|i| at(0, i), |i| at(3, i));
+        let (k, stride) = (out.kept, out.stride);
         if keep == all {
-            out.ids.extend(g0 as u32..(g0 + lanes) as u32);
-            out.means.extend((0..lanes).map(mean));
-            out.lower.extend((0..lanes).map(|i| mean(i) - half(i)));
-            out.upper.extend((0..lanes).map(|i| mean(i) + half(i)));
-            out.opacity.extend_from_slice(&lanes_of[6][..lanes]);
-            out.cutoff.extend_from_slice(&lanes_of[7][..lanes]);
-            out.canonical
-                .extend((0..lanes).map(|i| [at(8, i), at(11, i), at(14, i)]));
-            out.colors.extend_from_slice(colors);
+            // Whole: each array's part written in one pass.
+            let part = k..k + lanes;
+            for (i, id) in out.ids[part.clone()].iter_mut().enumerate() {
+                *id = (g0 + i) as u32;
+            }
+            for (i, m) in out.means[part.clone()].iter_mut().enumerate() {
+                *m = mean(i);
+            }
+            for (i, l) in out.lower[part.clone()].iter_mut().enumerate() {
+                *l = mean(i) - half(i);
+            }
+            for (i, u) in out.upper[part.clone()].iter_mut().enumerate() {
+                *u = mean(i) + half(i);
+            }
+            out.opacity[part.clone()].copy_from_slice(&lanes_of[6][..lanes]);
+            out.cutoff[part.clone()].copy_from_slice(&lanes_of[7][..lanes]);
+            for (i, c) in out.canonical[part].iter_mut().enumerate() {
+                *c = [at(8, i), at(11, i), at(14, i)];
+            }
+            out.colors[k * stride..(k + lanes) * stride].copy_from_slice(colors);
+            out.kept += lanes;
             continue;
         }
         while keep != 0 {
             let i = keep.trailing_zeros() as usize;
             keep &= keep - 1;
-            out.ids.push((g0 + i) as u32);
-            out.means.push(mean(i));
-            out.lower.push(mean(i) - half(i));
-            out.upper.push(mean(i) + half(i));
-            out.opacity.push(lanes_of[6][i]);
-            out.cutoff.push(lanes_of[7][i]);
-            out.canonical.push([at(8, i), at(11, i), at(14, i)]);
-            out.colors
-                .extend_from_slice(&colors[i * stride..(i + 1) * stride]);
+            let k = out.kept;
+            out.ids[k] = (g0 + i) as u32;
+            out.means[k] = mean(i);
+            out.lower[k] = mean(i) - half(i);
+            out.upper[k] = mean(i) + half(i);
+            out.opacity[k] = lanes_of[6][i];
+            out.cutoff[k] = lanes_of[7][i];
+            out.canonical[k] = [at(8, i), at(11, i), at(14, i)];
+            out.colors[k * stride..(k + 1) * stride]
+                .copy_from_slice(&colors[i * stride..(i + 1) * stride]);
+            out.kept += 1;
         }
     }
 }
@@ -519,7 +622,8 @@ mod tests {
     /// relative (the lanes' `exp` and `ln` are within 3e-7, each product adds a rounding), the
     /// box never smaller than the ellipsoid's exact box and at most 1e-4 larger beyond the
     /// margin, and the largest half-diagonal the boxes' own. For the baseline's lanes and
-    /// AVX2's. A wrong row, scale or sigmoid moves a term by far more than 2e-6.
+    /// AVX2's, into arrays a larger cloud filled first. A wrong row, scale or sigmoid moves a
+    /// term by far more than 2e-6.
     #[test]
     fn prepared_terms_are_the_clouds_in_f64() {
         let r = |k: u32, i: u32| unit_f32(hash32(&[k, i]));
@@ -547,17 +651,25 @@ mod tests {
             }
             cloud.push(mean, log_scale, rotation, &color, logit);
         }
+        let mut more = cloud.clone();
+        for i in 0..3 * n {
+            more.push(
+                [i as f32; 3],
+                [0.0; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                &[1.0; 3],
+                1.0,
+            );
+        }
         let mut widths = vec![("baseline", Isa::Baseline)];
         #[cfg(target_arch = "x86_64")]
         if let Some(token) = Avx2Token::detect() {
             widths.push(("avx2", Isa::Avx2(token)));
         }
         for (name, isa) in widths {
-            let mut g = TraceGaussians::with_capacity(&cloud, 0);
-            for b in 0..(n as usize).div_ceil(PREPARE_BLOCK) {
-                let range = b * PREPARE_BLOCK..((b + 1) * PREPARE_BLOCK).min(n as usize);
-                prepare_on(isa, &cloud, range, &mut g);
-            }
+            // Twice into the same arrays: what a first, larger cloud left is overwritten.
+            let mut g = TraceGaussians::new(&more);
+            g.prepare_in(isa, &cloud);
             let want: Vec<u32> = (0..n).filter(|i| !dropped.contains(i)).collect();
             assert_eq!(g.ids, want, "{name}: the Gaussians kept");
             let close = |got: f32, want: f64, what: &str, i: u32| {

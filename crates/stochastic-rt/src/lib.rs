@@ -23,7 +23,7 @@ mod isa;
 pub mod random;
 pub mod scene;
 
-pub use camera_grid::trace_camera_image;
+pub use camera_grid::{CameraTracer, trace_camera_image};
 pub use estimators::{Estimator, TraceSettings, trace_image, trace_image_with};
 pub use gaussians::{DepthMode, TraceGaussians};
 pub use random::RandomKind;

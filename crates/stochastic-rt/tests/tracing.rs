@@ -523,12 +523,31 @@ fn both_generators_are_unbiased_on_a_real_asset() {
 /// for bit: the same hits, found through the bands and chords, in the same order, filling the
 /// same slots. For 1, 8 and 64 slots, more than one estimate per pixel, and cameras from outside
 /// the cloud looking at it, at an angle, and from its edge (boxes reaching behind the camera).
+/// Also through one `CameraTracer` and one `TraceGaussians` kept across all of them (as the
+/// cache keeps them), first filled from a larger cloud: what an earlier call left in their
+/// memory must not reach an image.
 #[test]
 fn the_camera_grid_is_its_definition_bit_for_bit() {
     use stochastic_rt::camera_grid::reference_image;
-    use stochastic_rt::trace_camera_image;
+    use stochastic_rt::{CameraTracer, TraceGaussians, trace_camera_image};
     let cloud = random_cloud(1500, 11);
     let scene = GaussianScene::new(&cloud);
+    let mut kept = TraceGaussians::new(&random_cloud(3000, 12));
+    let mut tracer = CameraTracer::default();
+    let wide = Camera::look_at(Vec3::new(0.0, 0.0, -3.0), Vec3::ZERO, Vec3::Y, 60.0, 90, 70);
+    tracer.trace(&kept, &wide.unwrap(), 8, 1, 5, Vec3::ZERO);
+    kept.prepare(&cloud);
+    let g = &scene.gaussians;
+    assert_eq!(
+        (&kept.ids, &kept.means, &kept.canonical),
+        (&g.ids, &g.means, &g.canonical)
+    );
+    assert_eq!(
+        (&kept.opacity, &kept.cutoff, &kept.colors),
+        (&g.opacity, &g.cutoff, &g.colors)
+    );
+    assert_eq!((&kept.lower, &kept.upper), (&g.lower, &g.upper));
+    assert_eq!(kept.max_half_diagonal, g.max_half_diagonal);
     let cameras = [
         (Vec3::new(0.3, -0.2, -4.0), Vec3::ZERO, 57, 41),
         (Vec3::new(3.0, 2.0, 2.5), Vec3::new(0.2, 0.0, 0.1), 48, 48),
@@ -541,13 +560,17 @@ fn the_camera_grid_is_its_definition_bit_for_bit() {
         for (slots, spp) in [(1, 1), (8, 2), (64, 1)] {
             let want = reference_image(&scene.gaussians, &camera, slots, spp, 5, background);
             let got = trace_camera_image(&scene.gaussians, &camera, slots, spp, 5, background);
-            let differ = want.iter().zip(&got).filter(|(a, b)| a != b).count();
-            assert_eq!(
-                differ,
-                0,
-                "camera at {eye}, {slots} slots, {spp} spp: {differ} of {} pixels differ",
-                want.len()
-            );
+            let again = tracer.trace(&kept, &camera, slots, spp, 5, background);
+            for (image, how) in [(got, "fresh"), (again, "kept")] {
+                let differ = want.iter().zip(&image).filter(|(a, b)| a != b).count();
+                assert_eq!(
+                    differ,
+                    0,
+                    "camera at {eye}, {slots} slots, {spp} spp, {how} memory: {differ} of {} \
+                     pixels differ",
+                    want.len()
+                );
+            }
             // The images must show the cloud, not only the background.
             assert!(want.iter().filter(|c| **c != background).count() > want.len() / 4);
             compared += 1;

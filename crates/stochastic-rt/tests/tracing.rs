@@ -524,15 +524,20 @@ fn both_generators_are_unbiased_on_a_real_asset() {
 /// same slots. For 1, 8 and 64 slots, more than one estimate per pixel, and cameras from outside
 /// the cloud looking at it, at an angle, and from its edge (boxes reaching behind the camera).
 /// Also through one `CameraTracer` and one `TraceGaussians` kept across all of them (as the
-/// cache keeps them), first filled from a larger cloud: what an earlier call left in their
-/// memory must not reach an image.
+/// cache keeps them), first filled from a larger cloud of large Gaussians, whose lists reach
+/// every row: what an earlier call left in their memory must not reach an image.
 #[test]
 fn the_camera_grid_is_its_definition_bit_for_bit() {
     use stochastic_rt::camera_grid::reference_image;
     use stochastic_rt::{CameraTracer, TraceGaussians, trace_camera_image};
     let cloud = random_cloud(1500, 11);
     let scene = GaussianScene::new(&cloud);
-    let mut kept = TraceGaussians::new(&random_cloud(3000, 12));
+    let mut large = random_cloud(3000, 12);
+    large
+        .log_scales
+        .iter_mut()
+        .for_each(|s| *s = s.max(-1.0) + 1.0);
+    let mut kept = TraceGaussians::new(&large);
     let mut tracer = CameraTracer::default();
     let wide = Camera::look_at(Vec3::new(0.0, 0.0, -3.0), Vec3::ZERO, Vec3::Y, 60.0, 90, 70);
     tracer.trace(&kept, &wide.unwrap(), 8, 1, 5, Vec3::ZERO);

@@ -193,6 +193,34 @@ pub fn ln<L: Lanes>(token: L::Token, x: L) -> L {
     e.mul_add(s(std::f32::consts::LN_2), p * z)
 }
 
+/// Stored quaternions `q = (w, x, y, z)`, lane by lane: `|q|`, the unit quaternion `q / |q|`
+/// and its rotation matrix `R` (rows). The projection's and the ray tracer's, one formula; a
+/// zero `q` gives NaN, which callers refuse by `|q| > 0`.
+#[inline(always)]
+pub fn rotation<L: Lanes>(token: L::Token, q: [L; 4]) -> (L, [L; 4], [[L; 3]; 3]) {
+    let (one, two) = (L::splat(token, 1.0), L::splat(token, 2.0));
+    let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
+    let r = [
+        [
+            one - two * (qy * qy + qz * qz),
+            two * (qx * qy - qw * qz),
+            two * (qx * qz + qw * qy),
+        ],
+        [
+            two * (qx * qy + qw * qz),
+            one - two * (qx * qx + qz * qz),
+            two * (qy * qz - qw * qx),
+        ],
+        [
+            two * (qx * qz - qw * qy),
+            two * (qy * qz + qw * qx),
+            one - two * (qx * qx + qy * qy),
+        ],
+    ];
+    (qn, [qw, qx, qy, qz], r)
+}
+
 // ---------------------------------------------------------------------------------------------
 // Portable: a plain array.
 

@@ -109,7 +109,7 @@ fn geometry<L: Lanes>(
     cam: &LaneCamera<L>,
 ) -> LaneGeometry<L> {
     let s = |v: f32| L::splat(token, v);
-    let (zero, one, two) = (s(0.0), s(1.0), s(2.0));
+    let zero = s(0.0);
     let field = |values: &[f32], stride: usize, k: usize| gather::<L>(token, values, stride, k, g0);
     let means = &cloud.means;
     let p = [field(means, 3, 0), field(means, 3, 1), field(means, 3, 2)];
@@ -135,25 +135,7 @@ fn geometry<L: Lanes>(
     ];
     let t = [dot(&w[0], &d), dot(&w[1], &d), dot(&w[2], &d)];
     // Sigma = M M^T with M = R(q / |q|) S.
-    let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
-    let r = [
-        [
-            one - two * (qy * qy + qz * qz),
-            two * (qx * qy - qw * qz),
-            two * (qx * qz + qw * qy),
-        ],
-        [
-            two * (qx * qy + qw * qz),
-            one - two * (qx * qx + qz * qz),
-            two * (qy * qz - qw * qx),
-        ],
-        [
-            two * (qx * qz - qw * qy),
-            two * (qy * qz + qw * qx),
-            one - two * (qx * qx + qy * qy),
-        ],
-    ];
+    let (qn, qh, r) = lanes::rotation(token, q);
     let m = [
         [r[0][0] * scale[0], r[0][1] * scale[1], r[0][2] * scale[2]],
         [r[1][0] * scale[0], r[1][1] * scale[1], r[1][2] * scale[2]],
@@ -195,7 +177,7 @@ fn geometry<L: Lanes>(
     LaneGeometry {
         t,
         qn,
-        qh: [qw, qx, qy, qz],
+        qh,
         scale,
         r,
         m,

@@ -12,7 +12,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
 use splat_raster::lanes::{Avx2, Avx2Token};
-use splat_raster::lanes::{EXP_MAX, EXP_MIN, Lanes, exp, ln};
+use splat_raster::lanes::{EXP_MAX, EXP_MIN, Lanes, exp, ln, rotation};
 use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
 use splat_raster::sh;
 use splat_raster::{ColorModel, GaussianCloud};
@@ -441,25 +441,7 @@ fn prepare<L: Lanes>(
         let scale = [exp(token, ls[0]), exp(token, ls[1]), exp(token, ls[2])];
         let opacity = one / (one + exp(token, zero - logit));
         let cutoff = (two * ln(token, c(255.0) * opacity)).max(zero);
-        let qn = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-        let (qw, qx, qy, qz) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
-        let r = [
-            [
-                one - two * (qy * qy + qz * qz),
-                two * (qx * qy - qw * qz),
-                two * (qx * qz + qw * qy),
-            ],
-            [
-                two * (qx * qy + qw * qz),
-                one - two * (qx * qx + qz * qz),
-                two * (qy * qz - qw * qx),
-            ],
-            [
-                two * (qx * qz - qw * qy),
-                two * (qy * qz + qw * qx),
-                one - two * (qx * qx + qy * qy),
-            ],
-        ];
+        let (qn, _, r) = rotation(token, q);
         // Row k of S^-1 R^T: column k of R over s_k. (Lanes are spelled out, not mapped over
         // arrays: core's generic helpers are not compiled with the caller's AVX2.)
         let inverse = [one / scale[0], one / scale[1], one / scale[2]];

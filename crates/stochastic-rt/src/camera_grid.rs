@@ -815,8 +815,8 @@ impl Placed {
 
 /// The camera's constants for placing Gaussians on its screen.
 struct Screen {
+    /// The camera's centre and axes (its centre is the one `place` measures from).
     frame: CameraFrame,
-    position: glam::DVec3,
     /// World to camera space (+X right, +Y down, +Z forward).
     to_camera: glam::DMat3,
     focal: f64,
@@ -828,7 +828,6 @@ impl Screen {
     fn new(camera: &Camera) -> Self {
         Self {
             frame: CameraFrame::new(camera),
-            position: camera.position.as_dvec3(),
             to_camera: glam::DMat3::from_quat(camera.rotation.as_dquat().inverse()),
             focal: camera.focal_pixels() as f64,
             half: [0.5 * camera.width as f64, 0.5 * camera.height as f64],
@@ -860,7 +859,7 @@ impl Screen {
         // camera's forward axis.
         let forward = self.to_camera.row(2);
         let nearest =
-            forward.dot(0.5 * (lo + hi) - self.position) - forward.abs().dot(0.5 * (hi - lo));
+            forward.dot(0.5 * (lo + hi) - self.frame.position) - forward.abs().dot(0.5 * (hi - lo));
         if !(nearest > NEAR as f64) {
             return Some((everywhere, facing()));
         }
@@ -899,7 +898,7 @@ impl Screen {
                 if k & 2 == 0 { lo.y } else { hi.y },
                 if k & 4 == 0 { lo.z } else { hi.z },
             );
-            let c = self.to_camera * (corner - self.position);
+            let c = self.to_camera * (corner - self.frame.position);
             let (u, v) = (
                 self.half[0] + self.focal * c.x / c.z,
                 self.half[1] + self.focal * c.y / c.z,

@@ -286,6 +286,15 @@ fn fill_slots<L: Lanes>(
     next
 }
 
+/// [`LANES`] pixels' taking-part bytes (each 0 or 1) as a bit each, the first pixel's lowest:
+/// one multiply moves byte `i`'s bit to bit `56 + i` (the partial products never overlap, so
+/// nothing carries).
+#[inline(always)]
+fn taking_part_bits(bytes: &[u8]) -> u8 {
+    let word = u64::from_le_bytes(bytes[..LANES].try_into().expect("LANES bytes"));
+    (word.wrapping_mul(0x0102_0408_1020_4080) >> 56) as u8
+}
+
 /// One estimate: the mean of the slots' colours, `background` for each slot left unfilled.
 fn estimate(colour: Vec3, filled: usize, slots: usize, background: Vec3) -> Vec3 {
     (colour + (slots - filled) as f32 * background) / slots as f32
@@ -297,21 +306,23 @@ fn depth_of(g: &TraceGaussians, camera: &Camera, forward: Vec3, i: usize) -> f32
     (g.means[i] - camera.position).dot(forward)
 }
 
-/// One row's working memory, kept from row to row of a thread; the per-pixel arrays padded to
-/// whole groups of [`LANES`].
+/// One row's working memory, kept from row to row of a thread. The arrays read in lanes have
+/// [`LANES`] - 1 pixels of padding past the row's end: a chord's window of [`LANES`] pixels
+/// starts at any pixel of the row.
 struct Row {
     /// Each pixel's transmittance so far.
-    transmittance: Vec<[f32; LANES]>,
+    transmittance: Vec<f32>,
     /// Each pixel's next threshold ([`draw_thresholds`]): the transmittance falling below it
     /// fills a slot.
-    next: Vec<[f32; LANES]>,
+    next: Vec<f32>,
     /// Each pixel's slots' thresholds ([`draw_thresholds`]), `slots` a pixel.
     thresholds: Vec<f32>,
     /// Each pixel's slots filled (with a hit).
     filled: Vec<usize>,
     /// Each pixel's filled slots' colours summed.
     colour: Vec<Vec3>,
-    /// Per group of [`LANES`] pixels, those still taking part, a bit a pixel.
+    /// Each pixel's 1 while it takes part, 0 once its slots are all filled (and in the
+    /// padding): a window's [`LANES`] of them read as one word ([`taking_part_bits`]).
     taking_part: Vec<u8>,
     /// Each pixel's estimates summed.
     sums: Vec<DVec3>,
@@ -323,26 +334,25 @@ impl Row {
     #[inline(always)]
     fn start<L: Lanes>(&mut self, token: L::Token, walk: &Walk, y: u32, sample: u32) {
         let width = walk.width;
-        self.transmittance.fill([1.0; LANES]);
+        self.transmittance.fill(1.0);
         self.filled.fill(0);
         self.colour.fill(Vec3::ZERO);
-        self.taking_part.fill(0);
+        self.taking_part[..width].fill(1);
         for (x, thresholds) in self.thresholds.chunks_exact_mut(walk.slots).enumerate() {
             let key = SampleKey::new(walk.seed, y * width as u32 + x as u32, sample);
-            self.next[x / LANES][x % LANES] = draw_thresholds::<L>(token, &key, thresholds);
-            self.taking_part[x / LANES] |= 1 << (x % LANES);
+            self.next[x] = draw_thresholds::<L>(token, &key, thresholds);
         }
     }
 
     fn new(walk: &Walk) -> Self {
-        let padded = walk.width.next_multiple_of(LANES);
+        let padded = walk.width + LANES - 1;
         Self {
-            transmittance: vec![[1.0; LANES]; padded / LANES],
-            next: vec![[-1.0; LANES]; padded / LANES],
+            transmittance: vec![1.0; padded],
+            next: vec![-1.0; padded],
             thresholds: vec![0.0; walk.width * walk.slots],
             filled: vec![0; walk.width],
             colour: vec![Vec3::ZERO; walk.width],
-            taking_part: vec![0; padded / LANES],
+            taking_part: vec![0; padded],
             sums: vec![DVec3::ZERO; walk.width],
         }
     }
@@ -352,9 +362,9 @@ impl Row {
 struct Walk<'a> {
     grid: &'a ScreenGrid,
     plane: RayDirections,
-    /// Each column's ray on the camera's plane z = 1 (its x), padded to whole groups of
-    /// [`LANES`] (the padding's lanes never take part).
-    columns: Vec<[f32; LANES]>,
+    /// Each column's ray on the camera's plane z = 1 (its x), with [`Row`]'s padding (whose
+    /// lanes never take part).
+    columns: Vec<f32>,
     width: usize,
     slots: usize,
     seed: u32,
@@ -371,10 +381,8 @@ impl<'a> Walk<'a> {
     ) -> Self {
         let plane = camera.ray_directions();
         let width = camera.width as usize;
-        let columns = (0..width.div_ceil(LANES))
-            .map(|group| {
-                std::array::from_fn(|l| plane.on_plane((group * LANES + l) as f32 + 0.5, 0.5)[0])
-            })
+        let columns = (0..width + LANES - 1)
+            .map(|x| plane.on_plane(x as f32 + 0.5, 0.5)[0])
             .collect();
         Self {
             grid,
@@ -435,7 +443,10 @@ impl<'a> Walk<'a> {
     }
 
     /// One Gaussian on the pixels `from..=to` of a row: each taking part moves its
-    /// transmittance, and fills its slots where it falls below its next threshold.
+    /// transmittance, and fills its slots where it falls below its next threshold. The chord
+    /// is walked in windows of [`LANES`] pixels from `from` (not in groups aligned to the
+    /// row), so that a chord of `n` pixels takes `ceil(n / LANES)` evaluations: a window's
+    /// lanes past `to` miss the Gaussian, their alpha 0.
     #[inline(always)]
     fn walk_chord<L: Lanes>(
         &self,
@@ -456,8 +467,8 @@ impl<'a> Walk<'a> {
             taking_part,
             ..
         } = row;
-        for group in from / LANES..=to / LANES {
-            let alive = taking_part[group];
+        for start in (from..=to).step_by(LANES) {
+            let alive = taking_part_bits(&taking_part[start..start + LANES]);
             if alive == 0 {
                 continue;
             }
@@ -465,9 +476,9 @@ impl<'a> Walk<'a> {
             // was, bit for bit); the lanes that fall below their next threshold fill slots.
             let mut crossed = 0u8;
             let (columns, here, next_here) = (
-                &self.columns[group],
-                &mut transmittance[group],
-                &next[group],
+                &self.columns[start..start + LANES],
+                &mut transmittance[start..start + LANES],
+                &next[start..start + LANES],
             );
             for first in (0..LANES).step_by(L::N) {
                 let alpha = on_row.alpha::<L>(token, L::load(token, &columns[first..]));
@@ -478,15 +489,19 @@ impl<'a> Walk<'a> {
             }
             crossed &= alive;
             while crossed != 0 {
-                let l = crossed.trailing_zeros() as usize;
+                let x = start + crossed.trailing_zeros() as usize;
                 crossed &= crossed - 1;
-                let x = group * LANES + l;
                 let own = &thresholds[x * slots..(x + 1) * slots];
-                let t = transmittance[group][l];
-                next[group][l] =
-                    fill_slots::<L>(token, own, &mut filled[x], &mut colour[x], t, color);
+                next[x] = fill_slots::<L>(
+                    token,
+                    own,
+                    &mut filled[x],
+                    &mut colour[x],
+                    transmittance[x],
+                    color,
+                );
                 let done = filled[x] == slots;
-                taking_part[group] &= !((done as u8) << l);
+                taking_part[x] &= !done as u8;
                 *left -= done as usize;
             }
         }
@@ -1053,6 +1068,21 @@ mod tests {
     use crate::DepthMode;
     use render_base::hash::{hash32, unit_f32};
     use splat_raster::{ColorModel, GaussianCloud};
+
+    /// A window's taking-part bytes read as bits: every pattern of [`LANES`] bytes, each bit
+    /// where its byte is 1 and nowhere else, read from any offset of a row.
+    #[test]
+    fn taking_part_bytes_read_as_one_bit_each() {
+        for pattern in 0..=255u8 {
+            let mut bytes = [0u8; 3 + LANES];
+            for l in 0..LANES {
+                bytes[3 + l] = (pattern >> l) & 1;
+            }
+            assert_eq!(taking_part_bits(&bytes[3..]), pattern, "{pattern:08b}");
+            // The same bytes one pixel later: the first lane's bit is now the padding's 0.
+            assert_eq!(taking_part_bits(&bytes[2..]), pattern << 1, "{pattern:08b}");
+        }
+    }
 
     /// Filling counts the thresholds above the transmittance, in any order: slots filled
     /// earlier stay filled, the colour grows by the newly filled count, and the next threshold

@@ -573,6 +573,7 @@ impl Facing {
     }
 
     /// [`Facing::new`] from the terms the silhouette shares ([`Seen`]).
+    #[inline(always)]
     fn seen(g: &TraceGaussians, i: usize, seen: &Seen, frame: &CameraFrame) -> Self {
         let (o, axes) = (seen.offset, seen.axes);
         Self {
@@ -595,6 +596,7 @@ struct Seen {
 }
 
 impl Seen {
+    #[inline(always)]
     fn new(g: &TraceGaussians, i: usize, frame: &CameraFrame) -> Self {
         let rows = g.canonical[i].map(|r| r.as_dvec3());
         let in_canonical = |v: DVec3| DVec3::new(rows[0].dot(v), rows[1].dot(v), rows[2].dot(v));
@@ -814,6 +816,7 @@ impl Placed {
     /// bounded silhouette (every column of the rectangle is walked). Solved in f64, rounded to
     /// f32 and evaluated in f32; the growth and a pixel's widening each way cover the
     /// rounding of the chord and of the rays' own distances.
+    #[inline(always)]
     fn chord_terms(form: [f64; 3]) -> [f32; 3] {
         let [a, b, c] = form;
         if !(a > 0.0) {
@@ -855,6 +858,7 @@ impl Screen {
     /// the whole screen when its box reaches behind the camera's plane; `None` when its centre
     /// is not in front of the camera (`intersect` never places a hit there) or it is off the
     /// screen.
+    #[inline(always)]
     fn place(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<(Placed, Facing)> {
         if !(depth > 0.0) {
             return None;
@@ -898,6 +902,39 @@ impl Screen {
         Some((placed, facing()))
     }
 
+    /// [`Screen::place`] compiled for `isa`: with AVX2, the same f64 arithmetic (Rust fuses no
+    /// multiply-add unasked) in VEX's three-operand instructions, fewer of them.
+    fn place_on(
+        &self,
+        isa: Isa,
+        g: &TraceGaussians,
+        i: usize,
+        depth: f32,
+    ) -> Option<(Placed, Facing)> {
+        match isa {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
+            // (`Avx2Token::detect`), which is all `place_avx2_fma` requires.
+            Isa::Avx2(_) => unsafe { self.place_avx2_fma(g, i, depth) },
+            Isa::Baseline => self.place(g, i, depth),
+        }
+    }
+
+    /// [`Screen::place`] compiled for AVX2 and FMA.
+    ///
+    /// # Safety
+    /// The processor must support AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn place_avx2_fma(
+        &self,
+        g: &TraceGaussians,
+        i: usize,
+        depth: f32,
+    ) -> Option<(Placed, Facing)> {
+        self.place(g, i, depth)
+    }
+
     /// The screen rectangle [u0, u1, v0, v1] of a box wholly in front of the camera: its
     /// corners' projections' bounds. For the Gaussians without a bounded silhouette.
     fn box_rectangle(&self, lo: DVec3, hi: DVec3) -> [f64; 4] {
@@ -934,6 +971,7 @@ impl Screen {
     /// `v^T P v <= 0` for `P = (|a|^2 - cutoff) K^T K - g g^T`, `K = C R`, `g = K^T a`; completing
     /// the square in `u` gives the ellipse `(u - u0)^T P2 (u - u0) <= k`, `u0 = -P2^-1 p`,
     /// `k = p^T P2^-1 p - p33`, with `P2` the upper-left 2x2 of `P` and `p` its last column.
+    #[inline(always)]
     fn silhouette(&self, seen: &Seen, cutoff: f32) -> Option<([f64; 2], [f64; 3], [f64; 2])> {
         // K's columns are the camera's axes in the canonical frame: (K^T K)_rc = K_r . K_c,
         // and g = K^T a has g_c = K_c . a.
@@ -977,6 +1015,7 @@ impl Screen {
 /// pixels); `None` when none is left or either end is NaN. Without `floor` and `ceil`, which
 /// are a call to libm each on the x86-64 baseline (a tenth of placing a Gaussian): a
 /// non-negative number's floor is its truncation, and the clipping commutes with both.
+#[inline(always)]
 fn pixel_span(from: f64, to: f64, size: f64) -> Option<[u32; 2]> {
     // floor(from) < size and ceil(to) >= 0, written so that NaN fails.
     if !(from < size && to > -1.0) {
@@ -995,6 +1034,7 @@ impl ScreenGrid {
         let bands = camera.height.div_ceil(BAND) as usize;
         let forward = camera.axes().2;
         let screen = Screen::new(camera);
+        let isa = Isa::detect();
         let GridScratch {
             by_index,
             keys,
@@ -1009,7 +1049,7 @@ impl ScreenGrid {
         by_index.par_extend(
             (0..g.len())
                 .into_par_iter()
-                .map(|i| screen.place(g, i, depth_of(g, camera, forward, i))),
+                .map(|i| screen.place_on(isa, g, i, depth_of(g, camera, forward, i))),
         );
         // By depth, ties by index: one order on any thread count. A placed depth is positive,
         // so its bits order as it does ([`depth_order`]'s keys).

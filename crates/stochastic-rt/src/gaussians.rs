@@ -115,9 +115,9 @@ impl TraceGaussians {
     fn prepare_in(&mut self, isa: Isa, cloud: &GaussianCloud<f32>) {
         let (n, stride) = (cloud.len(), cloud.color_stride());
         self.color_model = cloud.color_model;
-        // Each array `n` long (the values are overwritten; the memory is kept).
+        // Each array `n` long: every value is overwritten, so only a longer array's new tail
+        // is filled (the memory is kept, and not rewritten twice each frame).
         fn sized<T: Clone>(v: &mut Vec<T>, n: usize, fill: T) {
-            v.clear();
             v.resize(n, fill);
         }
         sized(&mut self.ids, n, 0);

@@ -51,11 +51,17 @@ use splat_raster::lanes::{Lanes, exp};
 
 use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
 use splat_raster::raster::depth_order;
+use wide::{Wide, Wide3};
+
+mod wide;
 
 /// Rows per band: a Gaussian is listed once per band its silhouette reaches, and a row walks
 /// its band's list, skipping the Gaussians that miss the row. Smaller bands list Gaussians more
 /// often; larger ones make each row skip more.
 const BAND: u32 = 4;
+
+/// Gaussians a task places ([`Screen::place_block_on`]): enough to pay for the task.
+const PLACE_BLOCK: usize = 256;
 
 /// Pixels whose rays are evaluated together (one vector of f32 lanes).
 const LANES: usize = 8;
@@ -817,13 +823,18 @@ impl Placed {
     /// f32 and evaluated in f32; the growth and a pixel's widening each way cover the
     /// rounding of the chord and of the rays' own distances.
     #[inline(always)]
+    #[cfg(test)]
     fn chord_terms(form: [f64; 3]) -> [f32; 3] {
         let [a, b, c] = form;
-        if !(a > 0.0) {
-            return [0.0; 3];
-        }
         let terms = [(b * b - a * c) / (a * a), SILHOUETTE_SLACK / a, -b / a].map(|k| k as f32);
-        if terms.iter().all(|k| k.is_finite()) && terms[1] > 0.0 {
+        Self::checked_chord_terms(a, terms)
+    }
+
+    /// [`Placed::chord_terms`] from its terms (rounded to f32) and the form's `a`: zero unless
+    /// `a > 0`, the terms are finite and `k2 > 0`.
+    #[inline(always)]
+    fn checked_chord_terms(a: f64, terms: [f32; 3]) -> [f32; 3] {
+        if a > 0.0 && terms.iter().all(|k| k.is_finite()) && terms[1] > 0.0 {
             terms
         } else {
             [0.0; 3]
@@ -858,7 +869,8 @@ impl Screen {
     /// the whole screen when its box reaches behind the camera's plane; `None` when its centre
     /// is not in front of the camera (`intersect` never places a hit there) or it is off the
     /// screen.
-    #[inline(always)]
+    /// The definition [`Screen::place4`] computes four at a time (tested bit for bit).
+    #[cfg(test)]
     fn place(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<(Placed, Facing)> {
         if !(depth > 0.0) {
             return None;
@@ -902,37 +914,204 @@ impl Screen {
         Some((placed, facing()))
     }
 
-    /// [`Screen::place`] compiled for `isa`: with AVX2, the same f64 arithmetic (Rust fuses no
-    /// multiply-add unasked) in VEX's three-operand instructions, fewer of them.
-    fn place_on(
+    /// [`Screen::place`] for Gaussians `first..first + out.len()`, four at a time
+    /// ([`Screen::place4`]), in code compiled for `isa`.
+    fn place_block_on(
         &self,
         isa: Isa,
         g: &TraceGaussians,
-        i: usize,
-        depth: f32,
-    ) -> Option<(Placed, Facing)> {
+        depth_of: &(impl Fn(usize) -> f32 + Sync),
+        first: usize,
+        out: &mut [Option<(Placed, Facing)>],
+    ) {
         match isa {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
-            // (`Avx2Token::detect`), which is all `place_avx2_fma` requires.
-            Isa::Avx2(_) => unsafe { self.place_avx2_fma(g, i, depth) },
-            Isa::Baseline => self.place(g, i, depth),
+            // (`Avx2Token::detect`), which is all `place_block_avx2_fma` requires.
+            Isa::Avx2(_) => unsafe { self.place_block_avx2_fma(g, depth_of, first, out) },
+            Isa::Baseline => self.place_block(g, depth_of, first, out),
         }
     }
 
-    /// [`Screen::place`] compiled for AVX2 and FMA.
+    /// [`Screen::place_block_on`] compiled for AVX2 and FMA: [`Wide`]'s lanes become vectors,
+    /// the arithmetic the same (Rust fuses no multiply-add unasked).
     ///
     /// # Safety
     /// The processor must support AVX2 and FMA.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn place_avx2_fma(
+    unsafe fn place_block_avx2_fma(
         &self,
         g: &TraceGaussians,
-        i: usize,
-        depth: f32,
-    ) -> Option<(Placed, Facing)> {
-        self.place(g, i, depth)
+        depth_of: &(impl Fn(usize) -> f32 + Sync),
+        first: usize,
+        out: &mut [Option<(Placed, Facing)>],
+    ) {
+        self.place_block(g, depth_of, first, out)
+    }
+
+    #[inline(always)]
+    fn place_block(
+        &self,
+        g: &TraceGaussians,
+        depth_of: &(impl Fn(usize) -> f32 + Sync),
+        first: usize,
+        out: &mut [Option<(Placed, Facing)>],
+    ) {
+        for (c, four) in out.chunks_mut(4).enumerate() {
+            // A short last group repeats its last Gaussian in the spare lanes.
+            let start = first + 4 * c;
+            let indices = std::array::from_fn(|l| start + l.min(four.len() - 1));
+            self.place4(g, indices, indices.map(depth_of), four);
+        }
+    }
+
+    /// [`Screen::place`] for four Gaussians (`indices`, centre depths `depths`) into `out`
+    /// (the first `out.len()` of them), bit for bit: [`Seen::new`]'s, [`Screen::silhouette`]'s
+    /// and [`Facing::seen`]'s arithmetic in f64 lanes, the same operations in the same order;
+    /// then each lane's branches.
+    #[inline(always)]
+    fn place4(
+        &self,
+        g: &TraceGaussians,
+        indices: [usize; 4],
+        depths: [f32; 4],
+        out: &mut [Option<(Placed, Facing)>],
+    ) {
+        let frame = &self.frame;
+        // Seen::new.
+        let row = |r: usize| Wide3::from_fn(|l| g.canonical[indices[l]][r]);
+        let rows = [row(0), row(1), row(2)];
+        let in_canonical = |v: Wide3| Wide3 {
+            x: rows[0].dot(v),
+            y: rows[1].dot(v),
+            z: rows[2].dot(v),
+        };
+        let in_canonical_one = |v: DVec3| Wide3 {
+            x: rows[0].dot_one(v),
+            y: rows[1].dot_one(v),
+            z: rows[2].dot_one(v),
+        };
+        let position = Wide3::splat(frame.position);
+        let offset = in_canonical(position - Wide3::from_fn(|l| g.means[indices[l]]));
+        let axes = [
+            in_canonical_one(frame.axes.x_axis),
+            in_canonical_one(frame.axes.y_axis),
+            in_canonical_one(frame.axes.z_axis),
+        ];
+        // The box's nearest corner's depth ([`Screen::place`]).
+        let (lo, hi) = (
+            Wide3::from_fn(|l| g.lower[indices[l]]),
+            Wide3::from_fn(|l| g.upper[indices[l]]),
+        );
+        let forward = self.to_camera.row(2);
+        let nearest = (0.5 * (lo + hi) - position).dot_one(forward)
+            - (0.5 * (hi - lo)).dot_one(forward.abs());
+        // Screen::silhouette.
+        let (a, k) = (offset, axes);
+        let outside = a.dot(a) - Wide::from_fn(|l| g.cutoff[indices[l]] as f64);
+        let gv = [k[0].dot(a), k[1].dot(a), k[2].dot(a)];
+        let entry = |r: usize, c: usize| outside * k[r].dot(k[c]) - gv[r] * gv[c];
+        let (p00, p01, p11) = (entry(0, 0), entry(0, 1), entry(1, 1));
+        let (p02, p12, p22) = (entry(0, 2), entry(1, 2), entry(2, 2));
+        let det = p00 * p11 - p01 * p01;
+        let (i00, i01, i11) = (p11 / det, -p01 / det, p00 / det);
+        let u0 = [-(i00 * p02 + i01 * p12), -(i01 * p02 + i11 * p12)];
+        let kk = p02 * (i00 * p02 + i01 * p12) + p12 * (i01 * p02 + i11 * p12) - p22;
+        let f = self.focal;
+        let scale = 1.0 / (f * f * kk);
+        let form = [p00 * scale, p01 * scale, p11 * scale];
+        let centre = [self.half[0] + f * u0[0], self.half[1] + f * u0[1]];
+        let slack = SILHOUETTE_SLACK;
+        let reach = [
+            (f * f * kk * i00 * slack).sqrt(),
+            (f * f * kk * i11 * slack).sqrt(),
+        ];
+        // Facing::seen.
+        let moments = [
+            offset.cross(axes[0]),
+            offset.cross(axes[1]),
+            offset.cross(axes[2]),
+        ];
+        // And what each lane keeps, rounded to f32 in lanes: the facing terms, the
+        // silhouette's centre and [`Placed::chord_terms`]'s terms (its operations).
+        let axes32 = [axes[0].to_f32(), axes[1].to_f32(), axes[2].to_f32()];
+        let moments32 = [
+            moments[0].to_f32(),
+            moments[1].to_f32(),
+            moments[2].to_f32(),
+        ];
+        let centre32 = [centre[0].to_f32(), centre[1].to_f32()];
+        let [fa, fb, fc] = form;
+        let terms = [
+            ((fb * fb - fa * fc) / (fa * fa)).to_f32(),
+            (SILHOUETTE_SLACK / fa).to_f32(),
+            (-fb / fa).to_f32(),
+        ];
+        // The silhouette's rectangle, a pixel wider each way (as `place` widens it).
+        let rectangle = [
+            centre[0] - reach[0] - 1.5,
+            centre[0] + reach[0] + 0.5,
+            centre[1] - reach[1] - 1.5,
+            centre[1] + reach[1] + 0.5,
+        ];
+        let eye = frame.position.as_vec3();
+        let [w, h] = self.size;
+        for (l, slot) in out.iter_mut().enumerate() {
+            let (i, depth) = (indices[l], depths[l]);
+            if !(depth > 0.0) {
+                *slot = None;
+                continue;
+            }
+            let facing = Facing {
+                axes: [axes32[0].lane(l), axes32[1].lane(l), axes32[2].lane(l)],
+                moments: [
+                    moments32[0].lane(l),
+                    moments32[1].lane(l),
+                    moments32[2].lane(l),
+                ],
+                opacity: g.opacity[i],
+                cutoff: g.cutoff[i],
+                color: g.color(i, eye),
+            };
+            let mut placed = Placed {
+                depth,
+                centre: [0.0; 2],
+                columns: [0, w as u32 - 1],
+                rows: [0, h as u32 - 1],
+                chord_terms: [0.0; 3],
+            };
+            if !(nearest.0[l] > NEAR as f64) {
+                *slot = Some((placed, facing));
+                continue;
+            }
+            let bounded = outside.0[l] > 0.0
+                && p00.0[l] > 0.0
+                && det.0[l] > 0.0
+                && kk.0[l] > 0.0
+                && [
+                    form[0], form[1], form[2], centre[0], centre[1], reach[0], reach[1],
+                ]
+                .iter()
+                .all(|v| v.0[l].is_finite());
+            let [u0, u1, v0, v1] = if bounded {
+                placed.centre = [centre32[0][l], centre32[1][l]];
+                placed.chord_terms =
+                    Placed::checked_chord_terms(fa.0[l], [terms[0][l], terms[1][l], terms[2][l]]);
+                rectangle.map(|v| v.0[l])
+            } else {
+                let [u0, u1, v0, v1] = self.box_rectangle(lo.lane(l), hi.lane(l));
+                [u0 - 1.5, u1 + 0.5, v0 - 1.5, v1 + 0.5]
+            };
+            // The pixels whose centres the rectangle covers.
+            *slot = pixel_span(u0, u1, w)
+                .zip(pixel_span(v0, v1, h))
+                .map(|(columns, rows)| {
+                    placed.columns = columns;
+                    placed.rows = rows;
+                    (placed, facing)
+                });
+        }
     }
 
     /// The screen rectangle [u0, u1, v0, v1] of a box wholly in front of the camera: its
@@ -971,7 +1150,7 @@ impl Screen {
     /// `v^T P v <= 0` for `P = (|a|^2 - cutoff) K^T K - g g^T`, `K = C R`, `g = K^T a`; completing
     /// the square in `u` gives the ellipse `(u - u0)^T P2 (u - u0) <= k`, `u0 = -P2^-1 p`,
     /// `k = p^T P2^-1 p - p33`, with `P2` the upper-left 2x2 of `P` and `p` its last column.
-    #[inline(always)]
+    #[cfg(test)]
     fn silhouette(&self, seen: &Seen, cutoff: f32) -> Option<([f64; 2], [f64; 3], [f64; 2])> {
         // K's columns are the camera's axes in the canonical frame: (K^T K)_rc = K_r . K_c,
         // and g = K^T a has g_c = K_c . a.
@@ -1045,12 +1224,13 @@ impl ScreenGrid {
         } = &mut self.scratch;
         // Placed (and faced: the silhouette and the facing terms share their canonical
         // frame) in the tracing arrays' order, which reads them in sequence; then sorted.
-        by_index.clear();
-        by_index.par_extend(
-            (0..g.len())
-                .into_par_iter()
-                .map(|i| screen.place_on(isa, g, i, depth_of(g, camera, forward, i))),
-        );
+        // Every entry is overwritten: only a longer array's new tail is filled first.
+        by_index.resize(g.len(), None);
+        let depth = |i: usize| depth_of(g, camera, forward, i);
+        by_index
+            .par_chunks_mut(PLACE_BLOCK)
+            .enumerate()
+            .for_each(|(b, out)| screen.place_block_on(isa, g, &depth, b * PLACE_BLOCK, out));
         // By depth, ties by index: one order on any thread count. A placed depth is positive,
         // so its bits order as it does ([`depth_order`]'s keys).
         keys.clear();
@@ -1177,6 +1357,87 @@ mod tests {
         assert_eq!(filled, 7);
         assert_eq!(fill(&eight, &mut filled, &mut colour, 0.01, red), -1.0);
         assert_eq!((filled, colour), (8, 8.0 * red));
+    }
+
+    /// Placing four Gaussians at once in f64 lanes ([`Screen::place4`], as the grid does, in
+    /// AVX2 where the processor runs it, and in the baseline's) gives [`Screen::place`]'s bits:
+    /// every field of the
+    /// placed Gaussian and its facing terms, for 1,001 Gaussians (a short last group of four)
+    /// seen from cameras that put some behind them, some straddling the camera's plane (no
+    /// silhouette: the whole screen), some around the camera (no bounded ellipse: their box's
+    /// rectangle), some off the screen, and needles among them.
+    #[test]
+    fn four_at_a_time_is_placing_one_by_one_bit_for_bit() {
+        let r = |k: u32, i: u32| unit_f32(hash32(&[k, i, 7]));
+        let mut cloud = GaussianCloud::new(ColorModel::Sh(0));
+        for i in 0..1001 {
+            let m = [0, 1, 2].map(|k| 6.0 * r(k, i) - 3.0);
+            let mut ls = [3, 4, 5].map(|k| 3.0 * r(k, i) - 3.0);
+            if i % 7 == 0 {
+                ls[(i / 7 % 3) as usize] = -7.0;
+            }
+            if i % 11 == 0 {
+                ls = [-16.0, -16.0, 1.0];
+                ls.rotate_left((i / 11 % 3) as usize);
+            }
+            let q = [6, 7, 8, 9].map(|k| r(k, i) - 0.5);
+            cloud.push(
+                m,
+                ls,
+                q,
+                &[r(10, i), r(11, i), r(12, i)],
+                4.0 * r(13, i) - 2.0,
+            );
+        }
+        let g = TraceGaussians::new(&cloud);
+        let bits = |p: &Option<(Placed, Facing)>| -> Option<Vec<u32>> {
+            let (p, f) = p.as_ref()?;
+            let mut v = vec![
+                p.depth.to_bits(),
+                p.centre[0].to_bits(),
+                p.centre[1].to_bits(),
+            ];
+            v.extend(p.columns.iter().chain(&p.rows));
+            v.extend(p.chord_terms.map(f32::to_bits));
+            let vectors = f.axes.iter().chain(&f.moments).chain([&f.color]);
+            v.extend(vectors.flat_map(|a| a.to_array().map(f32::to_bits)));
+            v.extend([f.opacity.to_bits(), f.cutoff.to_bits()]);
+            Some(v)
+        };
+        let mut kinds = [0usize; 5];
+        for eye in [
+            Vec3::new(0.3, -0.2, -9.0),
+            Vec3::new(0.5, 0.4, 0.2),
+            Vec3::new(7.0, 5.0, 6.0),
+        ] {
+            let camera = Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 50.0, 64, 48).unwrap();
+            let (screen, forward) = (Screen::new(&camera), camera.axes().2);
+            let depth = |i: usize| depth_of(&g, &camera, forward, i);
+            let placed_by = |isa: Isa| {
+                let mut four = vec![None; g.len()];
+                for (b, out) in four.chunks_mut(PLACE_BLOCK).enumerate() {
+                    screen.place_block_on(isa, &g, &depth, b * PLACE_BLOCK, out);
+                }
+                four
+            };
+            let (best, baseline) = (placed_by(Isa::detect()), placed_by(Isa::Baseline));
+            for i in 0..g.len() {
+                let want = screen.place(&g, i, depth(i));
+                assert_eq!(bits(&best[i]), bits(&want), "Gaussian {i} from {eye}");
+                assert_eq!(bits(&baseline[i]), bits(&want), "Gaussian {i} from {eye}");
+                let kind = match want {
+                    None if depth(i) > 0.0 => 0,
+                    None => 1,
+                    Some((p, _)) if p.chord_terms[1] > 0.0 => 2,
+                    Some((p, _)) if p.columns == [0, 63] && p.rows == [0, 47] => 3,
+                    Some(_) => 4,
+                };
+                kinds[kind] += 1;
+            }
+        }
+        // Off the screen, behind, a silhouette, the whole screen, a box's rectangle.
+        eprintln!("placed by kind: {kinds:?}");
+        assert!(kinds.iter().all(|&n| n > 0), "{kinds:?}");
     }
 
     /// A ray's alpha from the camera's shared terms ([`Facing`], [`FacingRow::alpha`]: the

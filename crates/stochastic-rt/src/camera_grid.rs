@@ -560,7 +560,7 @@ impl CameraFrame {
 /// and `o x K v = u M_x + w M_y + M_z` with `M_* = o x K_*`: on a row, both vectors are linear
 /// in `u`. The cross product keeps the precision the closest point has (no difference of two
 /// large squares).
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Default)]
 struct Facing {
     /// `K_x`, `K_y`, `K_z`.
     axes: [Vec3; 3],
@@ -697,11 +697,11 @@ struct ScreenGrid {
 /// writes to memory it already has (fresh, it cost the kernel a page fault each 4 KiB).
 #[derive(Default)]
 struct GridScratch {
-    by_index: Vec<Option<(Placed, Facing)>>,
     keys: Vec<u64>,
     sort: Vec<u64>,
     order: Vec<u32>,
-    placed: Vec<Placed>,
+    /// Each rank's place on the screen; `None` off the screen.
+    placed: Vec<Option<Placed>>,
     next: Vec<usize>,
 }
 
@@ -800,8 +800,6 @@ const PIXEL_BIAS_BITS: u32 = PIXEL_BIAS.to_bits();
 /// One Gaussian on the screen.
 #[derive(Clone, Copy, Default)]
 struct Placed {
-    /// Its centre's depth along the camera's forward axis.
-    depth: f32,
     /// Its silhouette's centre: the pixels `p` with `(p - centre)^T Q (p - centre) <= 1` are
     /// those whose rays meet its alpha >= 1/255 ellipsoid ([`Screen::silhouette`]).
     centre: [f32; 2],
@@ -877,7 +875,6 @@ impl Screen {
         }
         let [w, h] = self.size;
         let everywhere = Placed {
-            depth,
             centre: [0.0; 2],
             columns: [0, w as u32 - 1],
             rows: [0, h as u32 - 1],
@@ -914,22 +911,26 @@ impl Screen {
         Some((placed, facing()))
     }
 
-    /// [`Screen::place`] for Gaussians `first..first + out.len()`, four at a time
-    /// ([`Screen::place4`]), in code compiled for `isa`.
+    /// [`Screen::place`] for the Gaussians `ranked` (indices) into `placed` and `facing`, four
+    /// at a time ([`Screen::place4`]), in code compiled for `isa`. A Gaussian off the screen
+    /// (or behind the camera) is `None`; its facing terms are written all the same.
     fn place_block_on(
         &self,
         isa: Isa,
         g: &TraceGaussians,
         depth_of: &(impl Fn(usize) -> f32 + Sync),
-        first: usize,
-        out: &mut [Option<(Placed, Facing)>],
+        ranked: &[u32],
+        placed: &mut [Option<Placed>],
+        facing: &mut [Facing],
     ) {
         match isa {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
             // (`Avx2Token::detect`), which is all `place_block_avx2_fma` requires.
-            Isa::Avx2(_) => unsafe { self.place_block_avx2_fma(g, depth_of, first, out) },
-            Isa::Baseline => self.place_block(g, depth_of, first, out),
+            Isa::Avx2(_) => unsafe {
+                self.place_block_avx2_fma(g, depth_of, ranked, placed, facing)
+            },
+            Isa::Baseline => self.place_block(g, depth_of, ranked, placed, facing),
         }
     }
 
@@ -944,10 +945,11 @@ impl Screen {
         &self,
         g: &TraceGaussians,
         depth_of: &(impl Fn(usize) -> f32 + Sync),
-        first: usize,
-        out: &mut [Option<(Placed, Facing)>],
+        ranked: &[u32],
+        placed: &mut [Option<Placed>],
+        facing: &mut [Facing],
     ) {
-        self.place_block(g, depth_of, first, out)
+        self.place_block(g, depth_of, ranked, placed, facing)
     }
 
     #[inline(always)]
@@ -955,28 +957,40 @@ impl Screen {
         &self,
         g: &TraceGaussians,
         depth_of: &(impl Fn(usize) -> f32 + Sync),
-        first: usize,
-        out: &mut [Option<(Placed, Facing)>],
+        ranked: &[u32],
+        placed: &mut [Option<Placed>],
+        facing: &mut [Facing],
     ) {
-        for (c, four) in out.chunks_mut(4).enumerate() {
+        let groups = ranked
+            .chunks(4)
+            .zip(placed.chunks_mut(4).zip(facing.chunks_mut(4)));
+        for (four, (placed, facing)) in groups {
             // A short last group repeats its last Gaussian in the spare lanes.
-            let start = first + 4 * c;
-            let indices = std::array::from_fn(|l| start + l.min(four.len() - 1));
-            self.place4(g, indices, indices.map(depth_of), four);
+            let last = four.len() - 1;
+            let at = |l: usize| four[l.min(last)] as usize;
+            let indices = [at(0), at(1), at(2), at(3)];
+            let depths = [
+                depth_of(indices[0]),
+                depth_of(indices[1]),
+                depth_of(indices[2]),
+                depth_of(indices[3]),
+            ];
+            self.place4(g, indices, depths, placed, facing);
         }
     }
 
-    /// [`Screen::place`] for four Gaussians (`indices`, centre depths `depths`) into `out`
-    /// (the first `out.len()` of them), bit for bit: [`Seen::new`]'s, [`Screen::silhouette`]'s
-    /// and [`Facing::seen`]'s arithmetic in f64 lanes, the same operations in the same order;
-    /// then each lane's branches.
+    /// [`Screen::place`] for four Gaussians (`indices`, centre depths `depths`, all positive)
+    /// into `placed` and `facing` (the first `placed.len()` of them), bit for bit:
+    /// [`Seen::new`]'s, [`Screen::silhouette`]'s and [`Facing::seen`]'s arithmetic in f64
+    /// lanes, the same operations in the same order; then each lane's branches.
     #[inline(always)]
     fn place4(
         &self,
         g: &TraceGaussians,
         indices: [usize; 4],
         depths: [f32; 4],
-        out: &mut [Option<(Placed, Facing)>],
+        placed: &mut [Option<Placed>],
+        facing: &mut [Facing],
     ) {
         let frame = &self.frame;
         // Seen::new.
@@ -1057,13 +1071,9 @@ impl Screen {
         ];
         let eye = frame.position.as_vec3();
         let [w, h] = self.size;
-        for (l, slot) in out.iter_mut().enumerate() {
+        for (l, (slot, facing)) in placed.iter_mut().zip(facing).enumerate() {
             let (i, depth) = (indices[l], depths[l]);
-            if !(depth > 0.0) {
-                *slot = None;
-                continue;
-            }
-            let facing = Facing {
+            *facing = Facing {
                 axes: [axes32[0].lane(l), axes32[1].lane(l), axes32[2].lane(l)],
                 moments: [
                     moments32[0].lane(l),
@@ -1074,15 +1084,18 @@ impl Screen {
                 cutoff: g.cutoff[i],
                 color: g.color(i, eye),
             };
+            if !(depth > 0.0) {
+                *slot = None;
+                continue;
+            }
             let mut placed = Placed {
-                depth,
                 centre: [0.0; 2],
                 columns: [0, w as u32 - 1],
                 rows: [0, h as u32 - 1],
                 chord_terms: [0.0; 3],
             };
             if !(nearest.0[l] > NEAR as f64) {
-                *slot = Some((placed, facing));
+                *slot = Some(placed);
                 continue;
             }
             let bounded = outside.0[l] > 0.0
@@ -1109,7 +1122,7 @@ impl Screen {
                 .map(|(columns, rows)| {
                     placed.columns = columns;
                     placed.rows = rows;
-                    (placed, facing)
+                    placed
                 });
         }
     }
@@ -1215,39 +1228,35 @@ impl ScreenGrid {
         let screen = Screen::new(camera);
         let isa = Isa::detect();
         let GridScratch {
-            by_index,
             keys,
             sort,
             order,
             placed,
             next,
         } = &mut self.scratch;
-        // Placed (and faced: the silhouette and the facing terms share their canonical
-        // frame) in the tracing arrays' order, which reads them in sequence; then sorted.
-        // Every entry is overwritten: only a longer array's new tail is filled first.
-        by_index.resize(g.len(), None);
+        // The Gaussians in front of the camera by depth, ties by index: one order on any
+        // thread count. A positive depth's bits order as it does ([`depth_order`]'s keys).
         let depth = |i: usize| depth_of(g, camera, forward, i);
-        by_index
-            .par_chunks_mut(PLACE_BLOCK)
-            .enumerate()
-            .for_each(|(b, out)| screen.place_block_on(isa, g, &depth, b * PLACE_BLOCK, out));
-        // By depth, ties by index: one order on any thread count. A placed depth is positive,
-        // so its bits order as it does ([`depth_order`]'s keys).
         keys.clear();
-        keys.extend(
-            (0u64..)
-                .zip(by_index.iter())
-                .filter_map(|(i, p)| Some((p.as_ref()?.0.depth.to_bits() as u64) << 32 | i)),
-        );
+        keys.extend((0..g.len()).filter_map(|i| {
+            let d = depth(i);
+            (d > 0.0).then_some((d.to_bits() as u64) << 32 | i as u64)
+        }));
         order.clear();
         order.resize(keys.len(), 0);
         depth_order(keys, sort, order);
-        let ranked = |i: &u32| by_index[*i as usize].expect("ranked Gaussians are placed");
-        placed.clear();
-        placed.par_extend(order.par_iter().map(|i| ranked(i).0));
-        self.facing.clear();
-        self.facing
-            .par_extend(order.par_iter().map(|i| ranked(i).1));
+        // Then placed and faced (the silhouette and the facing terms share their canonical
+        // frame) in that order, straight into the grid's arrays; every entry is overwritten,
+        // so only a longer array's new tail is filled first.
+        placed.resize(order.len(), None);
+        self.facing.resize(order.len(), Facing::default());
+        placed
+            .par_chunks_mut(PLACE_BLOCK)
+            .zip(self.facing.par_chunks_mut(PLACE_BLOCK))
+            .zip(order.par_chunks(PLACE_BLOCK))
+            .for_each(|((placed, facing), ranked)| {
+                screen.place_block_on(isa, g, &depth, ranked, placed, facing)
+            });
 
         // A counting sort of the ranks by band, each band's in rank order, each band's list
         // padded to whole chunks.
@@ -1255,7 +1264,7 @@ impl ScreenGrid {
         let starts = &mut self.starts;
         starts.clear();
         starts.resize(bands + 1, 0);
-        for p in placed.iter() {
+        for p in placed.iter().flatten() {
             for b in bands_of(p) {
                 starts[b + 1] += 1;
             }
@@ -1269,6 +1278,7 @@ impl ScreenGrid {
         next.clear();
         next.extend_from_slice(&starts[..bands]);
         for (rank, p) in placed.iter().enumerate() {
+            let Some(p) = p else { continue };
             for b in bands_of(p) {
                 self.listed[next[b] / LANES].set(next[b] % LANES, rank as u32, p);
                 next[b] += 1;
@@ -1392,11 +1402,7 @@ mod tests {
         let g = TraceGaussians::new(&cloud);
         let bits = |p: &Option<(Placed, Facing)>| -> Option<Vec<u32>> {
             let (p, f) = p.as_ref()?;
-            let mut v = vec![
-                p.depth.to_bits(),
-                p.centre[0].to_bits(),
-                p.centre[1].to_bits(),
-            ];
+            let mut v = vec![p.centre[0].to_bits(), p.centre[1].to_bits()];
             v.extend(p.columns.iter().chain(&p.rows));
             v.extend(p.chord_terms.map(f32::to_bits));
             let vectors = f.axes.iter().chain(&f.moments).chain([&f.color]);
@@ -1413,18 +1419,34 @@ mod tests {
             let camera = Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 50.0, 64, 48).unwrap();
             let (screen, forward) = (Screen::new(&camera), camera.axes().2);
             let depth = |i: usize| depth_of(&g, &camera, forward, i);
+            // Every Gaussian, behind the camera or not, in an order that is not the index's.
+            let ranked: Vec<u32> = (0..g.len() as u32).map(|i| (i * 389) % 1001).collect();
             let placed_by = |isa: Isa| {
-                let mut four = vec![None; g.len()];
-                for (b, out) in four.chunks_mut(PLACE_BLOCK).enumerate() {
-                    screen.place_block_on(isa, &g, &depth, b * PLACE_BLOCK, out);
+                let mut placed = vec![None; g.len()];
+                let mut facing = vec![Facing::default(); g.len()];
+                let blocks = placed
+                    .chunks_mut(PLACE_BLOCK)
+                    .zip(facing.chunks_mut(PLACE_BLOCK));
+                for ((p, f), r) in blocks.zip(ranked.chunks(PLACE_BLOCK)) {
+                    screen.place_block_on(isa, &g, &depth, r, p, f);
                 }
-                four
+                let placed_and_faced: Vec<_> = placed
+                    .into_iter()
+                    .zip(facing)
+                    .map(|(p, f)| p.map(|p| (p, f)))
+                    .collect();
+                placed_and_faced
             };
             let (best, baseline) = (placed_by(Isa::detect()), placed_by(Isa::Baseline));
-            for i in 0..g.len() {
+            for (rank, &i) in ranked.iter().enumerate() {
+                let i = i as usize;
                 let want = screen.place(&g, i, depth(i));
-                assert_eq!(bits(&best[i]), bits(&want), "Gaussian {i} from {eye}");
-                assert_eq!(bits(&baseline[i]), bits(&want), "Gaussian {i} from {eye}");
+                assert_eq!(bits(&best[rank]), bits(&want), "Gaussian {i} from {eye}");
+                assert_eq!(
+                    bits(&baseline[rank]),
+                    bits(&want),
+                    "Gaussian {i} from {eye}"
+                );
                 let kind = match want {
                     None if depth(i) > 0.0 => 0,
                     None => 1,

@@ -11,11 +11,12 @@
 //! ellipsoid seen from the camera) cover the pixel, and in `Center` depth every ray of the
 //! camera meets them in one order, their centres' depth.
 //!
-//! So the Gaussians are sorted by centre depth once (a radix sort of their depths' bits), and
-//! listed in that order in the bands of rows their silhouettes cover, eight to a chunk, lane by
+//! So the Gaussians are sorted by centre depth once (a radix sort of their depths' bits),
+//! placed on the screen in that order four at a time (their silhouettes in f64 lanes,
+//! `wide`), and listed in the bands of rows their silhouettes cover, eight to a chunk, lane by
 //! lane. A row of pixels walks its band's list once, front to back: for a chunk's Gaussians at
 //! once it solves for the pixels each silhouette covers on that row (a chord of the ellipse),
-//! and evaluates only those pixels' rays, eight at a time.
+//! and evaluates those pixels' rays in windows of eight from the chord's first.
 //!
 //! **The estimate.** Sun et al.'s multi-sample estimator (Algorithm 1, section 3.5) gives each
 //! of a ray's slots the closest hit its own acceptance test takes, each hit tested with a fresh

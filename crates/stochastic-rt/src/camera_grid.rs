@@ -868,6 +868,7 @@ impl Screen {
     /// the whole screen when its box reaches behind the camera's plane; `None` when its centre
     /// is not in front of the camera (`intersect` never places a hit there) or it is off the
     /// screen.
+    ///
     /// The definition [`Screen::place4`] computes four at a time (tested bit for bit).
     #[cfg(test)]
     fn place(&self, g: &TraceGaussians, i: usize, depth: f32) -> Option<(Placed, Facing)> {
@@ -980,10 +981,10 @@ impl Screen {
         }
     }
 
-    /// [`Screen::place`] for four Gaussians (`indices`, centre depths `depths`, all positive)
-    /// into `placed` and `facing` (the first `placed.len()` of them), bit for bit:
-    /// [`Seen::new`]'s, [`Screen::silhouette`]'s and [`Facing::seen`]'s arithmetic in f64
-    /// lanes, the same operations in the same order; then each lane's branches.
+    /// [`Screen::place`] for four Gaussians (`indices`, centre depths `depths`; a depth not
+    /// above 0 gives `None`) into `placed` and `facing` (the first `placed.len()` of them), bit
+    /// for bit: [`Seen::new`]'s, [`Screen::silhouette`]'s and [`Facing::seen`]'s arithmetic in
+    /// f64 lanes, the same operations in the same order; then each lane's branches.
     #[inline(always)]
     fn place4(
         &self,

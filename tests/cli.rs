@@ -1250,3 +1250,128 @@ fn cached_renders_are_the_same_bytes_on_any_thread_count() {
         assert!(bytes[0] == bytes[1], "{args:?}: 1 and 3 threads differ");
     }
 }
+
+// Issue 48, first item: no library is loaded from the folder the program runs in. A folder
+// that ships a `pyoidn` package (with its distribution metadata, and a "library" whose
+// initialiser writes a marker file) stands for an unpacked dataset or a cloned repository.
+
+/// A hostile folder: `pyoidn/` with a library whose constructor writes `marker` (compiled with
+/// the system's C compiler where there is one; else a file that is no library, which the old
+/// loader still tried to open and named in its error). Returns (folder, marker, compiled).
+fn hostile_folder(name: &str) -> (PathBuf, PathBuf, bool) {
+    let d = scratch(name);
+    let marker = d.join("constructor-ran");
+    let lib = d.join("pyoidn/oidn/lib");
+    std::fs::create_dir_all(&lib).unwrap();
+    std::fs::write(d.join("pyoidn/__init__.py"), "").unwrap();
+    let info = d.join("pyoidn-2.5.1.0.dist-info");
+    std::fs::create_dir_all(&info).unwrap();
+    std::fs::write(
+        info.join("METADATA"),
+        "Metadata-Version: 2.1\nName: pyoidn\nVersion: 2.5.1.0\n",
+    )
+    .unwrap();
+    let so = lib.join("libOpenImageDenoise.so.2");
+    let source = d.join("evil.c");
+    std::fs::write(
+        &source,
+        format!(
+            "#include <stdio.h>\n__attribute__((constructor)) static void ran(void) {{ FILE *f = fopen(\"{}\", \"w\"); if (f) {{ fputs(\"ran\", f); fclose(f); }} }}\n",
+            marker.display()
+        ),
+    )
+    .unwrap();
+    let compiled = Command::new("cc")
+        .args(["-shared", "-fPIC", "-o"])
+        .arg(&so)
+        .arg(&source)
+        .status()
+        .is_ok_and(|s| s.success());
+    if !compiled {
+        std::fs::write(&so, b"not a library").unwrap();
+    }
+    (d, marker, compiled)
+}
+
+#[test]
+fn a_pyoidn_in_the_working_folder_is_never_loaded() {
+    let (d, marker, compiled) = hostile_folder("hostile-cwd");
+    let out = render_small(&["--spp", "1", "--denoise", "-o"])
+        .arg(d.join("x.exr"))
+        .env_remove("GSCACHE_OIDN")
+        .current_dir(&d)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    eprintln!("compiled a constructor: {compiled}\n{err}");
+    assert!(!marker.exists(), "the folder's library ran: {err}");
+    // Whether or not this machine has the real library, the folder's copy is never tried.
+    assert!(!err.contains("cannot use it"), "{err}");
+    assert!(
+        !err.contains(&*d.to_string_lossy()) || err.contains("x.exr"),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_viewer_loads_the_denoiser_only_when_first_used() {
+    let (d, marker, compiled) = hostile_folder("lazy-view");
+    if !compiled {
+        eprintln!("no C compiler: the constructor cannot be built; nothing to observe");
+        return;
+    }
+    // Named by GSCACHE_OIDN: the user's explicit choice, loaded, but only when asked for.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .arg("view")
+        .arg(repo().join("data/scenes/default.toml"))
+        .args(["--port", "0", "--width", "64", "--height", "48", "--output"])
+        .arg(d.join("out"))
+        .env("GSCACHE_OIDN", d.join("pyoidn/oidn/lib"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(child.stdout.take().unwrap()),
+        &mut line,
+    )
+    .unwrap();
+    let started = line.starts_with("http://");
+    let ran = marker.exists();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(started, "no URL: {line:?}");
+    assert!(!ran, "the viewer loaded the denoiser at start-up");
+}
+
+/// Issue 48, second item: an output that links to a device is refused before any work, the
+/// link is kept, and no PNG is written beside it.
+#[cfg(unix)]
+#[test]
+fn an_output_that_is_a_device_is_refused() {
+    let d = scratch("device-output");
+    let link = d.join("x.exr");
+    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    let out = render_small(&["--spp", "1", "-o"])
+        .arg(&link)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("device") && err.contains("regular file"),
+        "{err}"
+    );
+    assert!(
+        std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
+    let names: Vec<_> = std::fs::read_dir(&d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names, ["x.exr"]);
+}

@@ -281,15 +281,45 @@ _denoisers: dict = {}
 
 
 def _pyoidn_library() -> Optional[str]:
-    """The folder of the library the ``pyoidn`` package ships, if this interpreter has it."""
-    import importlib.util
-    import os
+    """The folder of the library the ``pyoidn`` package ships, where this interpreter has it
+    installed, and ``None`` where it has not or the folder is not one to load code from.
 
-    spec = importlib.util.find_spec("pyoidn")
-    if spec is None or spec.origin is None:
+    Loading a library runs its code, so the package is looked for only in the interpreter's own
+    site-packages folders (its installed distributions' metadata, never ``sys.path``, which
+    holds the script's or the current folder), and its folder is refused where it lies inside
+    the current folder (unless the interpreter is installed there too: a virtual environment),
+    or where it, or a folder above it, belongs to another user or is writable by others. The
+    program's loader (crates/denoise) applies the same rules."""
+    import importlib.metadata
+    import os
+    import site
+    import sys
+
+    folders = list(site.getsitepackages())
+    if site.ENABLE_USER_SITE:
+        folders.append(site.getusersitepackages())
+    folders = [f for f in folders if os.path.isdir(f)]
+    found = next(iter(importlib.metadata.distributions(name="pyoidn", path=folders)), None)
+    if found is None:
         return None
-    folder = os.path.join(os.path.dirname(spec.origin), "oidn", "lib")
-    return folder if os.path.isdir(folder) else None
+    folder = os.path.realpath(str(found.locate_file(os.path.join("pyoidn", "oidn", "lib"))))
+    if not os.path.isdir(folder):
+        return None
+    here = os.path.realpath(os.getcwd())
+    inside = lambda path: os.path.commonpath([path, here]) == here
+    if here != os.path.dirname(here) and inside(folder) and not inside(os.path.realpath(sys.prefix)):
+        return None
+    if os.name == "posix":
+        me, path = os.geteuid(), folder
+        while True:
+            st = os.stat(path)
+            sticky_folder = os.path.isdir(path) and st.st_mode & 0o1000
+            if st.st_uid not in (0, me) or (st.st_mode & 0o022 and not sticky_folder):
+                return None
+            if path == os.path.dirname(path):
+                break
+            path = os.path.dirname(path)
+    return folder
 
 
 def denoise(

@@ -87,3 +87,22 @@ def test_a_missing_library_says_how_to_install_it():
     image = np.ones((8, 8, 3), np.float32)
     with pytest.raises(gscache.GscacheError, match="pip install pyoidn"):
         gscache.denoise(image, library="/nonexistent/libOpenImageDenoise.so.2")
+
+
+def test_a_pyoidn_in_the_current_folder_is_never_the_library(tmp_path, monkeypatch):
+    """Issue 48's first item: a dataset or cloned repository that ships a ``pyoidn`` package
+    (with its distribution metadata, so that a metadata search on ``sys.path`` finds it too)
+    must not become the library that is loaded: loading runs its code. The current folder is
+    put first on ``sys.path``, as ``python -c`` and an interactive session have it; the old
+    ``find_spec`` search returned this folder's copy."""
+    lib = tmp_path / "pyoidn" / "oidn" / "lib"
+    lib.mkdir(parents=True)
+    (tmp_path / "pyoidn" / "__init__.py").write_text("raise SystemExit('pyoidn from the folder ran')\n")
+    (lib / "libOpenImageDenoise.so.2").write_bytes(b"not a library")
+    info = tmp_path / "pyoidn-2.5.1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: pyoidn\nVersion: 2.5.1.0\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    found = gscache._pyoidn_library()
+    assert found is None or not os.path.realpath(found).startswith(str(tmp_path.resolve())), found

@@ -12,12 +12,15 @@
 //! - [`library`]: where the library is looked for, and the part of its C API used here.
 //! - [`filter`]: [`Denoiser`], one device and its `RT` filters: colour alone, or with the
 //!   albedo, or with the albedo and the normal ([`Aux`]), at a [`Quality`].
+//! - [`on_demand`]: [`OnDemand`], a denoiser loaded the first time it is used.
 
 pub mod filter;
 pub mod library;
+pub mod on_demand;
 
 pub use filter::{Aux, Denoiser, Options, Quality};
 pub use library::{ENV_VAR, INSTALL_HINT};
+pub use on_demand::OnDemand;
 
 /// What went wrong, with what to do about it.
 #[derive(Debug, thiserror::Error)]

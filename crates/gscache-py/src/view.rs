@@ -55,7 +55,8 @@ pub fn _view(
             port,
             output,
             max_clients: max_clients.max(1),
-            denoiser: denoise::Denoiser::load(0).ok(),
+            // Loaded when the page first turns denoising on: loading runs the library's code.
+            denoiser: denoise::OnDemand::new(0),
         },
     )
     .map_err(crate::error)?;

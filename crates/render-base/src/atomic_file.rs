@@ -48,6 +48,7 @@ pub fn write_atomically(
     if path.file_name().is_none() {
         return Err(fail("the path names no file".into()));
     }
+    check_output(path)?;
     let file = AtomicWriteFile::open(path).map_err(|e| fail(e.to_string()))?;
     let mut writer = BufWriter::new(file);
     // On any error below the temporary file is dropped, which discards it.
@@ -124,6 +125,81 @@ impl FileIdentity {
 
     #[cfg(not(unix))]
     fn remove_names_beside(self, _path: &Path) {}
+}
+
+/// The system's folders of devices and kernel files: nothing the user made is there, and a
+/// file written there changes the machine (as root, `-o /dev/stdout` once replaced the
+/// machine's `/dev/stdout` link with a regular file).
+const SYSTEM_FOLDERS: [&str; 3] = ["/dev", "/proc", "/sys"];
+
+/// Linux's shared-memory folder: under `/dev`, but a file system of ordinary files that users
+/// write scratch data to.
+const SHARED_MEMORY: &str = "/dev/shm";
+
+/// Checks that `path` may be an output: where it exists, a regular file (following links: a
+/// link to a device is a device), and its nearest existing folder is not under a system
+/// folder ([`SYSTEM_FOLDERS`]). A device, FIFO or socket is refused: gscache writes only
+/// regular files, by replacing them whole.
+pub fn check_output(path: &Path) -> Result<(), WriteError> {
+    let fail = |message: String| WriteError {
+        path: path.into(),
+        message,
+    };
+    if let Ok(meta) = std::fs::metadata(path) {
+        let kind = file_kind(&meta);
+        if kind != "regular file" {
+            return Err(fail(format!(
+                "it is a {kind}: expected a regular file (gscache writes only regular files)"
+            )));
+        }
+    }
+    let existing = path
+        .ancestors()
+        .skip(1)
+        .map(|d| {
+            if d.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                d
+            }
+        })
+        .find(|d| d.exists());
+    if let Some(folder) = existing.and_then(|d| d.canonicalize().ok())
+        && !folder.starts_with(SHARED_MEMORY)
+        && let Some(system) = SYSTEM_FOLDERS
+            .iter()
+            .find(|s| folder.starts_with(Path::new(s)))
+    {
+        return Err(fail(format!(
+            "it is under {system}, a folder of the system's devices and kernel files: expected a file of your own"
+        )));
+    }
+    Ok(())
+}
+
+/// What kind of file a (followed) directory entry is, in words.
+fn file_kind(meta: &std::fs::Metadata) -> &'static str {
+    let kind = meta.file_type();
+    if kind.is_file() {
+        return "regular file";
+    }
+    if kind.is_dir() {
+        return "folder";
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if kind.is_char_device() || kind.is_block_device() {
+            return "device";
+        }
+        if kind.is_fifo() {
+            return "FIFO (named pipe)";
+        }
+        if kind.is_socket() {
+            return "socket";
+        }
+    }
+    "special file"
 }
 
 /// Checks, before any work, that a file can be created in folder `dir`, without leaving

@@ -35,6 +35,6 @@ pub mod hash;
 /// the colour `0.5 + SH_C0 * dc`.
 pub const SH_C0: f32 = 0.282_094_8;
 
-pub use atomic_file::{AtomicWriter, WriteError, check_writable, write_atomically};
+pub use atomic_file::{AtomicWriter, WriteError, check_output, check_writable, write_atomically};
 pub use camera::{Camera, CameraError, MAX_IMAGE_SIDE};
 pub use control::Control;

@@ -126,3 +126,51 @@ fn a_rename_onto_a_folder_fails_and_leaves_nothing_behind() {
     assert!(err.to_string().contains("out.exr"), "{err}");
     assert_eq!(entries(&dir), ["out.exr"]);
 }
+
+/// Issue 48, second item: `-o /dev/stdout` as root replaced the machine's `/dev/stdout` link
+/// with a regular file. An output that is (or links to) a device, a FIFO or a socket, or that
+/// lies under /dev, /proc or /sys, is refused, and nothing is written.
+#[cfg(unix)]
+#[test]
+fn devices_fifos_and_system_folders_are_refused_as_outputs() {
+    let dir = scratch("devices");
+    let fifo = dir.join("pipe.exr");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(made, "mkfifo failed");
+    // A link to a device: following it finds the device (the link must not be replaced).
+    let link = dir.join("null.exr");
+    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    for (path, kind) in [(&fifo, "FIFO"), (&link, "device")] {
+        let err = write_text(path, "x").unwrap_err().to_string();
+        assert!(err.contains(kind) && err.contains("regular file"), "{err}");
+    }
+    assert!(
+        std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
+    assert_eq!(entries(&dir), ["null.exr", "pipe.exr"]);
+    for path in [
+        "/proc/self/out.exr",
+        "/sys/out.exr",
+        "/dev/stdout.png",
+        "/dev/new-folder/out.exr",
+    ] {
+        let err = render_base::check_output(Path::new(path))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("folder of the system's devices"),
+            "{path}: {err}"
+        );
+    }
+    assert!(!Path::new("/dev/new-folder").exists());
+    // An ordinary file, and a file that does not exist yet, are outputs.
+    render_base::check_output(&dir.join("new.exr")).unwrap();
+    write_text(&dir.join("new.exr"), "x").unwrap();
+    render_base::check_output(&dir.join("new.exr")).unwrap();
+}

@@ -37,6 +37,11 @@ pub enum ViewerError {
     Io(#[from] std::io::Error),
     #[error("{0}")]
     Invalid(String),
+    #[error("--output {}: {message}", path.display())]
+    Output {
+        path: std::path::PathBuf,
+        message: String,
+    },
 }
 
 pub type Result<T> = std::result::Result<T, ViewerError>;

@@ -34,6 +34,41 @@ fn free_stem(dir: &Path) -> std::io::Result<String> {
     )))
 }
 
+/// Checks, when the viewer starts, that Save will be able to write into `dir` (a bad folder is
+/// said now, not at the first Save), without creating anything: `dir` is a folder that can be
+/// written, or does not exist yet and its nearest existing ancestor is one.
+pub fn check_output_folder(dir: &Path) -> crate::Result<()> {
+    let fail = |message: String| crate::ViewerError::Output {
+        path: dir.to_path_buf(),
+        message,
+    };
+    let existing = dir
+        .ancestors()
+        .map(|d| {
+            if d.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                d
+            }
+        })
+        .find(|d| std::fs::symlink_metadata(d).is_ok())
+        .ok_or_else(|| fail("no part of the path exists".into()))?;
+    if !existing.is_dir() {
+        return Err(fail(format!(
+            "{} is not a folder: expected a folder for the saved images",
+            existing.display()
+        )));
+    }
+    render_base::check_output(&existing.join("view-0001.exr")).map_err(|e| fail(e.message))?;
+    render_base::check_writable(existing).map_err(|e| {
+        fail(format!(
+            "cannot write into {}: {}",
+            existing.display(),
+            e.message
+        ))
+    })
+}
+
 /// What a save needs of the viewer's state.
 pub struct SaveRequest<'a> {
     pub dir: &'a Path,

@@ -40,8 +40,9 @@ pub struct Options {
     pub output: PathBuf,
     /// Pages connected at once.
     pub max_clients: usize,
-    /// Open Image Denoise, where installed, for the page's denoise toggle.
-    pub denoiser: Option<denoise::Denoiser>,
+    /// Open Image Denoise for the page's denoise toggle, loaded when the toggle is first
+    /// turned on (not at start-up: loading runs the library's code).
+    pub denoiser: denoise::OnDemand,
 }
 
 impl Default for Options {
@@ -51,7 +52,7 @@ impl Default for Options {
             port: 8765,
             output: PathBuf::from("out/view"),
             max_clients: 4,
-            denoiser: None,
+            denoiser: denoise::OnDemand::new(0),
         }
     }
 }
@@ -186,6 +187,7 @@ pub fn serve(
     scene_file: PathBuf,
     options: Options,
 ) -> crate::Result<Viewer> {
+    crate::save::check_output_folder(&options.output)?;
     let listener = std::net::TcpListener::bind((options.bind, options.port)).map_err(|source| {
         crate::ViewerError::Bind {
             address: format!("{}:{}", options.bind, options.port),
@@ -212,11 +214,7 @@ pub fn serve(
             .name("gscache-view-render".into())
             .spawn(move || worker.run(command_rx, cancel, frames_tx, events))?
     };
-    let host = if options.bind.is_unspecified() || options.bind.is_loopback() {
-        "127.0.0.1".to_string()
-    } else {
-        options.bind.to_string()
-    };
+    let host = url_host(options.bind);
     let url = format!("http://{host}:{}/?token={token}", address.port());
     let app = Arc::new(App {
         token,
@@ -268,6 +266,18 @@ pub fn serve(
         worker: Some(worker_thread),
         commands,
     })
+}
+
+/// The host to print in the URL for a server bound to `bind`: the loopback address of the
+/// same family for a loopback or unspecified address (a server on `::1` does not answer on
+/// 127.0.0.1), an IPv6 address in brackets.
+fn url_host(bind: IpAddr) -> String {
+    match bind {
+        IpAddr::V4(a) if a.is_unspecified() || a.is_loopback() => "127.0.0.1".into(),
+        IpAddr::V6(a) if a.is_unspecified() || a.is_loopback() => "[::1]".into(),
+        IpAddr::V4(a) => a.to_string(),
+        IpAddr::V6(a) => format!("[{a}]"),
+    }
 }
 
 /// The page, its CSS and JavaScript inlined.
@@ -421,4 +431,5 @@ async fn client(mut socket: WebSocket, app: Arc<App>, _place: ClientPlace) {
             },
         }
     }
+    app.command(Command::Goodbye { client: id });
 }

@@ -52,6 +52,11 @@ pub enum Command {
         client: u64,
         message: crate::protocol::ClientMessage,
     },
+    /// A client left: if it was dragging, its drag ends; with no client left, rendering
+    /// stops until one comes.
+    Goodbye {
+        client: u64,
+    },
     Shutdown,
 }
 
@@ -65,7 +70,7 @@ pub struct Worker {
     pub transfer: TransferSettings,
     pub lights: LightSettings,
     pub method: Method,
-    pub denoiser: Option<denoise::Denoiser>,
+    pub denoiser: denoise::OnDemand,
     pub denoise_on: bool,
     pub moving: bool,
     /// The next frame is the quick one after an edit (plain path tracing: at the preview size).
@@ -78,8 +83,11 @@ pub struct Worker {
     /// rendered since the last edit (they are kept equal).
     pub split: Option<Session>,
     seconds: [f64; 2],
-    /// A page has connected.
-    greeted: bool,
+    /// The pages connected now: with none, nothing is rendered (a viewer nobody watches
+    /// burns no cores).
+    watching: usize,
+    /// The page whose last camera message said it was dragging, while it drags.
+    mover: Option<u64>,
     /// Frames per second, smoothed.
     fps: f64,
     last_frame: Option<Instant>,
@@ -92,7 +100,7 @@ impl Worker {
         scene_text: String,
         scene_file: PathBuf,
         output: PathBuf,
-        denoiser: Option<denoise::Denoiser>,
+        denoiser: denoise::OnDemand,
     ) -> crate::Result<Self> {
         let facts = SceneFacts::of(&scene);
         let transfer = transfer_settings_of(scene.media.medium.transfer_function(), 16);
@@ -119,16 +127,17 @@ impl Worker {
             target_spp,
             split: None,
             seconds: [0.0; 2],
-            greeted: false,
+            watching: 0,
+            mover: None,
             fps: 0.0,
             last_frame: None,
         })
     }
 
-    /// Nothing to render: no page has connected yet (a viewer nobody watches burns no
-    /// cores), or the still view has its samples.
+    /// Nothing to render: no page is connected (a viewer nobody watches burns no cores), or
+    /// the still view has its samples.
     fn converged(&self) -> bool {
-        !self.greeted
+        self.watching == 0
             || (!self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp)
     }
 
@@ -180,7 +189,7 @@ impl Worker {
                 match command {
                     Command::Shutdown => return,
                     Command::Hello { client } => {
-                        self.greeted = true;
+                        self.watching += 1;
                         let text = hello(
                             &self.facts,
                             self.session.scene().settings.path.show_lights,
@@ -188,7 +197,7 @@ impl Worker {
                             &self.transfer,
                             &self.lights,
                             self.method,
-                            self.denoiser.is_some(),
+                            self.denoiser.offered(),
                         )
                         .to_string();
                         let _ = events.send(Event {
@@ -200,6 +209,20 @@ impl Worker {
                         let current = frames.borrow().clone();
                         if let Some(frame) = current {
                             frames.send_replace(Some(frame));
+                        }
+                    }
+                    Command::Goodbye { client } => {
+                        self.watching = self.watching.saturating_sub(1);
+                        if self.mover == Some(client) {
+                            // A page that vanished mid-drag will send no "still" camera.
+                            self.mover = None;
+                            self.moving = false;
+                            if let Err(e) = self.set_camera() {
+                                let _ = events.send(Event {
+                                    to: None,
+                                    text: Arc::new(error_json(&e)),
+                                });
+                            }
                         }
                     }
                     Command::Message { client, message } => {
@@ -274,6 +297,7 @@ impl Worker {
             Change::Camera { camera, moving } => {
                 self.camera = camera;
                 self.moving = moving;
+                self.mover = moving.then_some(client);
                 self.set_camera()?;
             }
             Change::Transfer(tf, settings) => {
@@ -362,8 +386,8 @@ impl Worker {
                 self.set_camera()?;
             }
             Change::Denoise(on) => {
-                if on && self.denoiser.is_none() {
-                    return Err("denoising needs Intel Open Image Denoise: pip install pyoidn, or set GSCACHE_OIDN to its library folder".into());
+                if on && let Err(why) = self.denoiser.get() {
+                    return Err(format!("denoising is not available: {why}"));
                 }
                 self.denoise_on = on;
                 // The next frame shows the change, even on a converged view.
@@ -451,7 +475,7 @@ impl Worker {
         let mut denoise_ms = 0.0;
         if self.denoise_on
             && !self.moving
-            && let Some(d) = self.denoiser.as_mut()
+            && let Ok(d) = self.denoiser.get()
         {
             let t = Instant::now();
             match d.denoise(&image, None, None, denoise::Options::default()) {
@@ -493,7 +517,7 @@ impl Worker {
                 "right_ms": self.seconds[1] * 1e3,
             })),
             "moving": self.moving,
-            "denoised": self.denoise_on && !self.moving && self.denoiser.is_some(),
+            "denoised": self.denoise_on && !self.moving && self.denoiser.is_loaded(),
         })
         .to_string();
         Some(Frame { jpeg, stats })

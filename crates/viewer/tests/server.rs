@@ -467,3 +467,213 @@ async fn the_still_view_converges_to_the_render() {
         "the view's mean {viewed} against the renders' {m} (sd {sd}): t = {t}"
     );
 }
+
+/// A viewer on the default scene at 64x36 whose denoiser is `denoiser` (loaded on first use).
+fn start_with_denoiser(output: &Path, denoiser: denoise::OnDemand) -> Viewer {
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(64, 36).unwrap();
+    scene.settings.spp = 8;
+    let options = Options {
+        port: 0,
+        output: output.to_path_buf(),
+        denoiser,
+        ..Default::default()
+    };
+    serve(scene, text, file, options).unwrap()
+}
+
+/// The denoiser is loaded when the page first turns it on (issue 48: loading runs the library's
+/// code, so not at start-up). A library that cannot be loaded is said to the page that asked,
+/// and later pages are greeted without the toggle.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_missing_denoiser_is_said_when_turned_on_and_then_not_offered() {
+    let out = scratch("denoise-missing");
+    let v = start_with_denoiser(
+        &out,
+        denoise::OnDemand::from_library("/nonexistent/libOpenImageDenoise.so.2", 1),
+    );
+    let t = token(&v);
+    let mut socket = connect(&v, &t).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| s.hello.is_some()).await;
+    assert_eq!(seen.hello.as_ref().unwrap()["denoiser"], true);
+    socket
+        .send(Message::Text(r#"{"type":"denoise","on":true}"#.into()))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.errors.is_empty()).await;
+    assert!(
+        seen.errors[0].contains("denoising is not available")
+            && seen.errors[0].contains("/nonexistent/libOpenImageDenoise.so.2"),
+        "{:?}",
+        seen.errors
+    );
+    drop(socket);
+    let mut second = connect(&v, &t).await.unwrap();
+    let mut later = Seen::default();
+    read_until(&mut second, &mut later, |s| s.hello.is_some()).await;
+    assert_eq!(later.hello.as_ref().unwrap()["denoiser"], false);
+    v.stop();
+}
+
+/// With the library (GSCACHE_OIDN or pyoidn), turning the toggle on loads it and the still
+/// view's frames come back denoised.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
+async fn turning_denoising_on_loads_the_denoiser_and_denoises_frames() {
+    let out = scratch("denoise-on");
+    let v = start_with_denoiser(&out, denoise::OnDemand::new(1));
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| s.hello.is_some()).await;
+    socket
+        .send(Message::Text(r#"{"type":"denoise","on":true}"#.into()))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.last().is_some_and(|m| m["denoised"] == true)
+    })
+    .await;
+    assert!(seen.errors.is_empty(), "{:?}", seen.errors);
+    v.stop();
+}
+
+/// Issue 48, item 10: a bad `--output` is said when the viewer starts (it was said only at the
+/// first Save), and nothing is created for a good one until a Save.
+#[test]
+fn a_bad_output_folder_is_refused_at_start() {
+    let out = scratch("bad-output");
+    std::fs::create_dir_all(&out).unwrap();
+    let file = out.join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    for bad in [file.clone(), file.join("below")] {
+        let err = match serve_into(&bad) {
+            Ok(v) => {
+                v.stop();
+                panic!("{}: served", bad.display())
+            }
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            err.contains("--output") && err.contains("not a folder"),
+            "{err}"
+        );
+    }
+    let fresh = out.join("new/deeper");
+    serve_into(&fresh).unwrap().stop();
+    assert!(
+        !out.join("new").exists(),
+        "a folder was made before any Save"
+    );
+}
+
+fn serve_into(output: &Path) -> viewer::Result<Viewer> {
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(16, 9).unwrap();
+    let options = Options {
+        port: 0,
+        output: output.to_path_buf(),
+        ..Default::default()
+    };
+    serve(scene, text, file, options)
+}
+
+/// Issue 48, item 10: bound to `::1`, the printed URL is the IPv6 loopback's, and it answers.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_viewer_on_the_ipv6_loopback_prints_a_url_that_answers() {
+    if std::net::TcpListener::bind("[::1]:0").is_err() {
+        eprintln!("this machine has no IPv6 loopback: nothing to test");
+        return;
+    }
+    let out = scratch("ipv6");
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(16, 9).unwrap();
+    let v = serve(
+        scene,
+        text,
+        file,
+        Options {
+            bind: "::1".parse().unwrap(),
+            port: 0,
+            output: out,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let port = v.address().port();
+    assert!(
+        v.url().starts_with(&format!("http://[::1]:{port}/?token=")),
+        "{}",
+        v.url()
+    );
+    let mut s = tokio::net::TcpStream::connect(("::1", port)).await.unwrap();
+    let path = v
+        .url()
+        .split_once(&format!(":{port}"))
+        .unwrap()
+        .1
+        .to_string();
+    let request = format!("GET {path} HTTP/1.1\r\nHost: [::1]:{port}\r\nConnection: close\r\n\r\n");
+    tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
+        .await
+        .unwrap();
+    let mut response = String::new();
+    tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response)
+        .await
+        .unwrap();
+    assert!(response.starts_with("HTTP/1.1 200"), "{response}");
+    v.stop();
+}
+
+/// Issue 48, item 4: a page that vanished mid-drag left the worker rendering forever (about 3
+/// CPU-seconds every 10 s with no client). With no client connected nothing is rendered, and a
+/// client leaving ends its drag. Measured by the frame counter of the frame a new page is sent
+/// on connecting: the last one rendered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn no_client_means_no_rendering_and_a_leaving_client_ends_its_drag() {
+    let out = scratch("nobody");
+    let v = start(&out, 4);
+    let t = token(&v);
+    let mut socket = connect(&v, &t).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| !s.stats.is_empty()).await;
+    socket
+        .send(Message::Text(
+            r#"{"type":"camera","eye":[90,10,40],"target":[0,0,0],"up":[0,1,0],"moving":true}"#
+                .into(),
+        ))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.last().is_some_and(|m| m["moving"] == true)
+    })
+    .await;
+    let frame_of = |seen: &Seen| seen.stats.last().unwrap()["frame"].as_u64().unwrap();
+    let dropped_at = frame_of(&seen);
+    drop(socket);
+    // A 64x36 frame takes about a millisecond: a worker rendering for nobody would be hundreds
+    // of frames on after a second.
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    let mut again = connect(&v, &t).await.unwrap();
+    let mut after = Seen::default();
+    read_until(&mut again, &mut after, |s| !s.stats.is_empty()).await;
+    let came_back_at = frame_of(&after);
+    eprintln!("frame {dropped_at} when the page left, {came_back_at} when one came back");
+    assert!(
+        came_back_at <= dropped_at + 20,
+        "rendered with no page connected: frame {dropped_at} -> {came_back_at}"
+    );
+    // The drag ended with its page: the view refines at full size (it would stay "moving"
+    // until the time-out otherwise).
+    read_until(&mut again, &mut after, |s| {
+        s.stats.last().is_some_and(|m| m["moving"] == false)
+    })
+    .await;
+    v.stop();
+}

@@ -88,6 +88,10 @@ pub fn prepare_output(path: &Path) -> Result<()> {
         Some(d) => d,
         None => Path::new("."),
     };
+    // Before any folder is made: a device, a FIFO or a system folder is refused as it is.
+    if !path.is_dir() {
+        render_base::check_output(path)?;
+    }
     std::fs::create_dir_all(dir).with_context(|| {
         format!(
             "{}: cannot create the folder for {}",

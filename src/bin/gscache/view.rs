@@ -65,7 +65,8 @@ pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
             args.bind
         );
     }
-    let denoiser = denoise::Denoiser::load(global.threads.map_or(0, usize::from)).ok();
+    // Loaded when the page first turns denoising on, not now: loading runs the library's code.
+    let denoiser = denoise::OnDemand::new(global.threads.map_or(0, usize::from));
     let cancel = cancellation()?;
     let viewer = viewer::serve(
         scene,

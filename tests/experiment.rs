@@ -416,6 +416,17 @@ fn tampered_shard_files_are_refused() {
     std::fs::write(&path, flipped).unwrap();
     let e = merge(&path).unwrap_err();
     assert!(e.contains("flipped.json") && e.contains("checksum"), "{e}");
+    // The checksum removed (issue 48, item 11: it was said not to match): said missing.
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&whole).unwrap()).unwrap();
+    json.as_object_mut().unwrap().remove("checksum").unwrap();
+    let path = dir.join("unsigned.json");
+    std::fs::write(&path, json.to_string()).unwrap();
+    let e = merge(&path).unwrap_err();
+    assert!(
+        e.contains("unsigned.json") && e.contains("checksum is missing"),
+        "{e}"
+    );
     // Edits re-signed by `write`: the values behind the checksum are checked.
     type Edit = fn(&mut ShardFile);
     fn first_method(f: &mut ShardFile) -> &mut Vec<gscache_cli::experiment::measure::Snapshot> {

@@ -493,6 +493,23 @@ fn stage(dir: &Path, reader: Reader, name: &str, bytes: &[u8]) -> PathBuf {
         Reader::SavedCache => {
             let path = dir.join("length_1.ply");
             std::fs::write(&path, bytes).unwrap();
+            // Signed as a save would sign it, so that the mutated level reaches the PLY reader
+            // behind the manifest's checksum (whose own refusals gs-cache's tests hold).
+            let manifest = serde_json::json!({
+                "format": "gs-cache levels",
+                "version": 1,
+                "levels": [{
+                    "file": "length_1.ply",
+                    "gaussians": 0,
+                    "bytes": bytes.len(),
+                    "fnv1a64": format!(
+                        "{:016x}",
+                        render_base::hash::fnv1a64(bytes, render_base::hash::FNV_OFFSET)
+                    ),
+                }],
+                "config": gs_cache::CacheConfig::default(),
+            });
+            std::fs::write(dir.join("manifest.json"), manifest.to_string()).unwrap();
             return path;
         }
         _ => {}

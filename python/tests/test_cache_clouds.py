@@ -32,7 +32,7 @@ def test_cache_trains_saves_and_loads(repo, tmp_path):
     levels = cache.level_images()
     assert len(levels) == 2 and levels[0].max() > 0.0
     cache.save(str(tmp_path / "levels"))
-    assert sorted(os.listdir(tmp_path / "levels")) == ["length_1.ply", "length_2.ply"]
+    assert sorted(os.listdir(tmp_path / "levels")) == ["length_1.ply", "length_2.ply", "manifest.json"]
     loaded = gscache.Cache.load(scene, str(tmp_path / "levels"), {"levels": 2})
     again = loaded.level_images()
     # Not bit for bit: the files store colour x radiance scale, and loading rounds each colour

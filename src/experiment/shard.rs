@@ -217,6 +217,12 @@ impl ShardFile {
                 f.format
             );
         }
+        if f.checksum.is_empty() {
+            bail!(
+                "{}: the checksum is missing: the file was edited after it was written (every shard file gscache writes has one)",
+                path.display()
+            );
+        }
         if f.payload_checksum()? != f.checksum {
             bail!(
                 "{}: the checksum does not match: the file was changed or damaged after it was written",

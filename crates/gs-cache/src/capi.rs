@@ -452,8 +452,9 @@ pub unsafe extern "C" fn gs_cache_new(
     })
 }
 
-/// A cache from the levels saved in directory `dir` (`length_1.ply`, ...) with `config`'s
-/// settings (its `levels` and `points` are taken from the files). NULL on failure.
+/// A cache from the levels saved in directory `dir` (`manifest.json`, `length_1.ply`, ...)
+/// with `config`'s settings (its `levels` and `points` are taken from the files); a folder
+/// without a manifest, or whose files disagree with it, is refused. NULL on failure.
 ///
 /// # Safety
 /// `dir` must be a NUL-terminated string and `config` point to a `GsCacheConfig`.
@@ -820,7 +821,9 @@ pub unsafe extern "C" fn gs_cache_reset_schedule(cache: *mut GsCacheHandle) -> G
     })
 }
 
-/// Saves every level into directory `dir` as 3DGS PLY files (`length_1.ply`, ...).
+/// Saves every level into directory `dir` as 3DGS PLY files (`length_1.ply`, ...) with a
+/// `manifest.json`, whole: a previous save there is replaced, a folder holding other files is
+/// refused.
 ///
 /// # Safety
 /// `cache` must be a live handle and `dir` a NUL-terminated string.

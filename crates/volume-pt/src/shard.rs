@@ -436,6 +436,12 @@ impl PartialRender {
             )));
         }
         let stated = std::mem::take(&mut header.checksum);
+        if stated.is_empty() {
+            return Err(bad(
+                "the checksum is missing: the file was edited after it was written (every partial gscache writes has one)"
+                    .into(),
+            ));
+        }
         if checksum(&header, data) != stated {
             return Err(bad(
                 "the checksum does not match: the file was changed or damaged after it was written"

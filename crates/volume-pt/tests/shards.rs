@@ -176,6 +176,16 @@ fn partial_files_round_trip_and_refuse_damage() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("checksum does not match"), "{e}");
+    // The checksum removed (issue 48, item 11: it was said not to match): said missing.
+    let start = header.find(",\"checksum\":\"").unwrap();
+    let end = start + header[start + 13..].find('"').unwrap() + 14;
+    let mut removed = format!("{}{}", &header[..start], &header[end..]).into_bytes();
+    assert!(!String::from_utf8_lossy(&removed).contains("checksum"));
+    removed.extend_from_slice(&bytes[header_end..]);
+    let e = PartialRender::from_bytes(&removed, origin)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("the checksum is missing"), "{e}");
     let e = PartialRender::read(&dir).unwrap_err().to_string();
     assert!(e.contains("not a regular file"), "{e}");
     std::fs::remove_dir_all(&dir).ok();

@@ -318,6 +318,18 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let mut session =
         Session::new(scene, choice)?.with_features(args.features || args.denoise.needs_features());
     describe_cache(&session, args.cache.load_cache.is_some());
+    if let (Some(dir), Cache::Gaussian(c)) = (&args.cache.load_cache, session.cache())
+        && c.levels().len() != args.cache.settings.levels
+    {
+        // The saved folder's manifest fixes the levels; a differing --cache-levels (or its
+        // default) is said, not silently overridden.
+        eprintln!(
+            "note: {} holds {} levels (its manifest): the loaded cache has those, not the {} of --cache-levels",
+            dir.display(),
+            c.levels().len(),
+            args.cache.settings.levels
+        );
+    }
     // Frame counts from the user are checked before any work: they cannot wrap.
     let all_frames = args.cache.warmup.checked_add(frames).with_context(|| {
         format!(

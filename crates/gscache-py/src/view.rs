@@ -57,6 +57,7 @@ pub fn _view(
             max_clients: max_clients.max(1),
             // Loaded when the page first turns denoising on: loading runs the library's code.
             denoiser: denoise::OnDemand::new(0),
+            limits: viewer::Limits::default(),
         },
     )
     .map_err(crate::error)?;

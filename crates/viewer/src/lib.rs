@@ -9,6 +9,8 @@
 //!   wins, so a slow client never holds the rendering back.
 //! - [`server`]: HTTP and WebSocket on axum: the page, a token on every request, the Origin
 //!   checked, a bound on clients and message sizes, Ctrl-C stopping it cleanly.
+//! - [`connections`]: accepting connections on hyper's HTTP/1 with a header timeout and a cap,
+//!   so that idle or slow sockets cannot hold the viewer.
 //! - [`save`]: the image (EXR + PNG), the scene with every edit (TOML that `gscache render`
 //!   renders the same way) and the Gaussian cache (PLY), into the output folder only.
 //! - The page (`page/`): plain HTML, CSS and JavaScript, embedded in the binary; no build step.
@@ -16,11 +18,13 @@
 //! It listens on 127.0.0.1 unless told otherwise; the URL it prints carries a random token that
 //! every request must present, as Jupyter's does.
 
+pub mod connections;
 pub mod protocol;
 pub mod save;
 pub mod server;
 pub mod worker;
 
+pub use connections::Limits;
 pub use server::{Options, Viewer, serve};
 
 /// Errors of the viewer, naming what failed.

@@ -40,6 +40,8 @@ pub struct Options {
     pub output: PathBuf,
     /// Pages connected at once.
     pub max_clients: usize,
+    /// Connections open at once and the time each has to send its request head.
+    pub limits: crate::Limits,
     /// Open Image Denoise for the page's denoise toggle, loaded when the toggle is first
     /// turned on (not at start-up: loading runs the library's code).
     pub denoiser: denoise::OnDemand,
@@ -53,6 +55,7 @@ impl Default for Options {
             output: PathBuf::from("out/view"),
             max_clients: 4,
             denoiser: denoise::OnDemand::new(0),
+            limits: crate::Limits::default(),
         }
     }
 }
@@ -230,6 +233,7 @@ pub fn serve(
         page: page(),
     });
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let limits = options.limits;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("gscache-view-net")
@@ -248,12 +252,7 @@ pub fn serve(
                     eprintln!("gscache view: the listening socket could not join the runtime");
                     return;
                 };
-                let served = axum::serve(listener, router).with_graceful_shutdown(async move {
-                    let _ = stop_rx.await;
-                });
-                if let Err(e) = served.await {
-                    eprintln!("gscache view: the server stopped: {e}");
-                }
+                crate::connections::serve(listener, router, limits, stop_rx).await;
             });
             // Clients still connected are dropped with the runtime.
             runtime.shutdown_timeout(Duration::from_secs(1));
@@ -364,6 +363,26 @@ async fn websocket(
         .on_upgrade(move |socket| client(socket, app, place))
 }
 
+/// The close frame for a message that could not be read: 1009 ("message too big") for one over
+/// the size bound, 1002 (protocol error) otherwise, with the reason in words (a close reason is
+/// at most 123 bytes).
+fn close_frame(error: &str) -> axum::extract::ws::CloseFrame {
+    let too_big = error.contains("too long") || error.contains("Space limit");
+    let reason = if too_big {
+        format!("a message over {MAX_MESSAGE_BYTES} bytes: the viewer takes at most that")
+    } else {
+        let mut text: String = format!("unreadable message: {error}");
+        while text.len() > 123 {
+            text.pop();
+        }
+        text
+    };
+    axum::extract::ws::CloseFrame {
+        code: if too_big { 1009 } else { 1002 },
+        reason: reason.into(),
+    }
+}
+
 /// Sends `message`, giving up after [`SEND_TIMEOUT`]: false if the client is gone or stuck.
 async fn send(socket: &mut WebSocket, message: Message) -> bool {
     matches!(
@@ -382,7 +401,17 @@ async fn client(mut socket: WebSocket, app: Arc<App>, _place: ClientPlace) {
         tokio::select! {
             incoming = socket.recv() => {
                 let reply = match incoming {
-                    None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break,
+                    None | Some(Ok(Message::Close(_))) => break,
+                    Some(Err(e)) => {
+                        // Said before the connection ends: a page (or a person reading its
+                        // console) learns why, instead of seeing a reset.
+                        let _ = send(
+                            &mut socket,
+                            Message::Close(Some(close_frame(&e.to_string()))),
+                        )
+                        .await;
+                        break;
+                    }
                     Some(Ok(Message::Text(text))) => match parse(text.as_str()) {
                         Ok(message) => {
                             // The frame under way is cancelled so the edit shows sooner, but not

@@ -78,6 +78,7 @@ pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
             output: args.output,
             max_clients: args.max_clients as usize,
             denoiser,
+            limits: viewer::Limits::default(),
         },
     )?;
     println!("{}", viewer.url());

@@ -1,8 +1,10 @@
 //! What the page's Save writes, into the output folder only: `view-NNNN.exr` and `.png` (the
 //! image as shown, before any denoising), `view-NNNN.toml` (the scene with every edit, which
 //! `gscache render` renders the same way) and, with the Gaussian cache, `view-NNNN-cache/`
-//! (its levels as 3DGS PLY). `NNNN` is the first number none of them uses yet, so nothing
-//! already there is replaced. No name or path comes from the page.
+//! (its levels as 3DGS PLY, with their manifest). `NNNN` is the first number none of them uses
+//! yet, and every one of its names is created exclusively before anything is written
+//! ([`Reserved`]): two viewers saving into one folder never share a number, and nothing already
+//! there is replaced. No name or path comes from the page.
 
 use crate::protocol::{LightSettings, SceneFacts, TransferSettings};
 use glam::Vec3;
@@ -16,22 +18,105 @@ pub struct Saved {
     pub files: Vec<PathBuf>,
 }
 
-/// The first `view-NNNN` stem in `dir` that no file or folder uses.
-fn free_stem(dir: &Path) -> std::io::Result<String> {
-    for n in 1..100_000u32 {
-        let stem = format!("view-{n:04}");
-        let taken = ["exr", "png", "toml"]
-            .iter()
-            .any(|e| dir.join(format!("{stem}.{e}")).exists())
-            || dir.join(format!("{stem}-cache")).exists();
-        if !taken {
-            return Ok(stem);
+/// A `view-NNNN` name held by one save: its scene file, image files and (with the Gaussian
+/// cache) cache folder, each created empty and exclusively (`create_new`, `create_dir`) before
+/// anything is written, so that two viewers saving into one folder never write to, or
+/// replace, the same name. Dropped without [`Reserved::keep`], it removes what it created.
+struct Reserved {
+    stem: String,
+    /// The scene file, open: written last, through this handle.
+    toml: std::fs::File,
+    created: Vec<PathBuf>,
+    kept: bool,
+}
+
+impl Reserved {
+    /// Reserves the first `view-NNNN` in `dir` whose names are all free (`cache`: the cache
+    /// folder's too).
+    fn first_free(dir: &Path, cache: bool) -> Result<Self, String> {
+        for n in 1..100_000u32 {
+            let stem = format!("view-{n:04}");
+            let names = [
+                dir.join(format!("{stem}.toml")),
+                dir.join(format!("{stem}.exr")),
+                dir.join(format!("{stem}.png")),
+                dir.join(format!("{stem}-cache")),
+            ];
+            if names.iter().any(|p| std::fs::symlink_metadata(p).is_ok()) {
+                continue;
+            }
+            let mut created = Vec::new();
+            let mut toml = None;
+            let mut taken = false;
+            for (i, path) in names.iter().enumerate() {
+                let made = match i {
+                    3 if !cache => continue,
+                    3 => std::fs::create_dir(path).map(|()| None),
+                    _ => std::fs::OpenOptions::new()
+                        .write(true)
+                        .create_new(true)
+                        .open(path)
+                        .map(Some),
+                };
+                match made {
+                    Ok(file) => {
+                        created.push(path.clone());
+                        if i == 0 {
+                            toml = file;
+                        }
+                    }
+                    Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                        taken = true;
+                        break;
+                    }
+                    Err(e) => {
+                        remove_created(&created);
+                        return Err(format!("{}: {e}", path.display()));
+                    }
+                }
+            }
+            match (taken, toml) {
+                (false, Some(toml)) => {
+                    return Ok(Self {
+                        stem,
+                        toml,
+                        created,
+                        kept: false,
+                    });
+                }
+                // Another save took one of the names between the look and the creation.
+                _ => remove_created(&created),
+            }
+        }
+        Err(format!(
+            "{}: every name view-0001 to view-99999 is taken",
+            dir.display()
+        ))
+    }
+
+    fn keep(mut self) {
+        self.kept = true;
+    }
+}
+
+impl Drop for Reserved {
+    fn drop(&mut self) {
+        if !self.kept {
+            remove_created(&self.created);
         }
     }
-    Err(std::io::Error::other(format!(
-        "{}: every name view-0001 to view-99999 is taken",
-        dir.display()
-    )))
+}
+
+/// Removes what a reservation created (empty files, or a cache folder the failed save had
+/// begun): nothing else is touched.
+fn remove_created(created: &[PathBuf]) {
+    for path in created {
+        if path.is_dir() {
+            let _ = std::fs::remove_dir_all(path);
+        } else {
+            let _ = std::fs::remove_file(path);
+        }
+    }
 }
 
 /// Checks, when the viewer starts, that Save will be able to write into `dir` (a bad folder is
@@ -84,11 +169,16 @@ pub struct SaveRequest<'a> {
     pub session: &'a render_session::Session,
 }
 
-/// Writes the image, the scene and the cache (see the module docs).
+/// Writes the image, the scene and the cache (see the module docs): into names reserved
+/// first, the scene file last (a save whose scene file is empty did not finish).
 pub fn save(r: SaveRequest) -> Result<Saved, String> {
     std::fs::create_dir_all(r.dir).map_err(|e| format!("{}: {e}", r.dir.display()))?;
-    let stem = free_stem(r.dir).map_err(|e| e.to_string())?;
+    let cache = r.session.cache().gaussian().is_some();
+    let mut reserved = Reserved::first_free(r.dir, cache)?;
+    let stem = reserved.stem.clone();
     let mut files = Vec::new();
+    // The image files replace this save's own empty placeholders (atomically: complete or
+    // empty), never another save's file.
     let exr = r.dir.join(format!("{stem}.exr"));
     r.image
         .write_exr(&exr)
@@ -99,30 +189,21 @@ pub fn save(r: SaveRequest) -> Result<Saved, String> {
         .write_png(&png, r.scene.output.exposure, r.scene.output.tonemap)
         .map_err(|e| format!("{}: {e}", png.display()))?;
     files.push(png);
-    let toml_path = r.dir.join(format!("{stem}.toml"));
-    let text = scene_toml(&r)?;
-    write_new(&toml_path, text.as_bytes())?;
-    files.push(toml_path);
-    if r.session.cache().gaussian().is_some() {
+    if cache {
         let dir = r.dir.join(format!("{stem}-cache"));
         r.session
             .save_cache(&dir)
             .map_err(|e| format!("{}: {e}", dir.display()))?;
         files.push(dir);
     }
+    let toml_path = r.dir.join(format!("{stem}.toml"));
+    let text = scene_toml(&r)?;
+    std::io::Write::write_all(&mut reserved.toml, text.as_bytes())
+        .and_then(|()| reserved.toml.sync_all())
+        .map_err(|e| format!("{}: {e}", toml_path.display()))?;
+    files.insert(2, toml_path);
+    reserved.keep();
     Ok(Saved { files })
-}
-
-/// Writes `bytes` to `path`, which must not exist yet.
-fn write_new(path: &Path, bytes: &[u8]) -> Result<(), String> {
-    use std::io::Write;
-    let mut f = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(path)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    f.write_all(bytes)
-        .map_err(|e| format!("{}: {e}", path.display()))
 }
 
 fn array(v: Vec3) -> toml::Value {

@@ -798,3 +798,83 @@ async fn an_oversized_message_is_answered_with_a_close_frame_that_says_why() {
     assert!(frame.reason.contains("65536 bytes"), "{frame:?}");
     v.stop();
 }
+
+/// Issue 48, item 5: two viewers saving into one folder chose names by looking, then renamed
+/// over what was there: of 50 saves, 20 failed and 14 of the 30 "saved" held the other
+/// viewer's image. Two viewers of different image sizes, 25 saves each at once: every save
+/// succeeds under its own number, and each number's image is its own viewer's (by its size)
+/// with a complete scene file.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_viewers_saving_into_one_folder_never_share_a_name() {
+    let out = scratch("two-savers");
+    let start_sized = |w: u32, h: u32| {
+        let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+        let text = std::fs::read_to_string(&file).unwrap();
+        let mut scene = volume_pt::load_scene(&file).unwrap();
+        scene.camera = scene.camera.with_size(w, h).unwrap();
+        scene.settings.spp = 1;
+        serve(
+            scene,
+            text,
+            file,
+            Options {
+                port: 0,
+                output: out.clone(),
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let viewers = [start_sized(32, 18), start_sized(24, 24)];
+    let mut sockets = Vec::new();
+    for v in &viewers {
+        let mut s = connect(v, &token(v)).await.unwrap();
+        let mut seen = Seen::default();
+        read_until(&mut s, &mut seen, |s| !s.stats.is_empty()).await;
+        sockets.push(s);
+    }
+    // All 50 requests sent before any answer is read: the two render threads save at once.
+    for _ in 0..25 {
+        for s in &mut sockets {
+            s.send(Message::Text(r#"{"type":"save"}"#.into()))
+                .await
+                .unwrap();
+        }
+    }
+    let mut saved_by = Vec::new();
+    for s in &mut sockets {
+        let mut seen = Seen::default();
+        read_until(s, &mut seen, |s| s.saved.len() + s.errors.len() >= 25).await;
+        assert!(seen.errors.is_empty(), "{:?}", seen.errors);
+        saved_by.push(seen.saved);
+    }
+    let mut numbers = std::collections::HashSet::new();
+    for (viewer, saved) in saved_by.iter().enumerate() {
+        let size = [(32, 18), (24, 24)][viewer];
+        for message in saved {
+            let files: Vec<PathBuf> = message["files"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|f| PathBuf::from(f.as_str().unwrap()))
+                .collect();
+            let exr = files
+                .iter()
+                .find(|f| f.extension().is_some_and(|e| e == "exr"))
+                .unwrap();
+            assert!(numbers.insert(exr.clone()), "{} saved twice", exr.display());
+            let image = hdr_image::RgbImage::read_exr(exr).unwrap();
+            assert_eq!((image.width(), image.height()), size, "{}", exr.display());
+            let toml = exr.with_extension("toml");
+            assert!(
+                std::fs::metadata(&toml).unwrap().len() > 0,
+                "{}",
+                toml.display()
+            );
+        }
+    }
+    assert_eq!(numbers.len(), 50);
+    for v in viewers {
+        v.stop();
+    }
+}

@@ -537,6 +537,77 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Issue 48, item 8: a run killed outright (SIGKILL: the out-of-memory killer, SLURM's hard
+/// kill) wrote no `interrupted-units.json` and started again from nothing. Each unit is now on
+/// disk as it finishes (`finished-units/`), and `--resume OUTPUT` goes on from there to the
+/// one-process run's relMSE bits.
+#[cfg(unix)]
+#[test]
+fn a_killed_experiment_resumes_from_its_finished_units() {
+    use gscache_cli::experiment::measure::Budget;
+    let dir = scratch("killed");
+    let file = tiny_experiment(&dir);
+    let quiet = |_: &str| {};
+    // Also makes the shared reference, so the killed run starts measuring at once.
+    let whole = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let out = dir.join("killed-out");
+    let units = out.join(gscache_cli::experiment::UNITS_FOLDER);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .args(["-q", "experiment"])
+        .arg(&file)
+        .arg("--output")
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    // Whole unit files only (not the atomic writer's temporary names).
+    let finished = |dir: &Path| {
+        std::fs::read_dir(dir).map_or(0, |d| {
+            d.filter(|e| {
+                e.as_ref()
+                    .is_ok_and(|e| e.file_name().to_string_lossy().starts_with("unit-"))
+            })
+            .count()
+        })
+    };
+    while finished(&units) == 0 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before any unit was seen"
+        );
+        assert!(
+            started.elapsed().as_secs() < 300,
+            "no unit finished in 300 s"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap(); // SIGKILL: no handler runs
+    child.wait().unwrap();
+    let kept = finished(&units);
+    assert!(!out.join("interrupted-units.json").exists());
+    assert!((1..9).contains(&kept), "{kept} units on disk");
+    let resumed = gscache_cli::experiment::run_experiment_resumable(
+        &file,
+        Some(&out),
+        &quiet,
+        &volume_pt::Control::none(),
+        Some(&out),
+    )
+    .unwrap();
+    assert_eq!(resumed.runs.len(), whole.runs.len());
+    for (a, b) in whole.runs.iter().zip(&resumed.runs) {
+        assert_eq!((&a.method, a.budget, a.seed), (&b.method, b.budget, b.seed));
+        if matches!(a.budget, Budget::Spp(_)) {
+            assert_eq!(a.rel_mse.to_bits(), b.rel_mse.to_bits(), "{a:?}");
+        }
+    }
+    // Complete: the journal is gone.
+    assert!(!units.exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 #[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
 fn denoised_twins_are_measured_against_the_baselines_twins() {

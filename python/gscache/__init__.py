@@ -70,8 +70,9 @@ Progress = Callable[..., Any]  # progress(done, total) or progress(done)
 
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C stopped a render. ``image`` holds what was rendered (each pixel the mean of the
-    samples it received; ``None`` for a shard, which must hold whole sample ranges) and
-    ``samples`` how many samples were taken."""
+    samples it received, at least one each; for ``render_partial``, of the shard's samples, as
+    an image, not a ``Partial``, which must hold whole sample ranges; for ``Cache.render``, the
+    frames' image so far) and ``samples`` how many samples were taken."""
 
     def __init__(self, image: Optional[np.ndarray], samples: int):
         super().__init__(f"render interrupted after {samples} samples")
@@ -382,11 +383,12 @@ def render_partial(
     ``Partial``; ``Partial.merge_all`` of all n gives ``render``'s image bit for bit. The
     partial's file (``Partial.write``) is the one ``gscache render --shard`` writes, so
     program and package shards merge together."""
-    part = _gscache._render_partial(
+    part, image, samples = _gscache._render_partial(
         scene._inner, tuple(shard), spp, seed, integrator, max_depth, threads, progress
     )
     if part is None:
-        raise Interrupted(None, 0)
+        # No Partial (it must hold whole sample ranges), but the image of what was rendered.
+        raise Interrupted(image, samples)
     return part
 
 

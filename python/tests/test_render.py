@@ -135,7 +135,15 @@ def test_progress_counts_every_sample_and_its_exception_stops_the_render(repo):
         gscache.render(scene, spp=100_000, progress=stop)
 
 
-def test_ctrl_c_raises_interrupted_with_the_partial_image(repo):
+@pytest.mark.parametrize(
+    "call",
+    [
+        "gscache.render(scene, spp=100_000, progress=progress)",
+        # Issue 48, item 8: an interrupted shard raised Interrupted with no image at all.
+        "gscache.render_partial(scene, (0, 2), spp=200_000, progress=progress)",
+    ],
+)
+def test_ctrl_c_raises_interrupted_with_the_partial_image(repo, call):
     # SIGINT is sent from the progress callback once samples exist, so it always lands inside
     # the render whatever the machine's load. The child installs Python's Ctrl-C handler itself:
     # a process started in the background by a non-interactive shell inherits SIGINT ignored,
@@ -153,7 +161,7 @@ def test_ctrl_c_raises_interrupted_with_the_partial_image(repo):
                 sent.append(done)
                 os.kill(os.getpid(), signal.SIGINT)
         try:
-            gscache.render(scene, spp=100_000, progress=progress)
+            {call}
             print("not interrupted")
         except gscache.Interrupted as e:
             img = e.image

@@ -27,7 +27,7 @@ pub mod shard;
 pub use config::{Experiment, load_experiment};
 pub use run::Results;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use std::path::Path;
 
 /// Runs the experiment in `path` (its output folder replaced by `output` when given) and
@@ -60,10 +60,18 @@ pub struct Interrupted {
     pub experiment: std::path::PathBuf,
 }
 
+/// The folder of a run's finished units, one signed file each (`unit-NNNNN.json`), written as
+/// each unit finishes: what `--resume` goes on from when the run was killed (the out-of-memory
+/// killer, SLURM's hard kill) and no `interrupted-units.json` could be written. Removed when
+/// the run completes.
+pub const UNITS_FOLDER: &str = "finished-units";
+
 /// [`run_experiment`] that stops between units when `control` is cancelled, keeping what it
 /// measured in `OUTPUT/interrupted-units.json` (an [`Interrupted`] error says so), and that
-/// takes the units of `resume` (such a file) as measured. A resume file of another version of
-/// the experiment is refused, and its units are checked as a shard's are.
+/// takes the units of `resume` as measured: such a file, or a folder of finished units
+/// ([`UNITS_FOLDER`], written as the run goes, so a killed run's work is on disk too). Resume
+/// files of another version of the experiment are refused, and their units are checked as a
+/// shard's are.
 pub fn run_experiment_resumable(
     path: &Path,
     output: Option<&Path>,
@@ -76,30 +84,52 @@ pub fn run_experiment_resumable(
     let specs = shard::units(&exp, &main, &ablation);
     let key = shard::experiment_key(path, &exp, specs.len())?;
     let done = match resume {
-        Some(file) => {
-            let f = shard::ShardFile::read(file)?;
+        Some(from) => {
+            let files = resume_files(from)?;
             let scene = run::experiment_scene(&exp)?;
             let pixels = scene.camera.width as usize * scene.camera.height as usize;
             // The checks of a shard merge, without requiring every unit.
-            let units = shard::checked_units(&[(file.to_path_buf(), f)], &key, &specs, pixels)?;
+            let units = shard::checked_units(&files, &key, &specs, pixels)?;
             progress(&format!(
                 "resuming: {} of {} units read from {}",
                 units.len(),
                 specs.len(),
-                file.display()
+                from.display()
             ));
             units
         }
         None => Default::default(),
     };
+    let journal = exp.output.join(UNITS_FOLDER);
+    std::fs::create_dir_all(&journal)
+        .with_context(|| format!("{}: cannot create the folder", journal.display()))?;
+    let mut journal_error = None;
     let mut kept: Vec<(usize, shard::UnitResult)> =
         done.iter().map(|(k, r)| (*k, r.clone())).collect();
     let outcome = run::run_resumable(&exp, progress, control, done, &mut |k, r| {
-        kept.push((k, r.clone()))
+        kept.push((k, r.clone()));
+        // On disk as soon as it is measured: a killed run loses only the unit under way.
+        let unit = shard::ShardFile {
+            format: shard::FORMAT,
+            experiment: exp.name.clone(),
+            key: key.clone(),
+            shard: format!("unit {k}"),
+            unit_count: specs.len(),
+            units: vec![(k, r.clone())],
+            checksum: String::new(),
+        };
+        if let Err(e) = unit.write(&journal.join(format!("unit-{k:05}.json"))) {
+            journal_error.get_or_insert(e);
+        }
     });
+    if let Some(e) = journal_error {
+        return Err(e.context("recording a finished unit for --resume"));
+    }
     match outcome {
         Ok(results) => {
             write_outputs(&exp, &results, progress)?;
+            // Every unit is in the results now: the journal is no longer needed.
+            let _ = std::fs::remove_dir_all(&journal);
             Ok(results)
         }
         Err(e) if e.is::<run::Cancelled>() => {
@@ -127,6 +157,55 @@ pub fn run_experiment_resumable(
         }
         Err(e) => Err(e),
     }
+}
+
+/// The unit files `--resume` names: one file (`interrupted-units.json`, a shard file), or a
+/// folder's `*.json` files (a run's [`UNITS_FOLDER`], or its output folder, whose
+/// `interrupted-units.json` and [`UNITS_FOLDER`] are both read).
+fn resume_files(from: &Path) -> Result<Vec<(std::path::PathBuf, shard::ShardFile)>> {
+    let mut paths = Vec::new();
+    if from.is_dir() {
+        let interrupted = from.join("interrupted-units.json");
+        if interrupted.is_file() {
+            paths.push(interrupted);
+        }
+        let folder = if from.join(UNITS_FOLDER).is_dir() {
+            from.join(UNITS_FOLDER)
+        } else {
+            from.to_path_buf()
+        };
+        let mut units: Vec<_> = std::fs::read_dir(&folder)
+            .with_context(|| format!("{}: cannot read the folder", folder.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with("unit-") && n.ends_with(".json"))
+            })
+            .collect();
+        units.sort();
+        paths.extend(units);
+        if paths.is_empty() {
+            anyhow::bail!(
+                "{}: no finished units to resume from (expected interrupted-units.json or {UNITS_FOLDER}/unit-*.json)",
+                from.display()
+            );
+        }
+    } else {
+        paths.push(from.to_path_buf());
+    }
+    let mut files = Vec::with_capacity(paths.len());
+    for p in paths {
+        let f = shard::ShardFile::read(&p)?;
+        files.push((p, f));
+    }
+    // A unit both in interrupted-units.json and in the folder is the same measurement: kept
+    // once (the checks below refuse a unit given twice).
+    let mut seen = std::collections::HashSet::new();
+    for (_, f) in &mut files {
+        f.units.retain(|(k, _)| seen.insert(*k));
+    }
+    Ok(files)
 }
 
 /// Measures shard `shard` of the experiment in `path` and writes its units to `shard_file`.

@@ -109,8 +109,9 @@ pub(crate) fn render_image<'py>(
     ))
 }
 
-/// Renders shard `shard = (i, n)` of `scene`'s samples into a `Partial`; `None` when
-/// interrupted (a partial must hold whole sample ranges).
+/// Renders shard `shard = (i, n)` of `scene`'s samples into a `Partial`; when interrupted, no
+/// partial (it must hold whole sample ranges) but the image of the samples it has and their
+/// count, which the Python layer raises with `Interrupted`.
 #[pyfunction]
 #[pyo3(name = "_render_partial", signature = (scene, shard, spp=None, seed=None, integrator=None, max_depth=None, threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments
@@ -124,7 +125,7 @@ pub(crate) fn render_partial(
     max_depth: Option<i64>,
     threads: Option<usize>,
     progress: Option<Bound<'_, PyAny>>,
-) -> PyResult<Option<Partial>> {
+) -> PyResult<(Option<Partial>, Option<Bound<'_, PyArray3<f32>>>, u64)> {
     let shard = Shard::new(shard.0, shard.1).map_err(crate::error)?;
     let settings = settings_with(scene, spp, seed, integrator, max_depth)?;
     let samples = shard.samples(settings.spp);
@@ -137,9 +138,15 @@ pub(crate) fn render_partial(
         progress.as_ref(),
         false,
     )?;
-    Ok((!interrupted).then(|| Partial {
+    if interrupted {
+        let c = scene.scene.camera;
+        let image = image_array(py, c.width, c.height, &film.mean())?;
+        return Ok((None, Some(image), film.total_samples()));
+    }
+    let partial = Partial {
         inner: PartialRender::from_film(&film, &scene.key(&settings), settings.spp, samples),
-    }))
+    };
+    Ok((Some(partial), None, film.total_samples()))
 }
 
 /// The exact film of some sample ranges of one render: merge the shards, then take the image.

@@ -73,6 +73,15 @@ impl<'a> Control<'a> {
         }
     }
 
+    /// The same progress, never cancelled: for work that must finish once begun (a render's
+    /// first sample of every pixel, without which a pixel would be shown black).
+    pub fn uncancellable(&self) -> Control<'a> {
+        Control {
+            cancel: &NEVER_CANCELLED,
+            progress: self.progress,
+        }
+    }
+
     /// Whether the work should stop now.
     #[inline]
     pub fn cancelled(&self) -> bool {

@@ -218,6 +218,11 @@ pub fn render(
 /// Renders sample indices `samples` of every pixel into `film` (a shard of a render: see
 /// [`crate::shard`]); [`render`] is `render_samples(0..spp)`. Films of disjoint ranges merge
 /// into the whole render's film bit for bit.
+///
+/// Passes grow from one sample per pixel, doubling up to [`pass_size`]'s: the first pass is
+/// short and is not cancelled, so an image interrupted at any time has at least one sample in
+/// every pixel (a first pass of 256 samples tile by tile, interrupted after 3 s, once left 1096
+/// of 4096 pixels black). Sums are exact, so the split does not change a bit.
 pub fn render_samples(
     scene: &SceneMedia,
     camera: &Camera,
@@ -232,8 +237,15 @@ pub fn render_samples(
     let step = pass_size(samples.len() as u32, pixels);
     let nonfinite = AtomicU64::new(0);
     let mut s0 = samples.start;
-    while s0 < samples.end && !control.cancelled() {
-        let s1 = s0.saturating_add(step).min(samples.end);
+    let mut this_pass = 1u32;
+    let first_pass = control.uncancellable();
+    while s0 < samples.end && (s0 == samples.start || !control.cancelled()) {
+        let s1 = s0.saturating_add(this_pass).min(samples.end);
+        let control = if s0 == samples.start {
+            &first_pass
+        } else {
+            control
+        };
         film.tiles.par_iter_mut().for_each(|tile| {
             if control.cancelled() {
                 return;
@@ -252,6 +264,7 @@ pub fn render_samples(
             control.progress((tile.width * tile.height * (s1 - s0)) as u64);
         });
         s0 = s1;
+        this_pass = this_pass.saturating_mul(2).min(step);
     }
     let nonfinite = nonfinite.into_inner();
     film.nonfinite_samples += nonfinite;

@@ -34,9 +34,10 @@ pub struct ExperimentArgs {
     /// Where a shard's measured units go (JSON, written atomically).
     #[arg(long, requires = "shard")]
     shard_output: Option<PathBuf>,
-    /// Go on from an interrupted run: the units measured before it stopped
-    /// (`OUTPUT/interrupted-units.json`, written when Ctrl-C stops an experiment between
-    /// units) are taken as measured.
+    /// Go on from an interrupted or killed run: the units measured before it stopped are taken
+    /// as measured. Give the run's output folder (its `interrupted-units.json`, written when
+    /// Ctrl-C stops it, and `finished-units/`, written unit by unit, so a run killed by
+    /// SIGKILL or the out-of-memory killer keeps its work too), or one such file.
     #[arg(long, conflicts_with = "shard")]
     resume: Option<PathBuf>,
 }

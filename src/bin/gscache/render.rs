@@ -445,8 +445,12 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     }
     let (w, h) = (cam.width, cam.height);
     let done = if stats.cancelled {
+        let counts = film.counts();
+        let (fewest, most) = counts
+            .iter()
+            .fold((u32::MAX, 0), |(lo, hi), &c| (lo.min(c), hi.max(c)));
         format!(
-            "interrupted after {:.1} of {} spp: kept {w}x{h}",
+            "interrupted after {:.1} of {} spp: kept {w}x{h}, each pixel the mean of its own {fewest} to {most} samples",
             film.total_samples() as f64 / (w as f64 * h as f64),
             scene.settings.spp as u64 * frames as u64
         )

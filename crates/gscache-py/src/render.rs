@@ -109,14 +109,17 @@ pub(crate) fn render_image<'py>(
     ))
 }
 
+/// A shard's render: its partial, or (interrupted) the image of its samples; and the samples.
+type ShardOutcome<'py> = (Option<Partial>, Option<Bound<'py, PyArray3<f32>>>, u64);
+
 /// Renders shard `shard = (i, n)` of `scene`'s samples into a `Partial`; when interrupted, no
 /// partial (it must hold whole sample ranges) but the image of the samples it has and their
 /// count, which the Python layer raises with `Interrupted`.
 #[pyfunction]
 #[pyo3(name = "_render_partial", signature = (scene, shard, spp=None, seed=None, integrator=None, max_depth=None, threads=None, progress=None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments
-pub(crate) fn render_partial(
-    py: Python<'_>,
+pub(crate) fn render_partial<'py>(
+    py: Python<'py>,
     scene: &Scene,
     shard: (u32, u32),
     spp: Option<u32>,
@@ -124,8 +127,8 @@ pub(crate) fn render_partial(
     integrator: Option<&str>,
     max_depth: Option<i64>,
     threads: Option<usize>,
-    progress: Option<Bound<'_, PyAny>>,
-) -> PyResult<(Option<Partial>, Option<Bound<'_, PyArray3<f32>>>, u64)> {
+    progress: Option<Bound<'py, PyAny>>,
+) -> PyResult<ShardOutcome<'py>> {
     let shard = Shard::new(shard.0, shard.1).map_err(crate::error)?;
     let settings = settings_with(scene, spp, seed, integrator, max_depth)?;
     let samples = shard.samples(settings.spp);

@@ -64,5 +64,5 @@ fn growing_passes_give_the_same_bits_as_one_sample_range() {
     };
     // One call (passes of 1, 2, 4, ... samples) against one call per sample.
     let singles: Vec<_> = (0..37).map(|s| s..s + 1).collect();
-    assert_eq!(render(&[0..37]), render(&singles));
+    assert_eq!(render(std::slice::from_ref(&(0..37))), render(&singles));
 }

@@ -38,7 +38,9 @@ fn render_range(
     };
     let total = s.camera.width as u64 * s.camera.height as u64 * samples.len() as u64;
     let outcome = run_polled(py, threads, progress, total, |control| {
-        render_samples(&s.media, &s.camera, settings, samples, &mut film, control)
+        // An interrupted render's image is returned: every pixel gets its first sample.
+        let control = control.keeping_every_pixel();
+        render_samples(&s.media, &s.camera, settings, samples, &mut film, &control)
     })?;
     Ok((film, outcome.interrupted))
 }

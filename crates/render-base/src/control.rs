@@ -20,6 +20,9 @@ static NO_PROGRESS: fn(u64) = |_| {};
 pub struct Control<'a> {
     cancel: &'a AtomicBool,
     progress: &'a (dyn Fn(u64) + Sync),
+    /// A render's first sample of every pixel is taken even if cancelled meanwhile (see
+    /// [`Control::keeping_every_pixel`]).
+    every_pixel: bool,
 }
 
 impl std::fmt::Debug for Control<'_> {
@@ -36,6 +39,7 @@ impl Control<'static> {
         Control {
             cancel: &NEVER_CANCELLED,
             progress: &NO_PROGRESS,
+            every_pixel: false,
         }
     }
 }
@@ -43,7 +47,11 @@ impl Control<'static> {
 impl<'a> Control<'a> {
     /// Stops when `cancel` is set; reports progress to `progress(units_done)`.
     pub fn new(cancel: &'a AtomicBool, progress: &'a (dyn Fn(u64) + Sync)) -> Self {
-        Control { cancel, progress }
+        Control {
+            cancel,
+            progress,
+            every_pixel: false,
+        }
     }
 
     /// Stops when `cancel` is set; reports no progress.
@@ -51,6 +59,7 @@ impl<'a> Control<'a> {
         Control {
             cancel,
             progress: &NO_PROGRESS,
+            every_pixel: false,
         }
     }
 
@@ -62,6 +71,7 @@ impl<'a> Control<'a> {
         Control {
             cancel: self.cancel,
             progress,
+            every_pixel: self.every_pixel,
         }
     }
 
@@ -70,7 +80,24 @@ impl<'a> Control<'a> {
         Control {
             cancel: self.cancel,
             progress: &NO_PROGRESS,
+            every_pixel: self.every_pixel,
         }
+    }
+
+    /// The same control, asking a render to take the first sample of every pixel even when
+    /// cancelled meanwhile: for an image that is kept when interrupted (a program's render,
+    /// Python's `render`), where a pixel without a sample would be shown black. A frame that
+    /// is thrown away when cancelled (the viewer's) does without, and stops at once.
+    pub fn keeping_every_pixel(&self) -> Control<'a> {
+        Control {
+            every_pixel: true,
+            ..*self
+        }
+    }
+
+    /// Whether a render should take every pixel's first sample before it may stop.
+    pub fn keeps_every_pixel(&self) -> bool {
+        self.every_pixel
     }
 
     /// The same progress, never cancelled: for work that must finish once begun (a render's
@@ -79,6 +106,7 @@ impl<'a> Control<'a> {
         Control {
             cancel: &NEVER_CANCELLED,
             progress: self.progress,
+            every_pixel: self.every_pixel,
         }
     }
 

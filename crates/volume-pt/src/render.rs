@@ -219,10 +219,11 @@ pub fn render(
 /// [`crate::shard`]); [`render`] is `render_samples(0..spp)`. Films of disjoint ranges merge
 /// into the whole render's film bit for bit.
 ///
-/// Passes grow from one sample per pixel, doubling up to [`pass_size`]'s: the first pass is
-/// short and is not cancelled, so an image interrupted at any time has at least one sample in
-/// every pixel (a first pass of 256 samples tile by tile, interrupted after 3 s, once left 1096
-/// of 4096 pixels black). Sums are exact, so the split does not change a bit.
+/// Passes grow from one sample per pixel, doubling up to [`pass_size`]'s. Where `control`
+/// [keeps every pixel](Control::keeping_every_pixel), the first pass is not cancelled, so an
+/// image interrupted at any time has at least one sample in every pixel (a first pass of 256
+/// samples tile by tile, interrupted after 3 s, once left 1096 of 4096 pixels black). Sums are
+/// exact, so the split does not change a bit.
 pub fn render_samples(
     scene: &SceneMedia,
     camera: &Camera,
@@ -238,10 +239,11 @@ pub fn render_samples(
     let nonfinite = AtomicU64::new(0);
     let mut s0 = samples.start;
     let mut this_pass = 1u32;
+    let whole_first_pass = control.keeps_every_pixel();
     let first_pass = control.uncancellable();
-    while s0 < samples.end && (s0 == samples.start || !control.cancelled()) {
+    while s0 < samples.end && ((whole_first_pass && s0 == samples.start) || !control.cancelled()) {
         let s1 = s0.saturating_add(this_pass).min(samples.end);
-        let control = if s0 == samples.start {
+        let control = if whole_first_pass && s0 == samples.start {
             &first_pass
         } else {
             control

@@ -31,7 +31,7 @@ fn an_interrupt_at_any_point_leaves_no_pixel_without_samples() {
             &scene.settings,
             0..100_000,
             &mut film,
-            &Control::new(&cancel, &progress),
+            &Control::new(&cancel, &progress).keeping_every_pixel(),
         );
         assert!(stats.cancelled, "after {after}: not interrupted");
         let counts = film.counts();

@@ -344,7 +344,8 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let total = spp as u64 * cam.width as u64 * cam.height as u64 * all_frames as u64;
     let bar = global.progress(total, "samples");
     let report_progress = |n| bar.inc(n);
-    let control = Control::new(&cancel, &report_progress);
+    // An interrupted render is kept: every pixel gets its first sample before it may stop.
+    let control = Control::new(&cancel, &report_progress).keeping_every_pixel();
     let start = std::time::Instant::now();
     let warm = session.warm_up(args.cache.warmup, args.cache.warmup_orbit, &control)?;
     let mut accumulated = Vec::with_capacity(frames as usize);

@@ -7,6 +7,8 @@
 //! - [`experiment`]: the experiment runner: methods at budgets against a cached reference,
 //!   fly-throughs with scene edits, ablation sweeps, and their report.
 
+#![forbid(unsafe_code)]
+
 pub mod camera_path;
 pub mod experiment;
 pub mod metrics;

@@ -3,7 +3,7 @@
 //!
 //! - [`config`]: the experiment file (scene, methods, budgets, seeds, reference, fly-throughs,
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
-//! - [`reference`]: high-spp references, made once and kept on disk by a hash of their inputs.
+//! - [`reference`](mod@reference): high-spp references, made once and kept on disk by a hash of their inputs.
 //! - [`measure`]: one method rendered progressively, snapshotted at every budget.
 //! - [`denoised`]: a method's denoised twins (Intel Open Image Denoise), the filter's time
 //!   counted in time budgets.

@@ -293,7 +293,7 @@ pub fn checked_units(
 
 /// Checks a unit read from a shard file as a fresh measurement would be: the kind of unit its
 /// spec says; every budget of the spec snapshotted exactly once; images of `pixels` pixels,
-/// each finite and >= 0; times finite, >= 0 and at most [`MAX_SECONDS`]; at least 1 spp.
+/// each finite and >= 0; times finite, >= 0 and at most `MAX_SECONDS`; at least 1 spp.
 pub fn check_unit(spec: &UnitSpec<'_>, r: &UnitResult, pixels: usize) -> Result<(), String> {
     let seconds = |what: &str, s: f64| {
         if (0.0..=MAX_SECONDS).contains(&s) {

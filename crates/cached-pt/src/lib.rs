@@ -14,6 +14,8 @@
 //!   the GSCache paper compares with; its `NrcSequence` runs each frame's training step beside
 //!   the next frame's path tracing.
 
+#![forbid(unsafe_code)]
+
 use gs_cache::{CacheFrame, CachedPath, GsCache, TerminationConfig, TileTargets};
 use rayon::prelude::*;
 use splat_raster::Camera;

@@ -10,7 +10,7 @@
 //!    started from can pose as the package.
 //!
 //! Loading a library runs its initialisers, so a library found by searching (3) is loaded
-//! only from a trusted place ([`trusted`]): the file and every folder above it owned by the
+//! only from a trusted place (`trusted`): the file and every folder above it owned by the
 //! user or root and writable by no one else, and not inside the current folder unless the
 //! interpreter that reported it is installed there too (a virtual environment the user made
 //! and put on `PATH`). A dataset or a cloned repository that ships a `pyoidn/` cannot run code

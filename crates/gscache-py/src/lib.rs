@@ -14,6 +14,10 @@
 //!
 //! Every error is a `GscacheError` carrying the message the program prints.
 
+// The modules are private (Python is this crate's interface); the list above links them for
+// readers of `cargo doc --document-private-items`.
+#![allow(rustdoc::private_intra_doc_links)]
+
 mod cache;
 mod clouds;
 mod denoise;

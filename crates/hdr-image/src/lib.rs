@@ -13,6 +13,8 @@
 //!   leaves a truncated image where a good one was, and nothing planted in a shared output
 //!   folder can redirect it.
 
+#![forbid(unsafe_code)]
+
 use glam::Vec3;
 use render_base::write_atomically;
 use std::path::{Path, PathBuf};

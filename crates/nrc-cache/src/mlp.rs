@@ -1,6 +1,6 @@
 //! The network: a small ReLU MLP from the encoded inputs to RGB radiance, its forward pass, its
 //! backward pass (the weights' and the inputs' gradients, for the relative L2 loss) and Adam,
-//! written out over the [`dense`](crate::dense) kernels.
+//! written out over the [`crate::dense`] kernels.
 //!
 //! **Why not burn** (which ran this network until issue 31): its forward and backward took
 //! 5.1-6.6 ms a training step on a 16-core Xeon whatever the number of threads, and 7.7 ms on

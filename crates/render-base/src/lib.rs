@@ -10,6 +10,8 @@
 //!   finaliser, a 32-bit word hash).
 //! - [`SH_C0`]: the degree-0 spherical-harmonic constant that maps colours to 3DGS coefficients.
 
+#![forbid(unsafe_code)]
+
 /// The most worker threads any entry point (the program's `--threads`, Python's `threads=`)
 /// accepts: one limit, so the two cannot drift apart. More than this is a typo, and a pool of
 /// 100,000 threads hangs the machine rather than failing.

@@ -3,7 +3,7 @@
 //! [`CacheChoice`] says what to build; [`Cache::build`] is the one place a cache is built for a
 //! scene (points found with the scene's seed, too few of them refused, settings validated, a
 //! loaded cache validated as a new one is). A new cache plugs in here: a variant of each enum,
-//! its build, and its arm of [`Cache::frame`] (trace through the seam, read, train).
+//! its build, and its arm of `Cache::frame` (trace through the seam, read, train).
 
 use crate::error::{Result, SessionError};
 use crate::report::FrameReport;

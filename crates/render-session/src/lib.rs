@@ -13,9 +13,11 @@
 //!   neural cache behind feature `nrc`): one type above volume-pt's seam.
 //! - [`edit`]: [`Edit`], and what each invalidates ([`Invalidated`]).
 //! - [`report`]: [`FrameReport`], the time of each part of a frame.
-//! - [`orbit`]: the warm-up's camera path.
+//! - [`orbit`](mod@orbit): the warm-up's camera path.
 //!
 //! Cancellation and progress go through [`Control`] (from render-base).
+
+#![forbid(unsafe_code)]
 
 pub mod cache;
 pub mod edit;

@@ -18,7 +18,7 @@
 //! - [`random`]: stateless hashing for per-fragment random decisions.
 //! - [`loss`]: HDR (the GSCache paper's Eq. 4), L1 and L2 losses with masks.
 //! - [`adamw`]: the fused AdamW step over the parameter arrays.
-//! - [`reference`]: a brute-force compositor the tiled one is tested against.
+//! - [`reference`](mod@reference): a brute-force compositor the tiled one is tested against.
 //! - [`real`]: the f32/f64 scalar the kernels are generic over.
 
 pub mod adamw;

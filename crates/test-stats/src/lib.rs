@@ -7,6 +7,8 @@
 //! variances are right, so it is held under an upper quantile of that distribution, and every
 //! single `|z|` under a bound, which catches a bias confined to a few pixels.
 
+#![forbid(unsafe_code)]
+
 /// Standard-normal upper quantile for a one-sided false-alarm rate of 1e-5.
 pub const Z_FALSE_ALARM_1E5: f64 = 4.265;
 

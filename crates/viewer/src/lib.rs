@@ -18,6 +18,8 @@
 //! It listens on 127.0.0.1 unless told otherwise; the URL it prints carries a random token that
 //! every request must present, as Jupyter's does.
 
+#![forbid(unsafe_code)]
+
 pub mod connections;
 pub mod protocol;
 pub mod save;

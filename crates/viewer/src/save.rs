@@ -3,7 +3,7 @@
 //! `gscache render` renders the same way) and, with the Gaussian cache, `view-NNNN-cache/`
 //! (its levels as 3DGS PLY, with their manifest). `NNNN` is the first number none of them uses
 //! yet, and every one of its names is created exclusively before anything is written
-//! ([`Reserved`]): two viewers saving into one folder never share a number, and nothing already
+//! (`Reserved`): two viewers saving into one folder never share a number, and nothing already
 //! there is replaced. No name or path comes from the page.
 
 use crate::protocol::{LightSettings, SceneFacts, TransferSettings};

@@ -529,7 +529,7 @@ impl Worker {
 const PREVIEW_PIXELS: f64 = 120_000.0;
 
 /// The factor a moving view is shrunk by: at least 2, more for views above
-/// [`PREVIEW_PIXELS`] x 4.
+/// `PREVIEW_PIXELS` x 4.
 pub fn preview_divisor(width: u32, height: u32) -> u32 {
     let pixels = width as f64 * height as f64;
     ((pixels / PREVIEW_PIXELS).sqrt().ceil() as u32).max(2)

@@ -53,11 +53,11 @@ pub trait PathHooks {
     /// cache stands for what the path gathers from its next direction on): `None` (the
     /// default) to go on as plain path tracing, or the cache's control variate, whose decision
     /// the cache draws from its own key, never from the path's random stream. `work` is the
-    /// path's work so far ([`crate::SampleStream::draws`]).
+    /// path's work so far ([`crate::sampling::SampleStream::draws`]).
     fn control_variate(&mut self, _work: u64) -> Option<ControlVariate> {
         None
     }
-    /// The path has ended after `work` ([`crate::SampleStream::draws`]).
+    /// The path has ended after `work` ([`crate::sampling::SampleStream::draws`]).
     fn finished(&mut self, _work: u64) {}
     /// The path left the volume after its last vertex, having gathered `path_radiance` in all:
     /// radiance `x` the integrator adds as `W * x` (a cache's natural termination).

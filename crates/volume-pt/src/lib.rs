@@ -9,7 +9,7 @@
 //! - [`phase`], [`lights`]: phase functions; the emitter types (sphere, distant) and a
 //!   constant environment.
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
-//! - [`render`], [`film`]: tiles, passes, threads; exact accumulation.
+//! - [`render`](mod@render), [`film`]: tiles, passes, threads; exact accumulation.
 //! - [`shard`]: a render split into sample ranges whose partial films merge bit for bit.
 //! - [`cache`]: the seam a radiance cache plugs into (per-path hooks, per-frame cache, start points).
 //! - [`scene`]: the TOML scene file; [`auto_scene`]: a scene chosen for a bare volume file

@@ -2,12 +2,15 @@
 //!
 //! - `render`: path-trace a volume scene, optionally with the radiance cache, or one shard of it;
 //! - `merge`: join a sharded render's partial films into its image;
+//! - `view`: the render session in a browser (the viewer crate), for exploring a volume;
 //! - `splat render | fit | trace`: Gaussian clouds with the rasteriser or the ray tracer;
 //! - `experiment`: methods at budgets against a reference, fly-throughs, ablations, a report;
 //! - `bench ...`: the renderers' speed, as Markdown tables.
 //!
 //! `--threads` and `--quiet` apply to all of them; long work stops cleanly on Ctrl-C, SIGTERM
 //! or SIGHUP and keeps what it has done (see `common`).
+
+#![forbid(unsafe_code)]
 
 /// `println!` that never panics. The standard one panics when stdout is a closed pipe
 /// (`gscache render ... | head -c 1`); this one drops the line and lets the work (an image being

@@ -51,8 +51,8 @@ pub struct RenderArgs {
     /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
     #[arg(long)]
     macrocell: Option<u32>,
-    /// Linear EXR output (default: out/<scene>.exr, out/<scene>.cache.exr with --cache,
-    /// out/<scene>.nrc.exr with --nrc). `-o NAME.png` names the PNG and puts the EXR beside it
+    /// Linear EXR output (default: out/SCENE.exr, out/SCENE.cache.exr with --cache,
+    /// out/SCENE.nrc.exr with --nrc). `-o NAME.png` names the PNG and puts the EXR beside it
     /// as NAME.exr.
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,

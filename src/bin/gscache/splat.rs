@@ -78,7 +78,7 @@ pub struct TraceArgs {
     /// Background colour `r,g,b`.
     #[arg(long, value_parser = finite_vec3, default_value = "0,0,0")]
     background: Vec3,
-    /// EXR output (default: out/<asset>.trace.exr; `-o NAME.png` names the PNG, the EXR beside).
+    /// EXR output (default: out/ASSET.trace.exr; `-o NAME.png` names the PNG, the EXR beside).
     #[arg(short = 'o', long)]
     output: Option<PathBuf>,
     /// PNG output, tone-mapped by clipping (default: beside the EXR, same name).
@@ -137,7 +137,7 @@ pub struct RenderArgs {
     /// `lanes8` (AVX2 + FMA), `lanes4` (SSE2 / NEON) or `scalar` (the reference).
     #[arg(long, default_value = "auto")]
     kernel: splat_raster::Kernel,
-    /// EXR output (default: out/<asset>.exr; `-o NAME.png` names the PNG, the EXR beside).
+    /// EXR output (default: out/ASSET.exr; `-o NAME.png` names the PNG, the EXR beside).
     #[arg(short = 'o', long)]
     output: Option<PathBuf>,
     /// PNG output, tone-mapped by clipping (default: beside the EXR, same name).

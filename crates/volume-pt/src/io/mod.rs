@@ -3,7 +3,7 @@
 //! Every reader gives the same thing, a [`LoadedVolume`]: voxels in their own type (see
 //! [`crate::grid::Voxels`]) in x-fastest order, the
 //! spacing the file states (if any) and notes about what was read but not used. Bad input is an
-//! [`Error`](crate::Error) naming the file, the fault and what was expected.
+//! [`Error`] naming the file, the fault and what was expected.
 
 mod budget;
 mod nifti_reader;

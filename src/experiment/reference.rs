@@ -13,7 +13,7 @@ use std::time::Instant;
 use volume_pt::{Control, Film, IntegratorKind, Scene, render_samples};
 
 /// FNV-1a, 64 bits (render-base's, the one definition), and its offset basis.
-pub use render_base::hash::{FNV_OFFSET as FNV_START, fnv1a64 as fnv1a};
+use render_base::hash::{FNV_OFFSET, fnv1a64};
 
 /// A reference image and where it lives.
 #[derive(Debug, Clone)]
@@ -46,13 +46,13 @@ pub fn reference(
     let volume_len = std::fs::metadata(&scene.volume_path)
         .map(|m| m.len())
         .unwrap_or(0);
-    let mut h = fnv1a(&scene_bytes, FNV_START);
+    let mut h = fnv1a64(&scene_bytes, FNV_OFFSET);
     let key = format!(
         "{}|{volume_len}|{state}|{camera:?}|{spp}|{:?}",
         scene.volume_path.display(),
         scene.settings.path
     );
-    h = fnv1a(key.as_bytes(), h);
+    h = fnv1a64(key.as_bytes(), h);
     let stem = scene_file
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())

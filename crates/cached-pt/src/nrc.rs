@@ -18,8 +18,8 @@
 
 use gs_cache::TerminationConfig;
 use gs_cache::termination::continue_probability;
-use nrc_cache::random::mix64;
 use nrc_cache::{NeuralCache, NrcConfig, Query, TrainReport, TrainingRecord};
+use render_base::hash::splitmix64;
 use splat_raster::Camera;
 use volume_pt::{
     Control, FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect, Vertex,
@@ -63,14 +63,14 @@ impl NrcFrame {
             termination: termination(config),
             ready,
             training_threshold: (config.training_fraction as f64 * u64::MAX as f64) as u64,
-            frame_hash: mix64(seed ^ mix64(frame_index as u64 ^ 0x006e_7263)),
+            frame_hash: splitmix64(seed ^ splitmix64(frame_index as u64 ^ 0x006e_7263)),
         }
     }
 
     /// Whether `pixel`'s paths are training paths this frame (traced to their end, never
     /// reading the cache).
     pub fn is_training(&self, pixel: u64) -> bool {
-        mix64(self.frame_hash ^ pixel) < self.training_threshold
+        splitmix64(self.frame_hash ^ pixel) < self.training_threshold
     }
 
     /// A uniform number in [0, 1) from the pixel, the frame and a vertex's position: the stop
@@ -79,7 +79,7 @@ impl NrcFrame {
         let bits = (position.x.to_bits() as u64)
             ^ ((position.y.to_bits() as u64) << 21)
             ^ ((position.z.to_bits() as u64) << 42);
-        let h = mix64(self.frame_hash ^ mix64(pixel ^ mix64(bits)));
+        let h = splitmix64(self.frame_hash ^ splitmix64(pixel ^ splitmix64(bits)));
         (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
     }
 
@@ -458,7 +458,7 @@ pub fn render_nrc_frame(
                 .iter_mut()
                 .map(|(_, t)| std::mem::take(&mut t.records))
                 .collect(),
-            shuffle: mix64(settings.seed ^ mix64(frame_index as u64 ^ 0x0074_7261_696e)),
+            shuffle: splitmix64(settings.seed ^ splitmix64(frame_index as u64 ^ 0x0074_7261_696e)),
         });
     }
     // Thousands of tiles' stops, each allocated by the thread that traced the tile: freed one

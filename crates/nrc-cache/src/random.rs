@@ -1,8 +1,8 @@
 //! A small counter-based generator for initialisation and shuffling: splitmix64, so every
 //! draw is a pure function of the seed and the draw's index (no thread or order dependence).
 
-/// One splitmix64 step from `x` (render-base's, the one definition).
-pub use render_base::hash::splitmix64 as mix64;
+// One splitmix64 step from `x`: render-base's, the one definition.
+use render_base::hash::splitmix64;
 
 /// A sequential splitmix64 stream.
 #[derive(Debug, Clone)]
@@ -13,12 +13,12 @@ pub struct SplitMix {
 impl SplitMix {
     pub fn new(seed: u64) -> Self {
         Self {
-            state: mix64(seed ^ 0x6e72_6320_6361_6368),
+            state: splitmix64(seed ^ 0x6e72_6320_6361_6368),
         }
     }
     pub fn next_u64(&mut self) -> u64 {
         self.state = self.state.wrapping_add(render_base::hash::GOLDEN_GAMMA);
-        mix64(self.state)
+        splitmix64(self.state)
     }
     /// Uniform in [0, 1).
     pub fn next_f32(&mut self) -> f32 {

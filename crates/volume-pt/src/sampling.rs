@@ -8,7 +8,7 @@
 use glam::Vec3;
 use std::f32::consts::PI;
 
-use render_base::hash::{GOLDEN_GAMMA as GOLDEN, splitmix64_finalize as mix64};
+use render_base::hash::{GOLDEN_GAMMA, splitmix64_finalize};
 
 /// The random numbers of one (seed, pixel, sample): dimension `k` is the k-th draw.
 #[derive(Debug, Clone)]
@@ -20,8 +20,9 @@ pub struct SampleStream {
 impl SampleStream {
     #[inline]
     pub fn new(seed: u64, pixel: u64, sample: u64) -> Self {
-        let key = mix64(
-            mix64(seed.wrapping_mul(GOLDEN) ^ pixel) ^ sample.wrapping_mul(0xd6e8_feb8_6659_fd93),
+        let key = splitmix64_finalize(
+            splitmix64_finalize(seed.wrapping_mul(GOLDEN_GAMMA) ^ pixel)
+                ^ sample.wrapping_mul(0xd6e8_feb8_6659_fd93),
         );
         Self { key, dim: 0 }
     }
@@ -30,7 +31,7 @@ impl SampleStream {
     #[inline]
     pub fn next_f32(&mut self) -> f32 {
         self.dim += 1;
-        let h = mix64(self.key.wrapping_add(self.dim.wrapping_mul(GOLDEN)));
+        let h = splitmix64_finalize(self.key.wrapping_add(self.dim.wrapping_mul(GOLDEN_GAMMA)));
         (h >> 40) as f32 * (1.0 / 16_777_216.0)
     }
 

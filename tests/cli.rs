@@ -1143,8 +1143,8 @@ fn denoising_the_default_scene_cuts_its_error() {
         String::from_utf8_lossy(&out.stderr)
     );
     let r = read(&reference);
-    let before = gscache_cli::metrics::rel_mse(&read(&noisy), &r);
-    let after = gscache_cli::metrics::rel_mse(&read(&d.join("x.denoised.exr")), &r);
+    let before = image_metrics::rel_mse(&read(&noisy), &r);
+    let after = image_metrics::rel_mse(&read(&d.join("x.denoised.exr")), &r);
     assert!(d.join("x.denoised.png").is_file());
     // Measured at 160x90 with seed 7 (OIDN 2.5.1, high quality, guided by the albedo): 0.106
     // raw and 0.0068 denoised, 15.5x, the 256-spp reference's own noise included. Required:

@@ -77,7 +77,7 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
     let dir = scratch("tiny");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
-    let first = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let first = experiments::run_experiment(&file, None, &quiet).unwrap();
     let out = dir.join("out");
     for f in [
         "runs.csv",
@@ -130,9 +130,7 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         first
             .summary
             .iter()
-            .find(|s| {
-                s.method == "nee" && s.budget == gscache_cli::experiment::measure::Budget::Spp(spp)
-            })
+            .find(|s| s.method == "nee" && s.budget == experiments::measure::Budget::Spp(spp))
             .unwrap()
             .rel_mse
     };
@@ -164,7 +162,7 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
 
     let reference = first.reference.file.clone();
     let modified = std::fs::metadata(&reference).unwrap().modified().unwrap();
-    let second = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let second = experiments::run_experiment(&file, None, &quiet).unwrap();
     assert!(second.reference.reused);
     assert_eq!(second.reference.file, reference);
     assert_eq!(
@@ -176,7 +174,7 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
     let mut damaged = hdr_image::RgbImage::read_exr(&reference).unwrap();
     damaged.pixels_mut()[5] = glam::Vec3::new(f32::NAN, 0.0, 0.0);
     damaged.write_exr(&reference).unwrap();
-    let third = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let third = experiments::run_experiment(&file, None, &quiet).unwrap();
     assert!(!third.reference.reused);
     assert!(
         third
@@ -230,11 +228,11 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
 /// sampling rule at work: frame `k` of `s` spp takes sample indices `k*s .. (k+1)*s`.
 #[test]
 fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
-    use gscache_cli::experiment::command::render_args;
-    use gscache_cli::experiment::measure::{Budget, run_method};
+    use experiments::command::render_args;
+    use experiments::measure::{Budget, run_method};
     let dir = scratch("command");
     let file = tiny_experiment(&dir);
-    let exp = gscache_cli::experiment::load_experiment(&file).unwrap();
+    let exp = experiments::load_experiment(&file).unwrap();
     let mut scene = volume_pt::load_scene(&exp.scene).unwrap();
     let (w, h) = exp.size.unwrap();
     scene.camera.width = w;
@@ -286,15 +284,15 @@ fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
 /// run's bits. A missing, doubled or stale shard is refused.
 #[test]
 fn sharded_experiment_merges_to_the_one_process_results() {
-    use gscache_cli::experiment::measure::Budget;
+    use experiments::measure::Budget;
     let dir = scratch("shards");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
-    let whole = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let whole = experiments::run_experiment(&file, None, &quiet).unwrap();
     let part = |i: u32| dir.join(format!("shard-{i}.json"));
     for i in [0, 2] {
         let shard = volume_pt::Shard::new(i, 3).unwrap();
-        gscache_cli::experiment::run_experiment_shard(&file, shard, &part(i), &quiet).unwrap();
+        experiments::run_experiment_shard(&file, shard, &part(i), &quiet).unwrap();
     }
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
         .args(["-q", "--threads", "1", "experiment"])
@@ -310,9 +308,7 @@ fn sharded_experiment_merges_to_the_one_process_results() {
     );
     let parts = [part(2), part(0), part(1)];
     let merged_dir = dir.join("merged");
-    let merged =
-        gscache_cli::experiment::merge_experiment(&file, &parts, Some(&merged_dir), &quiet)
-            .unwrap();
+    let merged = experiments::merge_experiment(&file, &parts, Some(&merged_dir), &quiet).unwrap();
     assert!(merged_dir.join("report.md").exists());
     assert_eq!(merged.runs.len(), whole.runs.len());
     let mut compared = 0;
@@ -346,7 +342,7 @@ fn sharded_experiment_merges_to_the_one_process_results() {
         }
     }
     assert_eq!(whole.flythroughs.len(), merged.flythroughs.len());
-    let errors = |r: &gscache_cli::experiment::Results| -> Vec<Option<u64>> {
+    let errors = |r: &experiments::Results| -> Vec<Option<u64>> {
         r.flythroughs
             .iter()
             .map(|f| f.rel_mse.map(f64::to_bits))
@@ -356,7 +352,7 @@ fn sharded_experiment_merges_to_the_one_process_results() {
     assert!(errors(&whole).iter().flatten().count() > 0);
 
     let merge = |files: &[PathBuf]| {
-        gscache_cli::experiment::merge_experiment(&file, files, Some(&merged_dir), &quiet)
+        experiments::merge_experiment(&file, files, Some(&merged_dir), &quiet)
             .unwrap_err()
             .to_string()
     };
@@ -383,28 +379,18 @@ fn sharded_experiment_merges_to_the_one_process_results() {
 /// on or merged into a silently wrong table.
 #[test]
 fn tampered_shard_files_are_refused() {
-    use gscache_cli::experiment::measure::Budget;
-    use gscache_cli::experiment::shard::{ShardFile, UnitResult};
+    use experiments::measure::Budget;
+    use experiments::shard::{ShardFile, UnitResult};
     let dir = scratch("tampered");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
     let whole = dir.join("all.json");
-    gscache_cli::experiment::run_experiment_shard(
-        &file,
-        volume_pt::Shard::new(0, 1).unwrap(),
-        &whole,
-        &quiet,
-    )
-    .unwrap();
+    experiments::run_experiment_shard(&file, volume_pt::Shard::new(0, 1).unwrap(), &whole, &quiet)
+        .unwrap();
     let merge = |p: &Path| {
-        gscache_cli::experiment::merge_experiment(
-            &file,
-            &[p.to_path_buf()],
-            Some(&dir.join("m")),
-            &quiet,
-        )
-        .map(|_| ())
-        .map_err(|e| format!("{e:#}"))
+        experiments::merge_experiment(&file, &[p.to_path_buf()], Some(&dir.join("m")), &quiet)
+            .map(|_| ())
+            .map_err(|e| format!("{e:#}"))
     };
     merge(&whole).expect("the untouched shard merges");
     // One byte flipped inside an image's base64: the checksum no longer matches.
@@ -429,7 +415,7 @@ fn tampered_shard_files_are_refused() {
     );
     // Edits re-signed by `write`: the values behind the checksum are checked.
     type Edit = fn(&mut ShardFile);
-    fn first_method(f: &mut ShardFile) -> &mut Vec<gscache_cli::experiment::measure::Snapshot> {
+    fn first_method(f: &mut ShardFile) -> &mut Vec<experiments::measure::Snapshot> {
         f.units
             .iter_mut()
             .find_map(|(_, u)| match u {
@@ -475,12 +461,12 @@ fn tampered_shard_files_are_refused() {
 /// shard merge has). Here the stop comes after the first method's three seeds.
 #[test]
 fn an_interrupted_experiment_keeps_its_units_and_resumes() {
-    use gscache_cli::experiment::measure::Budget;
+    use experiments::measure::Budget;
     use std::sync::atomic::{AtomicBool, Ordering};
     let dir = scratch("resume");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
-    let whole = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let whole = experiments::run_experiment(&file, None, &quiet).unwrap();
     let cancel = AtomicBool::new(false);
     let stop_after_first_method = |line: &str| {
         if line.ends_with(" runs") {
@@ -489,7 +475,7 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
     };
     let control = volume_pt::Control::cancellable(&cancel);
     let out = dir.join("stopped");
-    let e = gscache_cli::experiment::run_experiment_resumable(
+    let e = experiments::run_experiment_resumable(
         &file,
         Some(&out),
         &stop_after_first_method,
@@ -498,11 +484,11 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
     )
     .unwrap_err();
     let stopped = e
-        .downcast_ref::<gscache_cli::experiment::Interrupted>()
+        .downcast_ref::<experiments::Interrupted>()
         .unwrap_or_else(|| panic!("{e:#}"));
     assert_eq!(stopped.done, 3, "{stopped}");
     assert!(stopped.to_string().contains("--resume"), "{stopped}");
-    let resumed = gscache_cli::experiment::run_experiment_resumable(
+    let resumed = experiments::run_experiment_resumable(
         &file,
         Some(&out),
         &quiet,
@@ -525,7 +511,7 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
             .replace("seeds = [1, 2, 3]", "seeds = [1, 2, 4]"),
     )
     .unwrap();
-    let e = gscache_cli::experiment::run_experiment_resumable(
+    let e = experiments::run_experiment_resumable(
         &file,
         Some(&out),
         &quiet,
@@ -544,14 +530,14 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
 #[cfg(unix)]
 #[test]
 fn a_killed_experiment_resumes_from_its_finished_units() {
-    use gscache_cli::experiment::measure::Budget;
+    use experiments::measure::Budget;
     let dir = scratch("killed");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
     // Also makes the shared reference, so the killed run starts measuring at once.
-    let whole = gscache_cli::experiment::run_experiment(&file, None, &quiet).unwrap();
+    let whole = experiments::run_experiment(&file, None, &quiet).unwrap();
     let out = dir.join("killed-out");
-    let units = out.join(gscache_cli::experiment::UNITS_FOLDER);
+    let units = out.join(experiments::UNITS_FOLDER);
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
         .args(["-q", "experiment"])
         .arg(&file)
@@ -588,7 +574,7 @@ fn a_killed_experiment_resumes_from_its_finished_units() {
     let kept = finished(&units);
     assert!(!out.join("interrupted-units.json").exists());
     assert!((1..9).contains(&kept), "{kept} units on disk");
-    let resumed = gscache_cli::experiment::run_experiment_resumable(
+    let resumed = experiments::run_experiment_resumable(
         &file,
         Some(&out),
         &quiet,
@@ -641,8 +627,8 @@ integrator = "uniform"
         ),
     )
     .unwrap();
-    let exp = gscache_cli::experiment::load_experiment(&file).unwrap();
-    let r = gscache_cli::experiment::run::run(&exp, &|_| {}).unwrap();
+    let exp = experiments::load_experiment(&file).unwrap();
+    let r = experiments::run::run(&exp, &|_| {}).unwrap();
     let names: Vec<&str> = r.methods.iter().map(|m| m.name.as_str()).collect();
     assert_eq!(
         names,
@@ -655,14 +641,14 @@ integrator = "uniform"
             "uniform + OIDN (albedo)"
         ]
     );
-    let row = |m: &str, b: gscache_cli::experiment::measure::Budget| {
+    let row = |m: &str, b: experiments::measure::Budget| {
         r.summary
             .iter()
             .find(|s| s.method == m && s.budget == b)
             .unwrap_or_else(|| panic!("no row for {m} at {b}"))
             .clone()
     };
-    use gscache_cli::experiment::measure::Budget;
+    use experiments::measure::Budget;
     // At 1 spp the twin denoises the same image: same spp, more time (the filter's), less error.
     let (raw, twin) = (
         row("nee", Budget::Spp(1)),

@@ -209,8 +209,8 @@ fn seed_partial() -> (Vec<u8>, volume_pt::PartialRender) {
 }
 
 fn seed_shard(dir: &Path) -> Vec<u8> {
-    use gscache_cli::experiment::measure::{Budget, Snapshot};
-    use gscache_cli::experiment::shard::{FORMAT, ShardFile, UnitResult};
+    use experiments::measure::{Budget, Snapshot};
+    use experiments::shard::{FORMAT, ShardFile, UnitResult};
     let image = |k: f32| {
         (0..24)
             .map(|i| glam::Vec3::splat(0.01 * i as f32 + k))
@@ -282,7 +282,7 @@ fn expected(scratch: &Path) -> Expected {
     let shard = seed_shard(scratch);
     let path = scratch.join("expected-shard.json");
     std::fs::write(&path, shard).unwrap();
-    let f = gscache_cli::experiment::shard::ShardFile::read(&path).unwrap();
+    let f = experiments::shard::ShardFile::read(&path).unwrap();
     Expected {
         partial: seed_partial().1,
         shard: shard_text(&f),
@@ -290,7 +290,7 @@ fn expected(scratch: &Path) -> Expected {
 }
 
 /// What a shard's units say, for comparing a mutant's with the seed's.
-fn shard_text(f: &gscache_cli::experiment::shard::ShardFile) -> String {
+fn shard_text(f: &experiments::shard::ShardFile) -> String {
     serde_json::to_string(&(&f.key, f.unit_count, &f.units)).unwrap()
 }
 
@@ -312,9 +312,7 @@ fn run_reader(reader: Reader, path: &Path, expected: &Expected) -> Result<Outcom
         let outcome = catch_unwind(AssertUnwindSafe(|| match reader {
             Reader::Volume => read(volume_pt::io::read_volume(&path, &Default::default()).is_ok()),
             Reader::Scene => read(volume_pt::load_scene(&path).is_ok()),
-            Reader::Experiment => {
-                read(gscache_cli::experiment::config::load_experiment(&path).is_ok())
-            }
+            Reader::Experiment => read(experiments::config::load_experiment(&path).is_ok()),
             Reader::Cloud => match splat_raster::io::read_cloud(&path) {
                 Ok(cloud) => {
                     let _ = cloud.count_unusable();
@@ -331,13 +329,11 @@ fn run_reader(reader: Reader, path: &Path, expected: &Expected) -> Result<Outcom
                 Ok(_) => Outcome::SilentWrong,
                 Err(_) => Outcome::Refused,
             },
-            Reader::ExperimentShard => {
-                match gscache_cli::experiment::shard::ShardFile::read(&path) {
-                    Ok(f) if shard_text(&f) == expected.shard => Outcome::Read,
-                    Ok(_) => Outcome::SilentWrong,
-                    Err(_) => Outcome::Refused,
-                }
-            }
+            Reader::ExperimentShard => match experiments::shard::ShardFile::read(&path) {
+                Ok(f) if shard_text(&f) == expected.shard => Outcome::Read,
+                Ok(_) => Outcome::SilentWrong,
+                Err(_) => Outcome::Refused,
+            },
             Reader::Exr => match hdr_image::RgbImage::read_exr(&path) {
                 Ok(img) => {
                     // What a kept reference is checked for before it is reused.

@@ -4,8 +4,8 @@
 //! flags likewise.
 
 use clap::{Args, FromArgMatches};
+use experiments::command::{cache_args, nrc_args};
 use gs_cache::{CacheConfig, Lookup, Optimizer};
-use gscache_cli::experiment::command::{cache_args, nrc_args};
 use nrc_cache::NrcConfig;
 
 fn serde_keys() -> Vec<String> {

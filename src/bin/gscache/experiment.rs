@@ -70,12 +70,7 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
         output,
     }) = &cli.merge
     {
-        gscache_cli::experiment::merge_experiment(
-            experiment,
-            shards,
-            output.as_deref(),
-            &progress,
-        )?;
+        experiments::merge_experiment(experiment, shards, output.as_deref(), &progress)?;
         return Ok(0);
     }
     if (cli.output.is_some() || cli.shard.is_some()) && cli.experiments.len() > 1 {
@@ -85,7 +80,7 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
     }
     if let (Some(shard), Some(out)) = (cli.shard, &cli.shard_output) {
         crate::common::prepare_output(out)?;
-        gscache_cli::experiment::run_experiment_shard(&cli.experiments[0], shard, out, &progress)?;
+        experiments::run_experiment_shard(&cli.experiments[0], shard, out, &progress)?;
         return Ok(0);
     }
     if cli.resume.is_some() && cli.experiments.len() > 1 {
@@ -96,10 +91,10 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
     let control = volume_pt::Control::cancellable(&cancel);
     for path in &cli.experiments {
         let output = match &cli.results_dir {
-            Some(dir) => Some(dir.join(gscache_cli::experiment::load_experiment(path)?.name)),
+            Some(dir) => Some(dir.join(experiments::load_experiment(path)?.name)),
             None => cli.output.clone(),
         };
-        let run = gscache_cli::experiment::run_experiment_resumable(
+        let run = experiments::run_experiment_resumable(
             path,
             output.as_deref(),
             &progress,
@@ -107,7 +102,7 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
             cli.resume.as_deref(),
         );
         if let Err(e) = &run
-            && let Some(stopped) = e.downcast_ref::<gscache_cli::experiment::Interrupted>()
+            && let Some(stopped) = e.downcast_ref::<experiments::Interrupted>()
         {
             eprintln!("{stopped}");
             return Ok(crate::common::INTERRUPTED);

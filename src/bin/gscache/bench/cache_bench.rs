@@ -7,10 +7,10 @@
 
 use crate::bench::DataDirs;
 use anyhow::Result;
+pub use experiments::camera_path::orbit;
 use glam::Vec3;
 use gs_cache::{CacheConfig, Lookup};
-pub use gscache_cli::camera_path::orbit;
-use gscache_cli::metrics::{hdr_peak, psnr, rel_mse};
+use image_metrics::{hdr_peak, psnr, rel_mse};
 use render_session::{Accumulation, CacheChoice, Control, Edit, Session};
 use std::path::{Path, PathBuf};
 use volume_pt::{IntegratorKind, Scene, load_scene};
@@ -94,7 +94,7 @@ fn plain(scene: &Scene, kind: IntegratorKind, spp: u32) -> Result<(Vec<Vec3>, f6
 /// other's.
 fn reference(path: &Path, scene: &Scene, args: &CacheBenchArgs) -> Result<Vec<Vec3>> {
     let name = path.file_stem().unwrap().to_string_lossy();
-    let r = gscache_cli::experiment::reference::reference(
+    let r = experiments::reference::reference(
         &args.references,
         path,
         "",

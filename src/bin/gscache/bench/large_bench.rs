@@ -160,7 +160,7 @@ pub fn run(args: &LargeArgs, data: &crate::bench::DataDirs) -> Result<()> {
         );
     }
     let scene_path = args.dir.join(format!("large_{v}.toml"));
-    gscache_cli::write_text(&scene_path, &scene_text(&raw, v, args.size, args.spp))?;
+    experiments::write_text(&scene_path, &scene_text(&raw, v, args.size, args.spp))?;
 
     let before = peak_resident_bytes();
     let t = Instant::now();

@@ -176,7 +176,7 @@ pub fn run(cli: BenchArgs) -> Result<i32> {
 }
 
 fn compare(reference: &std::path::Path, images: &[PathBuf]) -> Result<()> {
-    use gscache_cli::metrics::{hdr_peak, psnr, rel_mse, smape};
+    use image_metrics::{hdr_peak, psnr, rel_mse, smape};
     let r = hdr_image::RgbImage::read_exr(reference)?.into_pixels();
     let peak = hdr_peak(&r);
     println!("| image | relMSE | SMAPE | PSNR (dB, peak {peak:.3}) |");

@@ -5,7 +5,7 @@
 
 use cached_pt::nrc::{NrcSequence, render_nrc_frame};
 use glam::Vec3;
-use gscache_cli::metrics::rel_mse;
+use image_metrics::rel_mse;
 use nrc_cache::{NeuralCache, NrcConfig};
 use std::path::PathBuf;
 use volume_pt::Control;
@@ -14,7 +14,7 @@ use volume_pt::{Film, NoCache, Scene, load_scene, render, render_frame_with};
 const SIZE: u32 = 64;
 
 fn scene() -> Scene {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
     let mut s = load_scene(&path).unwrap();
     s.camera.width = SIZE;
     s.camera.height = SIZE;

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 /// DejaVu Sans Mono (see `data/SOURCES.md`), registered as plotters' "sans-serif".
 const FONT: &[u8] = include_bytes!(concat!(
     env!("CARGO_MANIFEST_DIR"),
-    "/data/fonts/DejaVuSansMono.ttf"
+    "/../../data/fonts/DejaVuSansMono.ttf"
 ));
 
 fn register_font() {

@@ -1,4 +1,5 @@
-//! Image error metrics against a reference, in f64.
+//! image-metrics: image error metrics against a reference, in f64 (the experiments' measures,
+//! and the tests'). They are:
 //!
 //! - relMSE: `mean over pixels and channels of (x - r)^2 / (r^2 + eps)` with `eps = 0.01`,
 //!   after dropping the largest 0.1% of per-pixel values (fireflies would otherwise decide it).
@@ -21,6 +22,8 @@
 //!   L = 255), averaged over the window positions inside the image. Higher is better; 1 is
 //!   equal. relMSE and PSNR see every error alike; FLIP and SSIM see structure, which is where
 //!   a cache's error (blur, bias in patches) and a denoiser's differ from noise.
+
+#![forbid(unsafe_code)]
 
 use glam::Vec3;
 

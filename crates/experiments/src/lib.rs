@@ -1,5 +1,6 @@
-//! The experiment runner: one file says what to compare, one command measures it and writes
-//! the tables, plots and report.
+//! experiments: the experiment runner. One file says what to compare, one command
+//! (`gscache experiment`, or [`run_experiment`] from Rust) measures it and writes the tables,
+//! plots and report. The image metrics are the `image-metrics` crate's.
 //!
 //! - [`config`]: the experiment file (scene, methods, budgets, seeds, reference, fly-throughs,
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
@@ -12,19 +13,34 @@
 //! - [`run`]: all of it, with the metrics and their spread over seeds.
 //! - [`shard`]: the same work split into units that shards measure and a merge assembles.
 //! - [`figures`] and [`report`]: the plots, CSV, JSON and Markdown.
+//! - [`camera_path`]: the camera paths of fly-throughs (an orbit, or key frames).
+//! - [`plot`]: charts and image grids (SVG, PNG) for reports.
 
+#![forbid(unsafe_code)]
+
+pub mod camera_path;
 pub mod command;
 pub mod config;
 pub mod denoised;
 pub mod figures;
 pub mod flythrough;
 pub mod measure;
+pub mod plot;
 pub mod reference;
 pub mod report;
 pub mod run;
 pub mod shard;
 
 pub use config::{Experiment, load_experiment};
+
+/// Writes a text file for the user atomically ([`render_base::write_atomically`]): reports,
+/// tables, charts and shard files alike.
+pub fn write_text(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
+    render_base::write_atomically(path, |file| {
+        std::io::Write::write_all(file, text.as_bytes()).map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}
 pub use run::Results;
 
 use anyhow::{Context, Result};

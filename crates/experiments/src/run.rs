@@ -7,12 +7,12 @@ use super::flythrough::FrameRecord;
 use super::measure::{Budget, CacheRecord, Snapshot};
 use super::reference::reference;
 use super::shard::{UnitResult, measure_unit, units};
-use crate::metrics::{
-    BiasEstimate, SeedSpread, efficiency, flip, hdr_peak, psnr, psnr_8bit, rel_mse, smape, ssim,
-};
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use hdr_image::tone_map;
+use image_metrics::{
+    BiasEstimate, SeedSpread, efficiency, flip, hdr_peak, psnr, psnr_8bit, rel_mse, smape, ssim,
+};
 use serde::Serialize;
 use std::path::PathBuf;
 use volume_pt::Scene;

@@ -4,9 +4,9 @@
 
 use super::measure::Budget;
 use super::run::{Results, SummaryRow};
-use crate::metrics::rel_mse_map;
 use crate::plot::{Chart, Rgb8, Series, false_colour, tone_mapped, write_chart, write_image_grid};
 use anyhow::Result;
+use image_metrics::rel_mse_map;
 use std::path::Path;
 use volume_pt::Scene;
 

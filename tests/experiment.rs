@@ -130,7 +130,7 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         first
             .summary
             .iter()
-            .find(|s| s.method == "nee" && s.budget == experiments::measure::Budget::Spp(spp))
+            .find(|s| s.method == "nee" && s.budget == experiments::records::Budget::Spp(spp))
             .unwrap()
             .rel_mse
     };
@@ -229,7 +229,8 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
 #[test]
 fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
     use experiments::command::render_args;
-    use experiments::measure::{Budget, run_method};
+    use experiments::measure::run_method;
+    use experiments::records::Budget;
     let dir = scratch("command");
     let file = tiny_experiment(&dir);
     let exp = experiments::load_experiment(&file).unwrap();
@@ -284,7 +285,7 @@ fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
 /// run's bits. A missing, doubled or stale shard is refused.
 #[test]
 fn sharded_experiment_merges_to_the_one_process_results() {
-    use experiments::measure::Budget;
+    use experiments::records::Budget;
     let dir = scratch("shards");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
@@ -379,7 +380,7 @@ fn sharded_experiment_merges_to_the_one_process_results() {
 /// on or merged into a silently wrong table.
 #[test]
 fn tampered_shard_files_are_refused() {
-    use experiments::measure::Budget;
+    use experiments::records::Budget;
     use experiments::shard::{ShardFile, UnitResult};
     let dir = scratch("tampered");
     let file = tiny_experiment(&dir);
@@ -415,7 +416,7 @@ fn tampered_shard_files_are_refused() {
     );
     // Edits re-signed by `write`: the values behind the checksum are checked.
     type Edit = fn(&mut ShardFile);
-    fn first_method(f: &mut ShardFile) -> &mut Vec<experiments::measure::Snapshot> {
+    fn first_method(f: &mut ShardFile) -> &mut Vec<experiments::records::Snapshot> {
         f.units
             .iter_mut()
             .find_map(|(_, u)| match u {
@@ -461,7 +462,7 @@ fn tampered_shard_files_are_refused() {
 /// shard merge has). Here the stop comes after the first method's three seeds.
 #[test]
 fn an_interrupted_experiment_keeps_its_units_and_resumes() {
-    use experiments::measure::Budget;
+    use experiments::records::Budget;
     use std::sync::atomic::{AtomicBool, Ordering};
     let dir = scratch("resume");
     let file = tiny_experiment(&dir);
@@ -530,7 +531,7 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
 #[cfg(unix)]
 #[test]
 fn a_killed_experiment_resumes_from_its_finished_units() {
-    use experiments::measure::Budget;
+    use experiments::records::Budget;
     let dir = scratch("killed");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
@@ -641,14 +642,14 @@ integrator = "uniform"
             "uniform + OIDN (albedo)"
         ]
     );
-    let row = |m: &str, b: experiments::measure::Budget| {
+    let row = |m: &str, b: experiments::records::Budget| {
         r.summary
             .iter()
             .find(|s| s.method == m && s.budget == b)
             .unwrap_or_else(|| panic!("no row for {m} at {b}"))
             .clone()
     };
-    use experiments::measure::Budget;
+    use experiments::records::Budget;
     // At 1 spp the twin denoises the same image: same spp, more time (the filter's), less error.
     let (raw, twin) = (
         row("nee", Budget::Spp(1)),

@@ -209,7 +209,7 @@ fn seed_partial() -> (Vec<u8>, volume_pt::PartialRender) {
 }
 
 fn seed_shard(dir: &Path) -> Vec<u8> {
-    use experiments::measure::{Budget, Snapshot};
+    use experiments::records::{Budget, Snapshot};
     use experiments::shard::{FORMAT, ShardFile, UnitResult};
     let image = |k: f32| {
         (0..24)

@@ -9,7 +9,7 @@
 //! the denoiser does not fit. Spp budgets denoise the image at that spp.
 
 use super::config::DenoiseSpec;
-use super::measure::{Budget, Snapshot};
+use super::records::{Budget, Snapshot};
 use anyhow::{Context, Result};
 use denoise::{Aux, Denoiser, Options};
 use glam::Vec3;

@@ -2,7 +2,7 @@
 //! the cache's levels, loss over frames, and the fly-through curves. Each returns the files it
 //! wrote (relative to the output folder) with a caption, for the report.
 
-use super::measure::Budget;
+use super::records::Budget;
 use super::run::{Results, SummaryRow};
 use crate::plot::{Chart, Rgb8, Series, false_colour, tone_mapped, write_chart, write_image_grid};
 use anyhow::Result;

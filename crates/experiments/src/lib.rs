@@ -5,6 +5,8 @@
 //! - [`config`]: the experiment file (scene, methods, budgets, seeds, reference, fly-throughs,
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
 //! - [`reference`](mod@reference): high-spp references, made once and kept on disk by a hash of their inputs.
+//! - [`records`]: what a measured run leaves (budgets, snapshots, a cache's record) and how its
+//!   images travel in files; [`csv`]: the reports' CSV fields.
 //! - [`measure`]: one method rendered progressively, snapshotted at every budget.
 //! - [`denoised`]: a method's denoised twins (Intel Open Image Denoise), the filter's time
 //!   counted in time budgets.
@@ -21,11 +23,13 @@
 pub mod camera_path;
 pub mod command;
 pub mod config;
+pub mod csv;
 pub mod denoised;
 pub mod figures;
 pub mod flythrough;
 pub mod measure;
 pub mod plot;
+pub mod records;
 pub mod reference;
 pub mod report;
 pub mod run;

@@ -4,70 +4,12 @@
 //! user watching it would see them. Times are wall-clock around each pass.
 
 use super::config::{DenoiseSpec, Method};
+use super::records::{Budget, CacheRecord, Snapshot};
 use anyhow::Result;
 use glam::Vec3;
 use render_session::{Control, FrameReport, Session};
 use std::time::Instant;
 use volume_pt::Scene;
-
-/// A budget: samples per pixel, or wall-clock seconds per image.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(tag = "kind", content = "value", rename_all = "lowercase")]
-pub enum Budget {
-    Spp(u32),
-    Seconds(f64),
-}
-
-impl std::fmt::Display for Budget {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Budget::Spp(s) => write!(f, "{s} spp"),
-            Budget::Seconds(s) => write!(f, "{s} s"),
-        }
-    }
-}
-
-/// The image a progressive run had when it reached a budget.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct Snapshot {
-    pub budget: Budget,
-    /// Passes (samples per pixel) in the image.
-    pub spp: u32,
-    /// Wall-clock seconds of those passes (for a cache: tracing, lookup and training).
-    pub seconds: f64,
-    #[serde(with = "super::shard::image_bits")]
-    pub image: Vec<Vec3>,
-    /// For a denoised twin's image: the guides its denoiser took (`None`: the method's own).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub denoised: Option<denoise::Aux>,
-    /// The feature buffers at this image, kept only until the twins are denoised.
-    #[serde(skip)]
-    pub features: Option<hdr_image::FeatureImages>,
-}
-
-/// What a cached run leaves besides its snapshots.
-#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
-pub struct CacheRecord {
-    pub init_seconds: f64,
-    pub warmup_seconds: f64,
-    /// Per frame (warm-up, then measured): per level, the MSE before the step (the neural
-    /// cache: one entry, the mean relative L2 loss of the step taken during the frame, which
-    /// trains on the previous frame's records).
-    pub level_mse: Vec<Vec<Option<f64>>>,
-    /// Per measured frame that used the cache: seconds of path tracing, lookup (splatting, or
-    /// the neural cache's inference and composition) and training (the neural cache's: what its
-    /// step, run beside the path tracing, adds after it, `FrameReport::train_seconds`). Frames
-    /// after the handoff (plain path tracing) are counted in `handed_off` instead, so the
-    /// cache's per-frame cost is that of the frames that pay it.
-    pub frame_seconds: Vec<[f64; 3]>,
-    /// Measured frames traced without the cache after its handoff.
-    pub handed_off: u32,
-    /// The levels as last drawn, at the scene camera.
-    #[serde(with = "super::shard::image_bits::many")]
-    pub level_images: Vec<Vec<Vec3>>,
-    pub parameter_bytes: usize,
-    pub nonfinite_samples: u64,
-}
 
 /// Renders frames of `session` (1 spp each, by the sampling rule) until every budget is
 /// reached, snapshotting its image at each; `on_frame` sees every frame's report. A time budget

@@ -2,9 +2,10 @@
 //! `results.json` (everything) and `report.md` (tables, the figures, and what they show).
 //! `runs.csv` is written while the experiment runs (see `run`).
 
+use super::csv::{budget_fields, csv_text};
 use super::figures::Figure;
-use super::measure::Budget;
-use super::run::{Results, SummaryRow, budget_fields, csv_text};
+use super::records::Budget;
+use super::run::{Results, SummaryRow};
 use anyhow::Result;
 use std::fmt::Write as _;
 use std::path::Path;

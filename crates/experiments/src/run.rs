@@ -3,8 +3,9 @@
 //! is measured, so an interrupted experiment keeps what it measured.
 
 use super::config::{Budgets, Experiment, Method};
+use super::csv::{budget_fields, csv_text};
 use super::flythrough::FrameRecord;
-use super::measure::{Budget, CacheRecord, Snapshot};
+use super::records::{Budget, CacheRecord, Snapshot};
 use super::reference::reference;
 use super::shard::{UnitResult, measure_unit, units};
 use anyhow::{Context, Result, bail};
@@ -58,22 +59,6 @@ impl RunRow {
             self.efficiency,
             self.nonfinite_samples
         )
-    }
-}
-
-pub fn budget_fields(b: Budget) -> (&'static str, String) {
-    match b {
-        Budget::Spp(s) => ("spp", s.to_string()),
-        Budget::Seconds(s) => ("seconds", s.to_string()),
-    }
-}
-
-/// A string as a CSV field (quoted when it holds a comma or quote).
-pub fn csv_text(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
     }
 }
 

@@ -14,7 +14,8 @@
 
 use super::config::{Experiment, Method};
 use super::flythrough::{FrameRecord, fly};
-use super::measure::{Budget, CacheRecord, Snapshot, run_method};
+use super::measure::run_method;
+use super::records::{Budget, CacheRecord, Snapshot};
 use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -385,64 +386,5 @@ pub fn check_unit(spec: &UnitSpec<'_>, r: &UnitResult, pixels: usize) -> Result<
             Ok(())
         }
         _ => Err("a unit of another kind than the experiment has here".into()),
-    }
-}
-
-/// Images in shard files: f32 bits in base64 (exact, and a third the size of decimal text).
-pub mod image_bits {
-    use super::Vec3;
-    use base64::Engine as _;
-    use base64::engine::general_purpose::STANDARD as BASE64;
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn encode(image: &[Vec3]) -> String {
-        let bytes: Vec<u8> = image
-            .iter()
-            .flat_map(|p| p.to_array())
-            .flat_map(f32::to_le_bytes)
-            .collect();
-        BASE64.encode(bytes)
-    }
-
-    pub fn decode(text: &str) -> Result<Vec<Vec3>, String> {
-        let bytes = BASE64.decode(text).map_err(|e| e.to_string())?;
-        if bytes.len() % 12 != 0 {
-            return Err(format!(
-                "{} bytes is not a whole number of RGB pixels",
-                bytes.len()
-            ));
-        }
-        Ok(bytes
-            .chunks_exact(12)
-            .map(|c| {
-                let f = |i: usize| f32::from_le_bytes(c[i..i + 4].try_into().expect("4 bytes"));
-                Vec3::new(f(0), f(4), f(8))
-            })
-            .collect())
-    }
-
-    pub fn serialize<S: Serializer>(image: &[Vec3], s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(&encode(image))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec3>, D::Error> {
-        decode(&String::deserialize(d)?).map_err(serde::de::Error::custom)
-    }
-
-    /// A list of images.
-    pub mod many {
-        use super::Vec3;
-        use serde::{Deserialize, Deserializer, Serializer};
-
-        pub fn serialize<S: Serializer>(images: &[Vec<Vec3>], s: S) -> Result<S::Ok, S::Error> {
-            s.collect_seq(images.iter().map(|i| super::encode(i)))
-        }
-
-        pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<Vec3>>, D::Error> {
-            Vec::<String>::deserialize(d)?
-                .iter()
-                .map(|t| super::decode(t).map_err(serde::de::Error::custom))
-                .collect()
-        }
     }
 }

@@ -243,7 +243,15 @@ fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
     assert!(exp.methods.iter().any(|m| !m.has_cache()));
     let budgets = [Budget::Spp(1), Budget::Spp(3), Budget::Seconds(0.005)];
     for method in &exp.methods {
-        let (snaps, _) = run_method(&scene, method, seed, &budgets, None).unwrap();
+        let (snaps, _) = run_method(
+            &scene,
+            method,
+            seed,
+            &budgets,
+            None,
+            &mut experiments::denoised::Denoisers::new(),
+        )
+        .unwrap();
         assert_eq!(snaps.len(), budgets.len());
         for snap in &snaps {
             let exr = dir.join(format!(

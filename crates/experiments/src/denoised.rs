@@ -15,48 +15,55 @@ use denoise::{Aux, Denoiser, Options};
 use glam::Vec3;
 use hdr_image::RgbImage;
 use std::collections::HashMap;
-use std::sync::Mutex;
 use std::time::Instant;
-
-/// One denoiser per set of guides, kept for the process: a filter is built once per image
-/// size and guides, and switching guides on one device would rebuild it every call (and put
-/// the build in the timings).
-static DENOISERS: Mutex<Option<HashMap<Aux, Denoiser>>> = Mutex::new(None);
 
 /// What a denoising cost is measured for: image width and height, guides, quality.
 type CostKey = (u32, u32, Aux, denoise::Quality);
 
-/// Costs measured so far, in seconds.
-static COSTS: Mutex<Option<HashMap<CostKey, f64>>> = Mutex::new(None);
-
-/// Runs `f` on the process's denoiser for `guides`, loading it on first use.
-fn with_denoiser<T>(guides: Aux, f: impl FnOnce(&mut Denoiser) -> Result<T>) -> Result<T> {
-    let mut all = DENOISERS.lock().unwrap_or_else(|e| e.into_inner());
-    let map = all.get_or_insert_with(HashMap::new);
-    let denoiser = match map.entry(guides) {
-        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-        std::collections::hash_map::Entry::Vacant(e) => e.insert(
-            Denoiser::load(rayon::current_num_threads())
-                .context("the experiment asks for denoised twins (denoise = true)")?,
-        ),
-    };
-    f(denoiser)
+/// The denoisers of one run and the costs measured with them: a value the run owns, so that a
+/// twin's timing does not depend on what ran before it in the process (they were statics).
+/// One denoiser per set of guides: a filter is built once per image size and guides, and
+/// switching guides on one device would rebuild it every call (and put the build in the
+/// timings).
+#[derive(Debug, Default)]
+pub struct Denoisers {
+    by_guides: HashMap<Aux, Denoiser>,
+    /// Costs measured so far, in seconds.
+    costs: HashMap<CostKey, f64>,
 }
 
-/// Denoises `image` with `guides` from `features`; returns the image and the seconds taken.
-fn run(
-    image: &RgbImage,
-    features: Option<&hdr_image::FeatureImages>,
-    guides: Aux,
-    spec: &DenoiseSpec,
-) -> Result<(RgbImage, f64)> {
-    let albedo = features
-        .filter(|_| guides != Aux::None)
-        .map(|f| f.albedo.as_slice());
-    let normal = features
-        .filter(|_| guides == Aux::AlbedoNormal)
-        .map(|f| f.normal.as_slice());
-    with_denoiser(guides, |d| {
+impl Denoisers {
+    /// None loaded yet, no cost measured.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The denoiser for `guides`, loaded on first use.
+    fn for_guides(&mut self, guides: Aux) -> Result<&mut Denoiser> {
+        Ok(match self.by_guides.entry(guides) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => e.insert(
+                Denoiser::load(rayon::current_num_threads())
+                    .context("the experiment asks for denoised twins (denoise = true)")?,
+            ),
+        })
+    }
+
+    /// Denoises `image` with `guides` from `features`; returns the image and the seconds taken.
+    fn run(
+        &mut self,
+        image: &RgbImage,
+        features: Option<&hdr_image::FeatureImages>,
+        guides: Aux,
+        spec: &DenoiseSpec,
+    ) -> Result<(RgbImage, f64)> {
+        let albedo = features
+            .filter(|_| guides != Aux::None)
+            .map(|f| f.albedo.as_slice());
+        let normal = features
+            .filter(|_| guides == Aux::AlbedoNormal)
+            .map(|f| f.normal.as_slice());
+        let d = self.for_guides(guides)?;
         let start = Instant::now();
         let out = d.denoise(
             image,
@@ -68,54 +75,52 @@ fn run(
             },
         )?;
         Ok((out, start.elapsed().as_secs_f64()))
-    })
-}
-
-/// The denoiser's cost per image at `width x height` with `guides`, measured once per process.
-pub fn cost(width: u32, height: u32, guides: Aux, spec: &DenoiseSpec) -> Result<f64> {
-    let key = (width, height, guides, spec.quality);
-    if let Some(c) = COSTS
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .get_or_insert_with(HashMap::new)
-        .get(&key)
-    {
-        return Ok(*c);
     }
-    // A noisy image (the cost of the network does not depend on the pixels) and flat guides.
-    let n = width as usize * height as usize;
-    let pixels = (0..n)
-        .map(|i| {
-            let h = render_base::hash::hash32(&[i as u32, 0x5eed]);
-            Vec3::splat(render_base::hash::unit_f32(h))
-        })
-        .collect();
-    let image = RgbImage::from_pixels(width, height, pixels)?;
-    let features = hdr_image::FeatureImages::new(
-        width,
-        height,
-        vec![Vec3::splat(0.5); n],
-        vec![Vec3::Z; n],
-        vec![1.0; n],
-        vec![1.0; n],
-    )?;
-    run(&image, Some(&features), guides, spec)?;
-    let mut times: Vec<f64> = (0..3)
-        .map(|_| run(&image, Some(&features), guides, spec).map(|r| r.1))
-        .collect::<Result<_>>()?;
-    times.sort_by(f64::total_cmp);
-    let c = times[1];
-    COSTS
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .get_or_insert_with(HashMap::new)
-        .insert(key, c);
-    Ok(c)
+
+    /// The denoiser's cost per image at `width x height` with `guides`, measured once per run.
+    pub fn cost(
+        &mut self,
+        width: u32,
+        height: u32,
+        guides: Aux,
+        spec: &DenoiseSpec,
+    ) -> Result<f64> {
+        let key = (width, height, guides, spec.quality);
+        if let Some(c) = self.costs.get(&key) {
+            return Ok(*c);
+        }
+        // A noisy image (the cost of the network does not depend on the pixels) and flat guides.
+        let n = width as usize * height as usize;
+        let pixels = (0..n)
+            .map(|i| {
+                let h = render_base::hash::hash32(&[i as u32, 0x5eed]);
+                Vec3::splat(render_base::hash::unit_f32(h))
+            })
+            .collect();
+        let image = RgbImage::from_pixels(width, height, pixels)?;
+        let features = hdr_image::FeatureImages::new(
+            width,
+            height,
+            vec![Vec3::splat(0.5); n],
+            vec![Vec3::Z; n],
+            vec![1.0; n],
+            vec![1.0; n],
+        )?;
+        self.run(&image, Some(&features), guides, spec)?;
+        let mut times: Vec<f64> = (0..3)
+            .map(|_| self.run(&image, Some(&features), guides, spec).map(|r| r.1))
+            .collect::<Result<_>>()?;
+        times.sort_by(f64::total_cmp);
+        let c = times[1];
+        self.costs.insert(key, c);
+        Ok(c)
+    }
 }
 
 /// Which render budget each (guides, budget) twin denoises: the budget itself in spp, `T - c`
 /// in seconds (one frame where the denoiser alone takes the budget).
 pub fn plan(
+    denoisers: &mut Denoisers,
     budgets: &[Budget],
     spec: &DenoiseSpec,
     width: u32,
@@ -123,7 +128,7 @@ pub fn plan(
 ) -> Result<Vec<(Aux, Budget, Budget)>> {
     let mut out = Vec::new();
     for &guides in &spec.guides {
-        let c = cost(width, height, guides, spec)?;
+        let c = denoisers.cost(width, height, guides, spec)?;
         for &b in budgets {
             let render = match b {
                 Budget::Spp(_) => b,
@@ -139,6 +144,7 @@ pub fn plan(
 /// The twins' snapshots: each planned image denoised, at its budget, with the render's time
 /// plus the denoiser's.
 pub fn twins(
+    denoisers: &mut Denoisers,
     plan: &[(Aux, Budget, Budget)],
     raw: &[Snapshot],
     spec: &DenoiseSpec,
@@ -152,7 +158,7 @@ pub fn twins(
             .find(|s| s.budget == render)
             .with_context(|| format!("no image at {render} to denoise"))?;
         let image = RgbImage::from_pixels(width, height, src.image.clone())?;
-        let (denoised, seconds) = run(&image, src.features.as_ref(), guides, spec)?;
+        let (denoised, seconds) = denoisers.run(&image, src.features.as_ref(), guides, spec)?;
         out.push(Snapshot {
             budget,
             spp: src.spp,

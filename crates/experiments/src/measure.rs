@@ -4,6 +4,7 @@
 //! user watching it would see them. Times are wall-clock around each pass.
 
 use super::config::{DenoiseSpec, Method};
+use super::denoised::Denoisers;
 use super::records::{Budget, CacheRecord, Snapshot};
 use anyhow::Result;
 use glam::Vec3;
@@ -91,10 +92,11 @@ pub fn run_method(
     seed: u64,
     budgets: &[Budget],
     denoise: Option<&DenoiseSpec>,
+    denoisers: &mut Denoisers,
 ) -> Result<(Vec<Snapshot>, Option<CacheRecord>)> {
     let (w, h) = (scene.camera.width, scene.camera.height);
     let plan = match denoise {
-        Some(spec) => super::denoised::plan(budgets, spec, w, h)?,
+        Some(spec) => super::denoised::plan(denoisers, budgets, spec, w, h)?,
         None => Vec::new(),
     };
     // The images the twins denoise are snapshots too; the features ride along with them.
@@ -107,9 +109,9 @@ pub fn run_method(
     let session = method_session(scene, method, seed)?;
     let wants_features = plan.iter().any(|p| p.0 != denoise::Aux::None);
     let mut session = session.with_features(wants_features);
-    let finish = |raw: Vec<Snapshot>| -> Result<Vec<Snapshot>> {
+    let mut finish = |raw: Vec<Snapshot>| -> Result<Vec<Snapshot>> {
         let mut twins = match denoise {
-            Some(spec) => super::denoised::twins(&plan, &raw, spec, w, h)?,
+            Some(spec) => super::denoised::twins(denoisers, &plan, &raw, spec, w, h)?,
             None => Vec::new(),
         };
         let mut out: Vec<Snapshot> = raw

@@ -447,6 +447,8 @@ pub fn run_resumable(
     let scene = experiment_scene(exp)?;
     let (main, ablation) = all_budgets(exp);
     let units = units(exp, &main, &ablation);
+    // The run's own denoisers and costs: the twins' timings do not depend on earlier runs.
+    let mut denoisers = super::denoised::Denoisers::new();
     assemble(exp, &scene, progress, &mut |k| {
         if let Some(r) = done.remove(&k) {
             return Ok(r);
@@ -454,7 +456,7 @@ pub fn run_resumable(
         if control.cancelled() {
             return Err(Cancelled.into());
         }
-        let r = measure_unit(exp, &scene, units[k], progress)?;
+        let r = measure_unit(exp, &scene, units[k], &mut denoisers, progress)?;
         measured(k, &r);
         Ok(r)
     })

@@ -13,6 +13,7 @@
 //! the experiment, a unit given twice and a missing one.
 
 use super::config::{Experiment, Method};
+use super::denoised::Denoisers;
 use super::flythrough::{FrameRecord, fly};
 use super::measure::run_method;
 use super::records::{Budget, CacheRecord, Snapshot};
@@ -88,6 +89,7 @@ pub fn measure_unit(
     exp: &Experiment,
     scene: &Scene,
     spec: UnitSpec<'_>,
+    denoisers: &mut Denoisers,
     progress: &dyn Fn(&str),
 ) -> Result<UnitResult> {
     Ok(match spec {
@@ -97,7 +99,7 @@ pub fn measure_unit(
             budgets,
             denoise,
         } => {
-            let (snapshots, record) = run_method(scene, method, seed, budgets, denoise)?;
+            let (snapshots, record) = run_method(scene, method, seed, budgets, denoise, denoisers)?;
             UnitResult::Method { snapshots, record }
         }
         UnitSpec::Fly { index } => {
@@ -163,8 +165,12 @@ pub fn run_shard(
     progress: &dyn Fn(&str),
 ) -> Result<ShardFile> {
     let mut measured = Vec::new();
+    let mut denoisers = Denoisers::new();
     for (k, spec) in units.iter().enumerate().filter(|(k, _)| shard.owns(*k)) {
-        measured.push((k, measure_unit(exp, scene, *spec, progress)?));
+        measured.push((
+            k,
+            measure_unit(exp, scene, *spec, &mut denoisers, progress)?,
+        ));
         progress(&format!(
             "shard {shard}: unit {k} of {} measured",
             units.len()

@@ -210,7 +210,7 @@ fn numbers_that_would_spoil_an_image_are_refused() {
                 "render".into(),
                 scene.clone(),
                 "--cache".into(),
-                "--warmup-orbit".into(),
+                "--warmup-orbit-degrees".into(),
                 "inf".into(),
             ],
             "not finite",
@@ -1374,4 +1374,29 @@ fn an_output_that_is_a_device_is_refused() {
         .map(|e| e.unwrap().file_name())
         .collect();
     assert_eq!(names, ["x.exr"]);
+}
+
+/// Issue 51, item 6: the warm-up orbit has one name, `--warmup-orbit-degrees` (the experiment
+/// files' `warmup_orbit_degrees`); the old `--warmup-orbit` still works and renders the same
+/// bytes.
+#[test]
+fn the_old_warmup_orbit_flag_is_an_alias() {
+    let d = scratch("orbit-alias");
+    for (flag, name) in [("--warmup-orbit-degrees", "new"), ("--warmup-orbit", "old")] {
+        let out = render_small(&[
+            "--cache", "--spp", "1", "--warmup", "3", "--frames", "1", flag, "30", "-o",
+        ])
+        .arg(d.join(format!("{name}.exr")))
+        .output()
+        .unwrap();
+        assert!(
+            out.status.success(),
+            "{flag}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_eq!(
+        std::fs::read(d.join("new.exr")).unwrap(),
+        std::fs::read(d.join("old.exr")).unwrap()
+    );
 }

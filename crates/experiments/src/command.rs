@@ -72,7 +72,7 @@ pub fn render_args(
             args.extend([
                 "--warmup".into(),
                 n.warmup.to_string(),
-                "--warmup-orbit".into(),
+                "--warmup-orbit-degrees".into(),
                 n.warmup_orbit_degrees.to_string(),
             ]);
         }
@@ -82,7 +82,7 @@ pub fn render_args(
             args.extend([
                 "--warmup".into(),
                 c.warmup.to_string(),
-                "--warmup-orbit".into(),
+                "--warmup-orbit-degrees".into(),
                 c.warmup_orbit_degrees.to_string(),
             ]);
         }

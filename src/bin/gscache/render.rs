@@ -115,8 +115,10 @@ pub struct CacheRun {
     warmup: u32,
     /// Degrees of orbit about the volume's centre over the warm-up frames, ending at the
     /// scene's camera (the experiment runner's warm-up); 0 keeps the camera still.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_f32)]
-    warmup_orbit: f32,
+    /// (`--warmup-orbit-degrees`, the experiment files' `warmup_orbit_degrees`; `--warmup-orbit`
+    /// is kept as an alias.)
+    #[arg(long, alias = "warmup-orbit", value_name = "DEG", default_value_t = 0.0, allow_negative_numbers = true, value_parser = finite_f32)]
+    warmup_orbit_degrees: f32,
     /// Write the trained levels as 3DGS PLY files into this folder.
     #[arg(long)]
     save_cache: Option<PathBuf>,
@@ -347,7 +349,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     // An interrupted render is kept: every pixel gets its first sample before it may stop.
     let control = Control::new(&cancel, &report_progress).keeping_every_pixel();
     let start = std::time::Instant::now();
-    let warm = session.warm_up(args.cache.warmup, args.cache.warmup_orbit, &control)?;
+    let warm = session.warm_up(args.cache.warmup, args.cache.warmup_orbit_degrees, &control)?;
     let mut accumulated = Vec::with_capacity(frames as usize);
     for _ in 0..frames {
         if control.cancelled() {

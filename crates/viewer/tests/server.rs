@@ -16,25 +16,34 @@ fn scratch(name: &str) -> PathBuf {
     d
 }
 
-/// The bundled default scene at 64x36, refining to 8 spp.
-fn start(output: &Path, max_clients: usize) -> Viewer {
+/// A viewer of the bundled default scene at `width x height`, a still view refining to `spp`,
+/// on any free port, saving into `output`; the rest of `options` as given.
+fn serve_default(
+    output: &Path,
+    (width, height): (u32, u32),
+    spp: u32,
+    options: Options,
+) -> viewer::Result<Viewer> {
     let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
     let text = std::fs::read_to_string(&file).unwrap();
     let mut scene = volume_pt::load_scene(&file).unwrap();
-    scene.camera = scene.camera.with_size(64, 36).unwrap();
-    scene.settings.spp = 8;
-    serve(
-        scene,
-        text,
-        file,
-        Options {
-            port: 0,
-            output: output.to_path_buf(),
-            max_clients,
-            ..Default::default()
-        },
-    )
-    .unwrap()
+    scene.camera = scene.camera.with_size(width, height).unwrap();
+    scene.settings.spp = spp;
+    let options = Options {
+        port: 0,
+        output: output.to_path_buf(),
+        ..options
+    };
+    serve(scene, text, file, options)
+}
+
+/// The bundled default scene at 64x36, refining to 8 spp.
+fn start(output: &Path, max_clients: usize) -> Viewer {
+    let options = Options {
+        max_clients,
+        ..Default::default()
+    };
+    serve_default(output, (64, 36), 8, options).unwrap()
 }
 
 fn token(v: &Viewer) -> String {
@@ -470,18 +479,11 @@ async fn the_still_view_converges_to_the_render() {
 
 /// A viewer on the default scene at 64x36 whose denoiser is `denoiser` (loaded on first use).
 fn start_with_denoiser(output: &Path, denoiser: denoise::OnDemand) -> Viewer {
-    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
-    let text = std::fs::read_to_string(&file).unwrap();
-    let mut scene = volume_pt::load_scene(&file).unwrap();
-    scene.camera = scene.camera.with_size(64, 36).unwrap();
-    scene.settings.spp = 8;
     let options = Options {
-        port: 0,
-        output: output.to_path_buf(),
         denoiser,
         ..Default::default()
     };
-    serve(scene, text, file, options).unwrap()
+    serve_default(output, (64, 36), 8, options).unwrap()
 }
 
 /// The denoiser is loaded when the page first turns it on (issue 48: loading runs the library's
@@ -570,16 +572,7 @@ fn a_bad_output_folder_is_refused_at_start() {
 }
 
 fn serve_into(output: &Path) -> viewer::Result<Viewer> {
-    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
-    let text = std::fs::read_to_string(&file).unwrap();
-    let mut scene = volume_pt::load_scene(&file).unwrap();
-    scene.camera = scene.camera.with_size(16, 9).unwrap();
-    let options = Options {
-        port: 0,
-        output: output.to_path_buf(),
-        ..Default::default()
-    };
-    serve(scene, text, file, options)
+    serve_default(output, (16, 9), 8, Options::default())
 }
 
 /// Issue 48, item 10: bound to `::1`, the printed URL is the IPv6 loopback's, and it answers.
@@ -590,22 +583,11 @@ async fn a_viewer_on_the_ipv6_loopback_prints_a_url_that_answers() {
         return;
     }
     let out = scratch("ipv6");
-    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
-    let text = std::fs::read_to_string(&file).unwrap();
-    let mut scene = volume_pt::load_scene(&file).unwrap();
-    scene.camera = scene.camera.with_size(16, 9).unwrap();
-    let v = serve(
-        scene,
-        text,
-        file,
-        Options {
-            bind: "::1".parse().unwrap(),
-            port: 0,
-            output: out,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let options = Options {
+        bind: "::1".parse().unwrap(),
+        ..Default::default()
+    };
+    let v = serve_default(&out, (16, 9), 8, options).unwrap();
     let port = v.address().port();
     assert!(
         v.url().starts_with(&format!("http://[::1]:{port}/?token=")),
@@ -686,25 +668,14 @@ async fn no_client_means_no_rendering_and_a_leaving_client_ends_its_drag() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_idle_connection_flood_does_not_keep_out_a_page() {
     let out = scratch("flood");
-    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
-    let text = std::fs::read_to_string(&file).unwrap();
-    let mut scene = volume_pt::load_scene(&file).unwrap();
-    scene.camera = scene.camera.with_size(16, 9).unwrap();
-    let v = serve(
-        scene,
-        text,
-        file,
-        Options {
-            port: 0,
-            output: out,
-            limits: viewer::Limits {
-                max_connections: 32,
-                idle_timeout: Duration::from_secs(1),
-            },
-            ..Default::default()
+    let options = Options {
+        limits: viewer::Limits {
+            max_connections: 32,
+            idle_timeout: Duration::from_secs(1),
         },
-    )
-    .unwrap();
+        ..Default::default()
+    };
+    let v = serve_default(&out, (16, 9), 8, options).unwrap();
     let port = v.address().port();
     let mut flood = Vec::new();
     for i in 0..400 {
@@ -807,24 +778,7 @@ async fn an_oversized_message_is_answered_with_a_close_frame_that_says_why() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_viewers_saving_into_one_folder_never_share_a_name() {
     let out = scratch("two-savers");
-    let start_sized = |w: u32, h: u32| {
-        let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
-        let text = std::fs::read_to_string(&file).unwrap();
-        let mut scene = volume_pt::load_scene(&file).unwrap();
-        scene.camera = scene.camera.with_size(w, h).unwrap();
-        scene.settings.spp = 1;
-        serve(
-            scene,
-            text,
-            file,
-            Options {
-                port: 0,
-                output: out.clone(),
-                ..Default::default()
-            },
-        )
-        .unwrap()
-    };
+    let start_sized = |w: u32, h: u32| serve_default(&out, (w, h), 1, Options::default()).unwrap();
     let viewers = [start_sized(32, 18), start_sized(24, 24)];
     let mut sockets = Vec::new();
     for v in &viewers {

@@ -46,6 +46,25 @@ fn start(output: &Path, max_clients: usize) -> Viewer {
     serve_default(output, (64, 36), 8, options).unwrap()
 }
 
+/// A plain `GET path` to `address` with header `Host: host`, the whole response as text (at
+/// most 5 s).
+async fn http_get(address: (&str, u16), host: &str, path: &str) -> String {
+    let mut s = tokio::net::TcpStream::connect(address).await.unwrap();
+    let request = format!("GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n");
+    tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
+        .await
+        .unwrap();
+    let mut response = String::new();
+    tokio::time::timeout(
+        Duration::from_secs(5),
+        tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response),
+    )
+    .await
+    .expect("no answer within 5 s")
+    .unwrap();
+    response
+}
+
 fn token(v: &Viewer) -> String {
     v.url().split("token=").nth(1).unwrap().to_string()
 }
@@ -117,20 +136,10 @@ async fn the_token_is_required_on_every_request() {
     let out = scratch("token");
     let v = start(&out, 4);
     let port = v.address().port();
-    let get = |path: String| async move {
-        let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
-            .await
-            .unwrap();
-        let request =
-            format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n");
-        tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
-            .await
-            .unwrap();
-        let mut response = String::new();
-        tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response)
-            .await
-            .unwrap();
-        response
+    let host = format!("127.0.0.1:{port}");
+    let get = |path: String| {
+        let host = host.clone();
+        async move { http_get(("127.0.0.1", port), &host, &path).await }
     };
     let t = token(&v);
     assert!(
@@ -153,19 +162,12 @@ async fn the_token_is_required_on_every_request() {
     assert!(connect(&v, "").await.is_err());
     assert!(connect(&v, &wrong).await.is_err());
     // A page served under another name (DNS rebinding) is refused, token or not.
-    let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .unwrap();
-    let request = format!(
-        "GET /?token={t} HTTP/1.1\r\nHost: evil.example:{port}\r\nConnection: close\r\n\r\n"
-    );
-    tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
-        .await
-        .unwrap();
-    let mut response = String::new();
-    tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response)
-        .await
-        .unwrap();
+    let response = http_get(
+        ("127.0.0.1", port),
+        &format!("evil.example:{port}"),
+        &format!("/?token={t}"),
+    )
+    .await;
     assert!(response.starts_with("HTTP/1.1 403"), "{response}");
     // A WebSocket opened by another site's page is refused.
     let mut request = format!("ws://127.0.0.1:{port}/ws?token={t}")
@@ -594,21 +596,8 @@ async fn a_viewer_on_the_ipv6_loopback_prints_a_url_that_answers() {
         "{}",
         v.url()
     );
-    let mut s = tokio::net::TcpStream::connect(("::1", port)).await.unwrap();
-    let path = v
-        .url()
-        .split_once(&format!(":{port}"))
-        .unwrap()
-        .1
-        .to_string();
-    let request = format!("GET {path} HTTP/1.1\r\nHost: [::1]:{port}\r\nConnection: close\r\n\r\n");
-    tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
-        .await
-        .unwrap();
-    let mut response = String::new();
-    tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response)
-        .await
-        .unwrap();
+    let path = v.url().split_once(&format!(":{port}")).unwrap().1;
+    let response = http_get(("::1", port), &format!("[::1]:{port}"), path).await;
     assert!(response.starts_with("HTTP/1.1 200"), "{response}");
     v.stop();
 }
@@ -690,24 +679,12 @@ async fn an_idle_connection_flood_does_not_keep_out_a_page() {
         flood.push(s);
     }
     let asked = Instant::now();
-    let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .unwrap();
-    let request = format!(
-        "GET /?token={} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n",
-        token(&v)
-    );
-    tokio::io::AsyncWriteExt::write_all(&mut s, request.as_bytes())
-        .await
-        .unwrap();
-    let mut response = String::new();
-    tokio::time::timeout(
-        Duration::from_secs(5),
-        tokio::io::AsyncReadExt::read_to_string(&mut s, &mut response),
+    let response = http_get(
+        ("127.0.0.1", port),
+        &format!("127.0.0.1:{port}"),
+        &format!("/?token={}", token(&v)),
     )
-    .await
-    .expect("no answer within 5 s")
-    .unwrap();
+    .await;
     let took = asked.elapsed();
     assert!(response.starts_with("HTTP/1.1 200"), "{response:.200}");
     assert!(took < Duration::from_secs(1), "the page took {took:?}");

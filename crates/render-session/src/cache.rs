@@ -10,8 +10,8 @@ use crate::report::FrameReport;
 #[cfg(feature = "nrc")]
 use crate::sampling::neural_cache_seed;
 use gs_cache::{CacheConfig, GsCache};
+use render_base::Camera;
 use render_base::Control;
-use splat_raster::Camera;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use volume_pt::{Film, RenderSettings, Scene, SceneMedia, render_samples, sample_cache_points};

@@ -13,7 +13,7 @@
 
 use crate::cache::CacheChoice;
 use glam::Vec3;
-use splat_raster::Camera;
+use render_base::Camera;
 use std::path::PathBuf;
 use volume_pt::{Lights, PathSettings, SceneMedia, TransferFunction};
 

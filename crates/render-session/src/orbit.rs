@@ -1,7 +1,7 @@
 //! The warm-up's camera path: an orbit about the volume's centre that ends at the camera.
 
 use glam::{Quat, Vec3};
-use splat_raster::Camera;
+use render_base::Camera;
 
 /// The camera's "up" as seen in its image (image rows grow down, along the rotation's +Y).
 pub fn image_up(camera: &Camera) -> Vec3 {

@@ -7,9 +7,9 @@
 //! view goes on unchanged.
 
 use glam::Vec3;
+use render_base::Camera;
 use render_session::CacheChoice;
 use serde::Deserialize;
-use splat_raster::Camera;
 use volume_pt::{Colormap, Light, Lights, Scene, TransferFunction};
 
 /// The largest message the server reads (the WebSocket closes on a larger one).

@@ -465,12 +465,24 @@ fn tampered_shard_files_are_refused() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A resumed run's rows are the one-process run's: the same units in the same order, and the
+/// same relMSE bits at every spp budget (time budgets depend on the machine's speed).
+fn assert_same_runs(whole: &experiments::Results, resumed: &experiments::Results) {
+    use experiments::records::Budget;
+    assert_eq!(resumed.runs.len(), whole.runs.len());
+    for (a, b) in whole.runs.iter().zip(&resumed.runs) {
+        assert_eq!((&a.method, a.budget, a.seed), (&b.method, b.budget, b.seed));
+        if matches!(a.budget, Budget::Spp(_)) {
+            assert_eq!(a.rel_mse.to_bits(), b.rel_mse.to_bits(), "{a:?}");
+        }
+    }
+}
+
 /// Ctrl-C stops an experiment between units and keeps what it measured; `--resume` goes on
 /// from there, and the result has the one-process run's relMSE bits at every spp budget (as a
 /// shard merge has). Here the stop comes after the first method's three seeds.
 #[test]
 fn an_interrupted_experiment_keeps_its_units_and_resumes() {
-    use experiments::records::Budget;
     use std::sync::atomic::{AtomicBool, Ordering};
     let dir = scratch("resume");
     let file = tiny_experiment(&dir);
@@ -505,13 +517,7 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
         Some(&stopped.file),
     )
     .unwrap();
-    assert_eq!(resumed.runs.len(), whole.runs.len());
-    for (a, b) in whole.runs.iter().zip(&resumed.runs) {
-        assert_eq!((&a.method, a.budget, a.seed), (&b.method, b.budget, b.seed));
-        if matches!(a.budget, Budget::Spp(_)) {
-            assert_eq!(a.rel_mse.to_bits(), b.rel_mse.to_bits(), "{a:?}");
-        }
-    }
+    assert_same_runs(&whole, &resumed);
     // A resume file from another version of the experiment is refused.
     std::fs::write(
         &file,
@@ -539,7 +545,6 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
 #[cfg(unix)]
 #[test]
 fn a_killed_experiment_resumes_from_its_finished_units() {
-    use experiments::records::Budget;
     let dir = scratch("killed");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};
@@ -591,13 +596,7 @@ fn a_killed_experiment_resumes_from_its_finished_units() {
         Some(&out),
     )
     .unwrap();
-    assert_eq!(resumed.runs.len(), whole.runs.len());
-    for (a, b) in whole.runs.iter().zip(&resumed.runs) {
-        assert_eq!((&a.method, a.budget, a.seed), (&b.method, b.budget, b.seed));
-        if matches!(a.budget, Budget::Spp(_)) {
-            assert_eq!(a.rel_mse.to_bits(), b.rel_mse.to_bits(), "{a:?}");
-        }
-    }
+    assert_same_runs(&whole, &resumed);
     // Complete: the journal is gone.
     assert!(!units.exists());
     std::fs::remove_dir_all(&dir).ok();

@@ -7,10 +7,13 @@
 //! there is replaced. No name or path comes from the page.
 
 use crate::protocol::{LightSettings, SceneFacts, TransferSettings};
-use glam::Vec3;
 use hdr_image::RgbImage;
 use std::path::{Path, PathBuf};
-use volume_pt::{Light, Scene};
+use volume_pt::Scene;
+use volume_pt::scene::{
+    CameraDesc, EnvironmentDesc, LightDesc, RenderDesc, SceneFile, TfPoint, TransferDesc,
+    VolumeDesc,
+};
 
 /// The files one save wrote.
 #[derive(Debug, Clone)]
@@ -206,122 +209,63 @@ pub fn save(r: SaveRequest) -> Result<Saved, String> {
     Ok(Saved { files })
 }
 
-fn array(v: Vec3) -> toml::Value {
-    toml::Value::Array(vec![
-        toml::Value::Float(v.x as f64),
-        toml::Value::Float(v.y as f64),
-        toml::Value::Float(v.z as f64),
-    ])
-}
-
-/// The scene file with the view's camera, transfer function, lights and environment, and the
-/// volume's path made absolute (the file is written elsewhere than the scene it came from).
+/// The scene file with the view's camera, transfer function, lights, environment and samples,
+/// and the volume's path made absolute (the file is written elsewhere than the scene it came
+/// from). The volume's other keys (format, spacing, filter...) are kept as the file gave them.
 pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
-    let mut table: toml::Table =
-        toml::from_str(r.scene_text).map_err(|e| format!("{}: {e}", r.scene_file.display()))?;
-    let anchor = r.scene_file.parent().unwrap_or(Path::new("."));
     // A scene made from tables in Python has no file: its volume is named as it was given.
-    if !table.contains_key("volume") {
-        let mut volume = toml::Table::new();
-        volume.insert(
-            "file".into(),
-            toml::Value::String(r.scene.volume_path.display().to_string()),
-        );
-        table.insert("volume".into(), toml::Value::Table(volume));
+    let mut volume = if r.scene_text.trim().is_empty() {
+        VolumeDesc::file(&r.scene.volume_path)
+    } else {
+        toml::from_str::<SceneFile>(r.scene_text)
+            .map_err(|e| format!("{}: {e}", r.scene_file.display()))?
+            .volume
+    };
+    if volume.file.is_relative() {
+        let anchor = r.scene_file.parent().unwrap_or(Path::new("."));
+        let joined = anchor.join(&volume.file);
+        volume.file = std::path::absolute(&joined).unwrap_or(joined);
     }
-    if let Some(toml::Value::Table(volume)) = table.get_mut("volume")
-        && let Some(toml::Value::String(file)) = volume.get("file")
-    {
-        let path = Path::new(file);
-        let absolute = if path.is_absolute() {
-            path.to_path_buf()
-        } else {
-            std::path::absolute(anchor.join(path)).unwrap_or_else(|_| anchor.join(path))
-        };
-        volume.insert(
-            "file".into(),
-            toml::Value::String(absolute.display().to_string()),
-        );
-    }
-    let camera = r.scene.camera;
-    let (_, down, forward) = camera.axes();
-    let target =
-        camera.position + forward * (r.facts.centre - camera.position).dot(forward).max(1e-3);
-    let mut cam = toml::Table::new();
-    cam.insert("eye".into(), array(camera.position));
-    cam.insert("target".into(), array(target));
-    cam.insert("up".into(), array(-down));
-    cam.insert(
-        "fov_y".into(),
-        toml::Value::Float(camera.fov_y_degrees as f64),
-    );
-    cam.insert("width".into(), toml::Value::Integer(r.facts.width as i64));
-    cam.insert("height".into(), toml::Value::Integer(r.facts.height as i64));
-    table.insert("camera".into(), toml::Value::Table(cam));
-    let mut transfer = toml::Table::new();
-    transfer.insert(
-        "window".into(),
-        toml::Value::Array(vec![
-            toml::Value::Float(r.transfer.window[0] as f64),
-            toml::Value::Float(r.transfer.window[1] as f64),
-        ]),
-    );
-    transfer.insert(
-        "density_scale".into(),
-        toml::Value::Float(r.transfer.density_scale as f64),
-    );
+    let camera = &r.scene.camera;
+    let (_, _, forward) = camera.axes();
+    let target_distance = (r.facts.centre - camera.position).dot(forward).max(1e-3);
     let points = r
         .transfer
         .points(&r.facts.transfer)
         .into_iter()
-        .map(|(u, colour, opacity)| {
-            let mut p = toml::Table::new();
-            p.insert("value".into(), toml::Value::Float(u as f64));
-            p.insert("color".into(), array(colour));
-            p.insert("opacity".into(), toml::Value::Float(opacity as f64));
-            toml::Value::Table(p)
+        .map(|(value, colour, opacity)| TfPoint {
+            value,
+            color: colour.to_array(),
+            opacity,
         })
         .collect();
-    transfer.insert("points".into(), toml::Value::Array(points));
-    table.insert("transfer".into(), toml::Value::Table(transfer));
     let lights = r.lights.lights(r.facts);
-    let light_tables = lights
-        .lights
-        .iter()
-        .map(|l| {
-            let mut t = toml::Table::new();
-            match l {
-                Light::Sphere(s) => {
-                    t.insert("center".into(), array(s.center));
-                    t.insert("radius".into(), toml::Value::Float(s.radius as f64));
-                    t.insert("radiance".into(), array(s.radiance));
-                }
-                Light::Distant(d) => {
-                    t.insert("type".into(), toml::Value::String("distant".into()));
-                    t.insert("direction".into(), array(d.direction));
-                    t.insert("irradiance".into(), array(d.irradiance));
-                }
-            }
-            toml::Value::Table(t)
-        })
-        .collect();
-    table.insert("light".into(), toml::Value::Array(light_tables));
-    let mut env = toml::Table::new();
-    env.insert("radiance".into(), array(lights.environment));
-    table.insert("environment".into(), toml::Value::Table(env));
-    let render = table
-        .entry("render")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-    if let toml::Value::Table(render) = render {
-        render.insert("spp".into(), toml::Value::Integer(r.spp.max(1) as i64));
-        render.insert(
-            "show_lights".into(),
-            toml::Value::Boolean(r.scene.settings.path.show_lights),
-        );
-    }
-    let body = toml::to_string(&table).map_err(|e| e.to_string())?;
-    Ok(format!(
-        "# Saved by `gscache view` from {}: render it with `gscache render` as any scene.\n{body}",
-        r.scene_file.display()
-    ))
+    let description = SceneFile {
+        volume,
+        transfer: TransferDesc {
+            window: Some(r.transfer.window),
+            density_scale: r.transfer.density_scale,
+            points: Some(points),
+            preset: None,
+            preset_name: None,
+            opacity: None,
+        },
+        lights: lights.lights.iter().map(LightDesc::from_light).collect(),
+        environment: EnvironmentDesc {
+            radiance: lights.environment.to_array(),
+        },
+        phase: r.scene.media.phase,
+        camera: CameraDesc::from_camera(camera, target_distance),
+        render: RenderDesc {
+            spp: r.spp.max(1),
+            ..RenderDesc::from_settings(&r.scene.settings)
+        },
+        output: r.scene.output,
+    };
+    description
+        .to_toml(&format!(
+            "Saved by `gscache view` from {}: render it with `gscache render` as any scene.",
+            r.scene_file.display()
+        ))
+        .map_err(|e| e.to_string())
 }

@@ -21,12 +21,18 @@
 //! (`--save-scene`) and edited like any scene, and loaded by the same code.
 
 use crate::colormap::Colormap;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::grid::ScalarGrid;
+use crate::integrator::IntegratorKind;
 use crate::io::{Format, LoadedVolume, ReadHints, read_volume};
-use crate::scene::{Scene, SceneFile, build_scene_with_volume};
+use crate::lights::{DistantLight, Light};
+use crate::phase::Phase;
+use crate::scene::{
+    CameraDesc, EnvironmentDesc, LightDesc, OutputDesc, RenderDesc, Scene, SceneFile, TfPoint,
+    TransferDesc, VolumeDesc, build_scene_with_volume,
+};
 use glam::Vec3;
-use std::fmt::Write as _;
+use hdr_image::ToneMap;
 use std::path::{Path, PathBuf};
 
 /// Optical depth at opacity 1 across the box's mean side.
@@ -116,90 +122,93 @@ pub fn otsu(histogram: &[u64]) -> f32 {
     best_split as f32 / histogram.len() as f32
 }
 
-/// The automatic scene's description, as TOML text (see the module docs). `volume_file` is
-/// written as given; `size` is the box in world units.
-pub fn scene_text(
+/// The automatic scene's description (see the module docs) and the comment that opens its
+/// file. `volume_file` is written as given; `size` is the box in world units.
+pub fn scene_description(
     volume_file: &Path,
     format: Option<Format>,
     size: Vec3,
     stats: VolumeStats,
     colormap: Colormap,
-) -> String {
-    let mut t = String::new();
+) -> (SceneFile, String) {
     let (lo, hi) = stats.window;
-    let _ = writeln!(
-        t,
-        "# Made by `gscache render` for {} (colour map {colormap}): edit and render it as any \
-         scene (docs/scene-format.md).",
-        volume_file.display()
-    );
-    let _ = writeln!(
-        t,
-        "[volume]\nfile = {:?}",
-        volume_file.display().to_string()
-    );
     let nifti = matches!(format, Some(Format::Nifti));
-    let _ = writeln!(t, "\n[transfer]\nwindow = [{lo}, {hi}]");
     let mean_side = (size.x + size.y + size.z) / 3.0;
-    let _ = writeln!(
-        t,
-        "density_scale = {}   # optical depth {OPTICAL_DEPTH_ACROSS} across the box at opacity 1",
-        OPTICAL_DEPTH_ACROSS / mean_side.max(1e-6)
-    );
-    let _ = writeln!(
-        t,
-        "# Opacity 0 below Otsu's threshold ({:.3} of the window), rising to 1 at its top.",
-        stats.threshold
-    );
-    t.push_str("points = [\n");
     let u0 = stats.threshold.clamp(0.0, 0.95);
-    let _ = writeln!(
-        t,
-        "  {{ value = 0.0, color = {}, opacity = 0.0 }},",
-        rgb(colormap.at(0.0))
-    );
     const STEPS: usize = 8;
-    for k in 0..=STEPS {
+    let ramp = (0..=STEPS).filter_map(|k| {
         let s = k as f32 / STEPS as f32;
         let u = u0 + (1.0 - u0) * s;
-        if u <= 0.0 {
-            continue;
-        }
-        let _ = writeln!(
-            t,
-            "  {{ value = {u}, color = {}, opacity = {s} }},",
-            rgb(colormap.at(s))
-        );
-    }
-    t.push_str("]\n");
+        (u > 0.0).then(|| TfPoint {
+            value: u,
+            color: rgb(colormap.at(s)),
+            opacity: s,
+        })
+    });
+    let points = std::iter::once(TfPoint {
+        value: 0.0,
+        color: rgb(colormap.at(0.0)),
+        opacity: 0.0,
+    })
+    .chain(ramp)
+    .collect();
     // A key light from above and behind the camera's left, travelling down into the volume.
     let up = if nifti { Vec3::Z } else { Vec3::Y };
     let view = view_direction(up);
     let right = view.cross(up).normalize();
     let toward_light = (up * 1.2 + view * 0.8 - right * 0.6).normalize();
-    let _ = writeln!(
-        t,
-        "\n[[light]]\ntype = \"distant\"\ndirection = {}\nirradiance = [4.0, 3.9, 3.7]",
-        vec(-toward_light)
-    );
-    let _ = writeln!(t, "\n[environment]\nradiance = [0.30, 0.31, 0.34]");
-    let _ = writeln!(t, "\n[phase]\nkind = \"hg\"\ng = 0.2");
     let fov = 30.0f32;
     let radius = 0.5 * size.length();
     // The bounding sphere of a box is loose (its corners are seldom filled): 0.85 of the
     // distance at which the sphere just fits frames the data, not the empty corners.
     let distance = 0.85 * radius / (0.5 * fov.to_radians()).sin();
-    let _ = writeln!(
-        t,
-        "\n[camera]\neye = {}\ntarget = [0.0, 0.0, 0.0]\nup = {}\nfov_y = {fov}\nwidth = 512\nheight = 512",
-        vec(view * distance),
-        vec(up)
+    let description = SceneFile {
+        volume: VolumeDesc::file(volume_file.display().to_string()),
+        transfer: TransferDesc {
+            window: Some([lo, hi]),
+            density_scale: OPTICAL_DEPTH_ACROSS / mean_side.max(1e-6),
+            points: Some(points),
+            preset: None,
+            preset_name: None,
+            opacity: None,
+        },
+        lights: vec![LightDesc::from_light(&Light::Distant(DistantLight {
+            direction: -toward_light,
+            irradiance: Vec3::new(4.0, 3.9, 3.7),
+        }))],
+        environment: EnvironmentDesc {
+            radiance: [0.30, 0.31, 0.34],
+        },
+        phase: Phase::HenyeyGreenstein { g: 0.2 },
+        camera: CameraDesc {
+            eye: (view * distance).to_array(),
+            target: [0.0; 3],
+            up: up.to_array(),
+            fov_y: fov,
+            width: 512,
+            height: 512,
+        },
+        render: RenderDesc {
+            spp: 64,
+            max_depth: 64,
+            integrator: IntegratorKind::Nee,
+            seed: 1,
+            ..RenderDesc::default()
+        },
+        output: OutputDesc {
+            exposure: 0.0,
+            tonemap: ToneMap::Aces,
+        },
+    };
+    let comment = format!(
+        "Made by `gscache render` for {} (colour map {colormap}): edit and render it as any \
+         scene (docs/scene-format.md).\n\
+         density_scale: an optical depth of {OPTICAL_DEPTH_ACROSS} across the box at opacity 1.\n\
+         Opacity 0 below Otsu's threshold ({:.3} of the window), rising to 1 at its top.",
+        volume_file.display(),
+        stats.threshold
     );
-    let _ = writeln!(
-        t,
-        "\n[render]\nspp = 64\nmax_depth = 64\nintegrator = \"nee\"\nseed = 1\n\n[output]\nexposure = 0.0\ntonemap = \"aces\""
-    );
-    t
+    (description, comment)
 }
 
 /// From the volume's centre toward the camera: a three-quarter view, a little from above.
@@ -212,12 +221,11 @@ fn view_direction(up: Vec3) -> Vec3 {
     }
 }
 
-fn vec(v: Vec3) -> String {
-    format!("[{}, {}, {}]", v.x, v.y, v.z)
-}
-
-fn rgb(c: Vec3) -> String {
-    format!("[{:.3}, {:.3}, {:.3}]", c.x, c.y, c.z)
+/// A colour to three decimals, as the scene's text shows it (and as it was read back when the
+/// scene was written by hand: through f64, so the renders stay the same bits).
+fn rgb(c: Vec3) -> [f32; 3] {
+    c.to_array()
+        .map(|x| format!("{x:.3}").parse::<f64>().map_or(x, |v| v as f32))
 }
 
 /// The automatic scene for the volume at `path`: the scene, and its TOML text (what
@@ -240,11 +248,8 @@ pub fn scene_for_loaded(
     let stats = volume_stats(&loaded.grid);
     let spacing = loaded.spacing.unwrap_or(Vec3::ONE);
     let size = loaded.grid.dims().as_vec3() * spacing;
-    let text = scene_text(name, format, size, stats, colormap);
-    let desc: SceneFile = toml::from_str(&text).map_err(|e| Error::Scene {
-        path: name.into(),
-        message: format!("the automatic scene does not parse (a bug): {e}"),
-    })?;
+    let (desc, comment) = scene_description(name, format, size, stats, colormap);
+    let text = desc.to_toml(&comment)?;
     // Relative paths of the scene resolve against the volume's folder, where a saved scene
     // would sit by default.
     let anchor: PathBuf = name.with_extension("auto.toml");

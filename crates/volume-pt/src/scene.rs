@@ -13,11 +13,11 @@ use crate::transfer::{PiecewiseLinear, TransferFunction, read_paraview_preset};
 use glam::{UVec3, Vec3};
 use hdr_image::ToneMap;
 use render_base::Camera;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// Which kind of emitter a `[[light]]` table describes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LightKind {
     #[default]
@@ -36,7 +36,7 @@ impl LightKind {
 
 /// A `[[light]]` table as written: `type` (sphere when left out) and the keys of that kind.
 /// Kept flat so that a missing or misplaced key is named with the light's kind.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct LightDesc {
     #[serde(rename = "type", default)]
@@ -58,6 +58,25 @@ pub struct LightDesc {
 }
 
 impl LightDesc {
+    /// The `[[light]]` table that describes `light`.
+    pub fn from_light(light: &Light) -> Self {
+        match *light {
+            Light::Sphere(s) => Self {
+                kind: LightKind::Sphere,
+                center: Some(s.center.to_array()),
+                radius: Some(s.radius),
+                radiance: Some(s.radiance.to_array()),
+                ..Self::default()
+            },
+            Light::Distant(d) => Self {
+                kind: LightKind::Distant,
+                direction: Some(d.direction.to_array()),
+                irradiance: Some(d.irradiance.to_array()),
+                ..Self::default()
+            },
+        }
+    }
+
     /// The emitter this table describes (not yet validated); names a missing key, or one that
     /// belongs to another kind of light.
     pub fn to_light(&self) -> std::result::Result<Light, String> {
@@ -104,7 +123,9 @@ impl LightDesc {
     }
 }
 
-#[derive(Debug, Clone, Deserialize)]
+/// A scene file's tables, as read and as written ([`SceneFile::to_toml`]): the one description
+/// of the format in code, so a new key is added here and nowhere else.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     pub volume: VolumeDesc,
@@ -124,33 +145,85 @@ pub struct SceneFile {
     pub output: OutputDesc,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct VolumeDesc {
     pub file: PathBuf,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub format: Option<Format>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub dims: Option<[u32; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub dtype: Option<DType>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub byte_order: ByteOrder,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub header_bytes: u64,
     /// World size of a voxel; overrides the file's spacing; default the file's, else 1.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub spacing: Option<[f32; 3]>,
     /// World position of the box's minimum corner; default: the box is centred on the origin.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub origin: Option<[f32; 3]>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub filter: Filter,
     /// Macrocell size of the majorant grid in voxels (a size >= the largest dim = one majorant).
-    #[serde(default = "default_macrocell")]
+    #[serde(
+        default = "default_macrocell",
+        skip_serializing_if = "is_default_macrocell"
+    )]
     pub macrocell: u32,
+}
+
+impl VolumeDesc {
+    /// The file at `file`, read as its name says, placed and filtered by default.
+    pub fn file(file: impl Into<PathBuf>) -> Self {
+        Self {
+            file: file.into(),
+            format: None,
+            dims: None,
+            dtype: None,
+            byte_order: ByteOrder::default(),
+            header_bytes: 0,
+            spacing: None,
+            origin: None,
+            filter: Filter::default(),
+            macrocell: DEFAULT_MACROCELL,
+        }
+    }
+}
+
+impl SceneFile {
+    /// The scene file's text: what [`load_scene`] reads back to the same tables (tested on
+    /// every bundled scene). `comment` opens the file, each of its lines as a `#` line.
+    pub fn to_toml(&self, comment: &str) -> Result<String> {
+        let body = toml::to_string(self)
+            .map_err(|e| Error::Invalid(format!("the scene cannot be written as TOML: {e}")))?;
+        let mut text = String::with_capacity(body.len() + comment.len() + 16);
+        for line in comment.lines() {
+            text.push_str("# ");
+            text.push_str(line);
+            text.push('\n');
+        }
+        text.push_str(&body);
+        Ok(text)
+    }
 }
 
 fn default_macrocell() -> u32 {
     DEFAULT_MACROCELL
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+fn is_default_macrocell(cells: &u32) -> bool {
+    *cells == DEFAULT_MACROCELL
+}
+
+/// Keys at their default are left out of a written file, which then reads as a person wrote it.
+fn is_default<T: Default + PartialEq>(value: &T) -> bool {
+    *value == T::default()
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TfPoint {
     pub value: f32,
@@ -158,28 +231,33 @@ pub struct TfPoint {
     pub opacity: f32,
 }
 
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TransferDesc {
     /// Data values mapped to normalised 0 and 1; default: the data's range.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub window: Option<[f32; 2]>,
     /// Extinction per world unit at opacity 1.
     pub density_scale: f32,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub points: Option<Vec<TfPoint>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub preset: Option<PathBuf>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub preset_name: Option<String>,
     /// `[[value, opacity], ...]`: opacity points used with a preset (replacing its `Points`).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub opacity: Option<Vec<[f32; 2]>>,
 }
 
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct EnvironmentDesc {
     #[serde(default)]
     pub radiance: [f32; 3],
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraDesc {
     pub eye: [f32; 3],
@@ -196,7 +274,23 @@ fn default_up() -> [f32; 3] {
     [0.0, 1.0, 0.0]
 }
 
-#[derive(Debug, Clone, Copy, Deserialize)]
+impl CameraDesc {
+    /// The description of `camera`, aimed at a target `target_distance` ahead of it (a camera
+    /// holds only its direction; where along it the target sat is the writer's choice).
+    pub fn from_camera(camera: &Camera, target_distance: f32) -> Self {
+        let (_, down, forward) = camera.axes();
+        Self {
+            eye: camera.position.to_array(),
+            target: (camera.position + forward * target_distance).to_array(),
+            up: (-down).to_array(),
+            fov_y: camera.fov_y_degrees,
+            width: camera.width,
+            height: camera.height,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderDesc {
     pub spp: u32,
@@ -224,7 +318,21 @@ impl Default for RenderDesc {
     }
 }
 
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
+impl RenderDesc {
+    /// The `[render]` table that gives `settings`.
+    pub fn from_settings(settings: &RenderSettings) -> Self {
+        Self {
+            spp: settings.spp,
+            max_depth: settings.path.max_depth.map_or(-1, i64::from),
+            integrator: settings.path.integrator,
+            seed: settings.seed,
+            rr_start_depth: settings.path.rr_start_depth,
+            show_lights: settings.path.show_lights,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OutputDesc {
     /// PNG exposure in stops.

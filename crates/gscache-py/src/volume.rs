@@ -405,24 +405,19 @@ pub(crate) fn settings_with(
     integrator: Option<&str>,
     max_depth: Option<i64>,
 ) -> PyResult<RenderSettings> {
-    let mut s = scene.scene.settings;
-    if let Some(n) = spp {
-        if n == 0 {
-            return Err(crate::error(
-                "spp = 0: expected at least 1 sample per pixel",
-            ));
-        }
-        s.spp = n;
+    let integrator = integrator
+        .map(|i| {
+            <volume_pt::IntegratorKind as clap::ValueEnum>::from_str(i, true)
+                .map_err(|_| crate::error(format!("integrator `{i}`: expected `uniform` or `nee`")))
+        })
+        .transpose()?;
+    volume_pt::SceneOverrides {
+        spp,
+        seed,
+        integrator,
+        max_depth,
+        ..Default::default()
     }
-    if let Some(v) = seed {
-        s.seed = v;
-    }
-    if let Some(i) = integrator {
-        s.path.integrator = <volume_pt::IntegratorKind as clap::ValueEnum>::from_str(i, true)
-            .map_err(|_| crate::error(format!("integrator `{i}`: expected `uniform` or `nee`")))?;
-    }
-    if let Some(d) = max_depth {
-        s.path.max_depth = volume_pt::scene::max_depth_from(d).map_err(crate::error)?;
-    }
-    Ok(s)
+    .settings(scene.scene.settings)
+    .map_err(crate::error)
 }

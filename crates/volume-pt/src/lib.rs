@@ -55,6 +55,6 @@ pub use render::{
 /// The camera and the cancellation and progress of long work (from render-base, re-exported
 /// for callers).
 pub use render_base::{Camera, Control};
-pub use scene::{Scene, load_scene};
+pub use scene::{OpenedScene, Scene, SceneOverrides, load_scene, open_scene};
 pub use shard::{PartialRender, RenderKey, Shard};
 pub use transfer::TransferFunction;

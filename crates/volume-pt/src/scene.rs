@@ -368,18 +368,139 @@ fn vec3(a: [f32; 3]) -> Vec3 {
     Vec3::from_array(a)
 }
 
-/// Reads and builds the scene at `path`.
 /// Optical depths across a whole volume (the box's diagonal at the densest majorant) beyond this
 /// draw a warning. The bundled scenes reach 66 to 177; this is over 100 times the densest.
 pub const MAX_PLAUSIBLE_OPTICAL_DEPTH: f64 = 2e4;
 
+/// Reads and builds the scene at `path`.
 pub fn load_scene(path: &Path) -> Result<Scene> {
     let text = crate::io::read_text_file(path, "a scene file")?;
-    let desc: SceneFile = toml::from_str(&text).map_err(|e| Error::Scene {
+    scene_from_text(path, &text)
+}
+
+/// The scene in `text`, the contents of the scene file at `path`.
+fn scene_from_text(path: &Path, text: &str) -> Result<Scene> {
+    let desc: SceneFile = toml::from_str(text).map_err(|e| Error::Scene {
         path: path.into(),
         message: e.to_string(),
     })?;
     build_scene(path, desc)
+}
+
+/// A scene opened from a path that names either a scene file or a bare volume
+/// ([`open_scene`]).
+#[derive(Debug, Clone)]
+pub struct OpenedScene {
+    pub scene: Scene,
+    /// The scene's TOML text: the file's, or the automatic scene's.
+    pub text: String,
+    /// The file the text is, or would be saved as: the scene file itself, or `VOLUME.auto.toml`
+    /// beside a bare volume (its relative paths resolve there).
+    pub file: PathBuf,
+    /// Whether the scene was chosen for a bare volume ([`crate::auto_scene`]).
+    pub automatic: bool,
+}
+
+/// Whether `path` names a scene file (`.toml`, or a name no volume reader claims) rather than
+/// a volume file.
+pub fn is_scene_file(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+        || Format::from_path(path).is_none()
+}
+
+/// Opens `path` as `gscache render` and `gscache view` do: a scene file, or a bare volume with
+/// the automatic scene in `colormap`.
+pub fn open_scene(path: &Path, colormap: crate::Colormap) -> Result<OpenedScene> {
+    if is_scene_file(path) {
+        let text = crate::io::read_text_file(path, "a scene file")?;
+        Ok(OpenedScene {
+            scene: scene_from_text(path, &text)?,
+            text,
+            file: path.to_path_buf(),
+            automatic: false,
+        })
+    } else {
+        let (scene, text) = crate::auto_scene::scene_for_volume(path, colormap)?;
+        Ok(OpenedScene {
+            scene,
+            text,
+            file: path.with_extension("auto.toml"),
+            automatic: true,
+        })
+    }
+}
+
+/// What a command line or a Python call changes of a loaded scene: one type for `gscache
+/// render`, `gscache view` and the Python package, so that an override means the same
+/// everywhere. Each field left `None` keeps the scene's value.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+pub struct SceneOverrides {
+    /// Samples per pixel (overrides the scene); with a cache, per frame.
+    #[cfg_attr(feature = "clap", arg(long, value_parser = clap::value_parser!(u32).range(1..)))]
+    pub spp: Option<u32>,
+    /// `uniform` (phase sampling only) or `nee` (light sampling + phase sampling, MIS).
+    #[cfg_attr(feature = "clap", arg(long, value_enum))]
+    pub integrator: Option<IntegratorKind>,
+    /// Largest path length in real scattering vertices; -1 for unlimited.
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub max_depth: Option<i64>,
+    /// Seed of the counter-based random numbers (and of the cache's starting points).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub seed: Option<u64>,
+    /// Image width in pixels (overrides the scene).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub width: Option<u32>,
+    /// Image height in pixels (overrides the scene).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub height: Option<u32>,
+    /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
+    #[cfg_attr(feature = "clap", arg(long))]
+    pub macrocell: Option<u32>,
+}
+
+impl SceneOverrides {
+    /// `settings` with the overridden samples, integrator, depth and seed.
+    pub fn settings(&self, mut settings: RenderSettings) -> Result<RenderSettings> {
+        if let Some(spp) = self.spp {
+            if spp == 0 {
+                return Err(Error::Invalid(
+                    "spp = 0: expected at least 1 sample per pixel".into(),
+                ));
+            }
+            settings.spp = spp;
+        }
+        if let Some(integrator) = self.integrator {
+            settings.path.integrator = integrator;
+        }
+        if let Some(depth) = self.max_depth {
+            settings.path.max_depth = max_depth_from(depth).map_err(Error::Invalid)?;
+        }
+        if let Some(seed) = self.seed {
+            settings.seed = seed;
+        }
+        Ok(settings)
+    }
+
+    /// Applies every override to `scene`: its settings, its macrocells (the majorants are
+    /// rebuilt) and its image size.
+    pub fn apply(&self, scene: &mut Scene) -> Result<()> {
+        scene.settings = self.settings(scene.settings)?;
+        if let Some(cells) = self.macrocell {
+            scene.media.medium.set_macrocell_size(cells);
+        }
+        if self.width.is_some() || self.height.is_some() {
+            let camera = scene.camera;
+            scene.camera = camera
+                .with_size(
+                    self.width.unwrap_or(camera.width),
+                    self.height.unwrap_or(camera.height),
+                )
+                .map_err(|e| Error::Invalid(format!("width/height: {e}")))?;
+        }
+        Ok(())
+    }
 }
 
 /// The key of a render of `scene`, loaded from the file at `path` with any overrides applied

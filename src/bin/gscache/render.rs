@@ -11,11 +11,8 @@ use hdr_image::ToneMap;
 use nrc_cache::NrcConfig;
 use render_session::{Cache, CacheChoice, Control, FrameReport, Session};
 use std::path::PathBuf;
-use volume_pt::scene::max_depth_from;
 use volume_pt::scene::scene_render_key;
-use volume_pt::{
-    Film, IntegratorKind, PartialRender, RenderStats, Scene, Shard, load_scene, render_samples,
-};
+use volume_pt::{Film, PartialRender, RenderStats, Scene, Shard, render_samples};
 
 /// Path-trace a scientific volume through its transfer function (see docs/scene-format.md).
 #[derive(clap::Args, Debug)]
@@ -30,27 +27,9 @@ pub struct RenderArgs {
     /// With a volume file: write the scene chosen for it as TOML here, to edit and render.
     #[arg(long)]
     save_scene: Option<PathBuf>,
-    /// Samples per pixel (overrides the scene); with the cache, per frame.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
-    spp: Option<u32>,
-    /// `uniform` (phase sampling only) or `nee` (light sampling + phase sampling, MIS).
-    #[arg(long, value_enum)]
-    integrator: Option<IntegratorKind>,
-    /// Largest path length in real scattering vertices; -1 for unlimited.
-    #[arg(long)]
-    max_depth: Option<i64>,
-    /// Seed of the counter-based random numbers (and of the cache's starting points).
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Image width in pixels (overrides the scene).
-    #[arg(long)]
-    width: Option<u32>,
-    /// Image height in pixels (overrides the scene).
-    #[arg(long)]
-    height: Option<u32>,
-    /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
-    #[arg(long)]
-    macrocell: Option<u32>,
+    /// What the command line changes of the scene.
+    #[command(flatten)]
+    overrides: volume_pt::SceneOverrides,
     /// Linear EXR output (default: out/SCENE.exr, out/SCENE.cache.exr with --cache,
     /// out/SCENE.nrc.exr with --nrc). `-o NAME.png` names the PNG and puts the EXR beside it
     /// as NAME.exr.
@@ -130,16 +109,9 @@ pub struct CacheRun {
     cache_images: Option<PathBuf>,
 }
 
-/// Whether `path` names a scene file (TOML) rather than a volume.
-fn is_scene_file(path: &std::path::Path) -> bool {
-    path.extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-        || volume_pt::io::Format::from_path(path).is_none()
-}
-
 pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
-    let from_volume = !is_scene_file(&args.scene);
+    let from_volume = !volume_pt::scene::is_scene_file(&args.scene);
     if !from_volume && (args.colormap.is_some() || args.save_scene.is_some()) {
         bail!(
             "--colormap and --save-scene are for a volume file: {} is a scene already (edit its [transfer] table)",
@@ -162,9 +134,9 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         }
         prepare_output(path)?;
     }
-    let mut scene = if from_volume {
-        let (scene, text) =
-            volume_pt::scene_for_volume(&args.scene, args.colormap.unwrap_or_default())?;
+    let opened = volume_pt::open_scene(&args.scene, args.colormap.unwrap_or_default())?;
+    if opened.automatic {
+        let text = &opened.text;
         match &args.save_scene {
             Some(path) => {
                 render_base::write_atomically(path, |f| {
@@ -182,42 +154,15 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             ),
             None => {}
         }
-        scene
-    } else {
-        load_scene(&args.scene)?
-    };
+    }
+    let mut scene = opened.scene;
     for n in &scene.notes {
         let (kind, text) = n
             .strip_prefix("warning: ")
             .map_or(("note", n.as_str()), |w| ("warning", w));
         eprintln!("{kind}: {}: {text}", scene.volume_path.display());
     }
-    if let Some(s) = args.spp {
-        scene.settings.spp = s;
-    }
-    if let Some(i) = args.integrator {
-        scene.settings.path.integrator = i;
-    }
-    if let Some(d) = args.max_depth {
-        scene.settings.path.max_depth = max_depth_from(d).map_err(anyhow::Error::msg)?;
-    }
-    if let Some(s) = args.seed {
-        scene.settings.seed = s;
-    }
-    if let Some(m) = args.macrocell {
-        scene.media.medium.set_macrocell_size(m);
-    }
-    if args.width.is_some() || args.height.is_some() {
-        let c = scene.camera;
-        let (w, h) = (
-            args.width.unwrap_or(c.width),
-            args.height.unwrap_or(c.height),
-        );
-        scene.camera = scene
-            .camera
-            .with_size(w, h)
-            .map_err(|e| anyhow::anyhow!("--width/--height: {e}"))?;
-    }
+    args.overrides.apply(&mut scene)?;
     check_image_memory(
         scene.camera.width,
         scene.camera.height,

@@ -3,7 +3,7 @@
 //! URL and serves until Ctrl-C.
 
 use crate::common::{Global, cancellation};
-use anyhow::{Context, Result};
+use anyhow::Result;
 use std::net::IpAddr;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
@@ -26,39 +26,15 @@ pub struct ViewArgs {
     /// Pages connected at once.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u16).range(1..=64))]
     pub max_clients: u16,
-    /// Image width and height (default: the scene's).
-    #[arg(long)]
-    pub width: Option<u32>,
-    #[arg(long)]
-    pub height: Option<u32>,
+    /// What the command line changes of the scene.
+    #[command(flatten)]
+    pub overrides: volume_pt::SceneOverrides,
 }
 
 pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
-    let is_scene = args
-        .scene
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-        || volume_pt::io::Format::from_path(&args.scene).is_none();
-    let (mut scene, text, file) = if is_scene {
-        let text = std::fs::read_to_string(&args.scene)
-            .with_context(|| format!("{}: cannot read the scene file", args.scene.display()))?;
-        (
-            volume_pt::load_scene(&args.scene)?,
-            text,
-            args.scene.clone(),
-        )
-    } else {
-        let (scene, text) = volume_pt::scene_for_volume(&args.scene, Default::default())?;
-        let file = args.scene.with_extension("auto.toml");
-        (scene, text, file)
-    };
-    if args.width.is_some() || args.height.is_some() {
-        let (w, h) = (
-            args.width.unwrap_or(scene.camera.width),
-            args.height.unwrap_or(scene.camera.height),
-        );
-        scene.camera = scene.camera.with_size(w, h)?;
-    }
+    let opened = volume_pt::open_scene(&args.scene, Default::default())?;
+    let (mut scene, text, file) = (opened.scene, opened.text, opened.file);
+    args.overrides.apply(&mut scene)?;
     if !args.bind.is_loopback() {
         eprintln!(
             "warning: listening on {}: anyone who can reach this machine and has the URL's token can use the viewer",

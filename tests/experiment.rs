@@ -504,9 +504,9 @@ fn an_interrupted_experiment_keeps_its_units_and_resumes() {
         None,
     )
     .unwrap_err();
-    let stopped = e
-        .downcast_ref::<experiments::Interrupted>()
-        .unwrap_or_else(|| panic!("{e:#}"));
+    let experiments::Error::Interrupted(stopped) = &e else {
+        panic!("{e}")
+    };
     assert_eq!(stopped.done, 3, "{stopped}");
     assert!(stopped.to_string().contains("--resume"), "{stopped}");
     let resumed = experiments::run_experiment_resumable(

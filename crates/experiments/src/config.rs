@@ -3,7 +3,7 @@
 //! resolved against the experiment file's folder.
 
 use crate::camera_path::{Keyframe, check_keyframes};
-use anyhow::{Context, Result, bail};
+use crate::error::{Error, Result, Within, refuse};
 use gs_cache::CacheConfig;
 use nrc_cache::NrcConfig;
 use serde::{Deserialize, Serialize};
@@ -243,7 +243,9 @@ impl From<NrcDesc> for toml::Table {
 impl NrcDesc {
     /// The library configuration, checked.
     pub fn config(&self) -> Result<NrcConfig> {
-        self.settings.validate()?;
+        self.settings
+            .validate()
+            .map_err(|e| Error::Invalid(e.to_string()))?;
         Ok(self.settings)
     }
 }
@@ -251,7 +253,9 @@ impl NrcDesc {
 impl CacheDesc {
     /// The library configuration, checked.
     pub fn config(&self) -> Result<CacheConfig> {
-        self.settings.validate()?;
+        self.settings
+            .validate()
+            .map_err(|e| Error::Invalid(e.to_string()))?;
         Ok(self.settings)
     }
 }
@@ -417,8 +421,8 @@ pub struct Ablation {
 pub fn load_experiment(path: &Path) -> Result<Experiment> {
     let text = volume_pt::io::read_text_file(path, "an experiment file")?;
     let file: ExperimentFile = toml::from_str(&text)
-        .with_context(|| format!("{}: not a valid experiment file", path.display()))?;
-    build(path, file).with_context(|| format!("{}", path.display()))
+        .map_err(|e| Error::file(path, format!("not a valid experiment file: {e}")))?;
+    build(path, file).map_err(|e| Error::file(path, e.to_string()))
 }
 
 fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
@@ -429,7 +433,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             .unwrap_or_else(|| "experiment".into())
     });
     if f.seeds.len() < 3 {
-        bail!(
+        refuse!(
             "seeds = {:?}: expected at least 3 (the spread across seeds gives the error bars and the bias estimate)",
             f.seeds
         );
@@ -437,22 +441,22 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     let mut seen = std::collections::HashSet::new();
     for s in &f.seeds {
         if !seen.insert(s) {
-            bail!("seed {s} is listed twice: each seed must be distinct");
+            refuse!("seed {s} is listed twice: each seed must be distinct");
         }
     }
     check_budgets(&f.budgets, "[budgets]")?;
     if f.reference.spp == 0 {
-        bail!("[reference] spp = 0: expected at least 1 (and far more than any budget)");
+        refuse!("[reference] spp = 0: expected at least 1 (and far more than any budget)");
     }
     if f.methods.is_empty() {
-        bail!(
+        refuse!(
             "no [[method]]: expected at least one (e.g. `name = \"nee\"`, `integrator = \"nee\"`)"
         );
     }
     let mut methods = Vec::new();
     for m in &f.methods {
         if methods.iter().any(|x: &Method| x.name == m.name) {
-            bail!("method `{}` is defined twice", m.name);
+            refuse!("method `{}` is defined twice", m.name);
         }
         methods.push(method(
             m.name.clone(),
@@ -462,15 +466,15 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         )?);
     }
     let find = |name: &str, what: &str| -> Result<&Method> {
-        methods.iter().find(|m| m.name == name).with_context(|| {
-            format!(
+        methods.iter().find(|m| m.name == name).ok_or_else(|| {
+            Error::Invalid(format!(
                 "{what} names method `{name}`, which is not a [[method]] (known: {})",
                 methods
                     .iter()
                     .map(|m| m.name.as_str())
                     .collect::<Vec<_>>()
                     .join(", ")
-            )
+            ))
         })
     };
     let baseline = match &f.baseline {
@@ -482,10 +486,10 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     };
     for fly in &f.flythroughs {
         if fly.frames == 0 {
-            bail!("flythrough `{}`: frames = 0: expected at least 1", fly.name);
+            refuse!("flythrough `{}`: frames = 0: expected at least 1", fly.name);
         }
         if fly.error_every == 0 || fly.reference_spp == 0 {
-            bail!(
+            refuse!(
                 "flythrough `{}`: error_every and reference_spp must be at least 1",
                 fly.name
             );
@@ -494,7 +498,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             find(m, &format!("flythrough `{}`", fly.name))?;
         }
         if !fly.orbit_degrees.is_finite() {
-            bail!(
+            refuse!(
                 "flythrough `{}`: orbit_degrees = {}: expected a finite angle",
                 fly.name,
                 fly.orbit_degrees
@@ -504,7 +508,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         for e in &fly.events {
             check_event(e, &fly.name)?;
             if e.frame >= last_frame {
-                bail!(
+                refuse!(
                     "flythrough `{}`: the event at frame {} is past the last frame ({} warm-up + \
                      {} frames, counted from 0): it would never happen",
                     fly.name,
@@ -515,9 +519,9 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             }
         }
         if !fly.keys.is_empty() {
-            check_keyframes(&fly.keys).with_context(|| format!("flythrough `{}`", fly.name))?;
+            check_keyframes(&fly.keys).within(|| format!("flythrough `{}`", fly.name))?;
             if fly.orbit_degrees != 0.0 {
-                bail!(
+                refuse!(
                     "flythrough `{}`: both orbit_degrees and [[flythrough.key]]: expected one camera path",
                     fly.name
                 );
@@ -536,7 +540,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     for a in &f.ablations {
         let m = find(&a.method, &format!("ablation `{}`", a.name))?;
         let Some(cache) = &m.cache else {
-            bail!(
+            refuse!(
                 "ablation `{}` varies method `{}`, which has no Gaussian cache (ablations vary a `cache` table's keys; to compare neural cache settings, give each its own [[method]])",
                 a.name,
                 a.method
@@ -545,12 +549,12 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         let budgets = a.budgets.clone().unwrap_or_else(|| f.budgets.clone());
         check_budgets(&budgets, &format!("ablation `{}` budgets", a.name))?;
         if a.values.is_empty() {
-            bail!("ablation `{}` has no values", a.name);
+            refuse!("ablation `{}` has no values", a.name);
         }
         let mut variants = Vec::new();
         for v in &a.values {
             let varied = with_parameter(cache, &a.parameter, v)
-                .with_context(|| format!("ablation `{}`", a.name))?;
+                .within(|| format!("ablation `{}`", a.name))?;
             let label = value_label(v);
             let name = format!("{} [{}={}]", m.name, a.parameter, label);
             variants.push((label, method(name, m.integrator, Some(varied), None)?));
@@ -566,15 +570,15 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         (Some(w), Some(h)) if w > 0 && h > 0 => {
             let most = splat_raster::camera::MAX_IMAGE_SIDE;
             if w > most || h > most {
-                bail!("width and height {w}x{h}: expected at most {most} pixels a side");
+                refuse!("width and height {w}x{h}: expected at most {most} pixels a side");
             }
             Some((w, h))
         }
         (None, None) => None,
-        _ => bail!("width and height: give both, each at least 1, or neither"),
+        _ => refuse!("width and height: give both, each at least 1, or neither"),
     };
     if !f.denoise && (f.denoise_quality.is_some() || f.denoise_guides.is_some()) {
-        bail!("denoise_quality and denoise_guides set the denoised twins: add `denoise = true`");
+        refuse!("denoise_quality and denoise_guides set the denoised twins: add `denoise = true`");
     }
     let denoise = if f.denoise {
         let guides = f
@@ -582,20 +586,20 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             .clone()
             .unwrap_or_else(|| vec![denoise::Aux::None, denoise::Aux::Albedo]);
         if guides.is_empty() {
-            bail!(
+            refuse!(
                 "denoise_guides = []: expected at least one of \"none\", \"albedo\", \"albedo,normal\""
             );
         }
         for (i, g) in guides.iter().enumerate() {
             if guides[..i].contains(g) {
-                bail!("denoise_guides lists \"{g}\" twice");
+                refuse!("denoise_guides lists \"{g}\" twice");
             }
         }
         for m in &methods {
             for &g in &guides {
                 let twin = m.denoised_twin(g).name;
                 if methods.iter().any(|x| x.name == twin) {
-                    bail!(
+                    refuse!(
                         "method `{twin}` clashes with the name of `{}`'s denoised twin: rename it",
                         m.name
                     );
@@ -636,25 +640,23 @@ fn method(
     nrc: Option<NrcDesc>,
 ) -> Result<Method> {
     if cache.is_some() && nrc.is_some() {
-        bail!("method `{name}`: both `cache` and `nrc`: a method reads one cache");
+        refuse!("method `{name}`: both `cache` and `nrc`: a method reads one cache");
     }
     if let Some(n) = &nrc {
         if integrator != IntegratorKind::Nee {
-            bail!(
+            refuse!(
                 "method `{name}`: the neural cache needs `integrator = \"nee\"` (its training paths are NEE paths)"
             );
         }
-        n.config()
-            .with_context(|| format!("method `{name}`: nrc"))?;
+        n.config().within(|| format!("method `{name}`: nrc"))?;
     }
     if let Some(c) = &cache {
         if integrator != IntegratorKind::Nee {
-            bail!(
+            refuse!(
                 "method `{name}`: a cache needs `integrator = \"nee\"` (the GSCache paper caches NEE paths)"
             );
         }
-        c.config()
-            .with_context(|| format!("method `{name}`: cache"))?;
+        c.config().within(|| format!("method `{name}`: cache"))?;
     }
     Ok(Method {
         denoised: None,
@@ -667,13 +669,13 @@ fn method(
 
 fn check_budgets(b: &Budgets, what: &str) -> Result<()> {
     if b.spp.is_empty() && b.seconds.is_empty() {
-        bail!("{what}: no budget: give `spp = [...]` and/or `seconds = [...]`");
+        refuse!("{what}: no budget: give `spp = [...]` and/or `seconds = [...]`");
     }
     if b.spp.contains(&0) {
-        bail!("{what}: spp = {:?}: every budget must be at least 1", b.spp);
+        refuse!("{what}: spp = {:?}: every budget must be at least 1", b.spp);
     }
     if b.seconds.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
-        bail!(
+        refuse!(
             "{what}: seconds = {:?}: every budget must be finite and > 0",
             b.seconds
         );
@@ -692,7 +694,7 @@ fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
     .filter(|&&b| b)
     .count();
     if n != 1 {
-        bail!(
+        refuse!(
             "flythrough `{fly}`: the event at frame {} must have exactly one of light_offset, light_scale, density_scale, scene",
             e.frame
         );
@@ -700,7 +702,7 @@ fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
     if let Some(o) = e.light_offset
         && !o.iter().all(|v| v.is_finite())
     {
-        bail!(
+        refuse!(
             "flythrough `{fly}`: event at frame {}: light_offset = {o:?}: expected finite values",
             e.frame
         );
@@ -712,7 +714,7 @@ fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
         if let Some(v) = v
             && !(v >= 0.0 && v.is_finite())
         {
-            bail!(
+            refuse!(
                 "flythrough `{fly}`: event at frame {}: {what} = {v}: expected a finite value >= 0",
                 e.frame
             );
@@ -723,17 +725,20 @@ fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
 
 /// `cache` with one key replaced, through its TOML form so the key is checked by serde.
 fn with_parameter(cache: &CacheDesc, key: &str, value: &toml::Value) -> Result<CacheDesc> {
-    let mut table = toml::Table::try_from(cache).context("cache settings as TOML")?;
+    let mut table = toml::Table::try_from(cache)
+        .map_err(|e| Error::Invalid(format!("cache settings as TOML: {e}")))?;
     if !table.contains_key(key) {
-        bail!(
+        refuse!(
             "parameter `{key}` is not a cache setting (known: {})",
             table.keys().cloned().collect::<Vec<_>>().join(", ")
         );
     }
     table.insert(key.to_string(), value.clone());
-    toml::Value::Table(table)
-        .try_into()
-        .with_context(|| format!("`{key} = {value}` is not a valid value for `{key}`"))
+    toml::Value::Table(table).try_into().map_err(|e| {
+        Error::Invalid(format!(
+            "`{key} = {value}` is not a valid value for `{key}`: {e}"
+        ))
+    })
 }
 
 fn value_label(v: &toml::Value) -> String {
@@ -749,7 +754,7 @@ mod tests {
     use gs_cache::Optimizer;
 
     fn parse(text: &str) -> Result<Experiment> {
-        let f: ExperimentFile = toml::from_str(text)?;
+        let f: ExperimentFile = toml::from_str(text).map_err(|e| Error::Invalid(e.to_string()))?;
         build(Path::new("x/e.toml"), f)
     }
 

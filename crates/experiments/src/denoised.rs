@@ -10,7 +10,7 @@
 
 use super::config::DenoiseSpec;
 use super::records::{Budget, Snapshot};
-use anyhow::{Context, Result};
+use crate::error::{Error, Result, Within};
 use denoise::{Aux, Denoiser, Options};
 use glam::Vec3;
 use hdr_image::RgbImage;
@@ -42,10 +42,11 @@ impl Denoisers {
     fn for_guides(&mut self, guides: Aux) -> Result<&mut Denoiser> {
         Ok(match self.by_guides.entry(guides) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::hash_map::Entry::Vacant(e) => e.insert(
-                Denoiser::load(rayon::current_num_threads())
-                    .context("the experiment asks for denoised twins (denoise = true)")?,
-            ),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                e.insert(Denoiser::load(rayon::current_num_threads()).within(|| {
+                    "the experiment asks for denoised twins (denoise = true)".to_string()
+                })?)
+            }
         })
     }
 
@@ -156,7 +157,7 @@ pub fn twins(
         let src = raw
             .iter()
             .find(|s| s.budget == render)
-            .with_context(|| format!("no image at {render} to denoise"))?;
+            .ok_or_else(|| Error::Invalid(format!("no image at {render} to denoise")))?;
         let image = RgbImage::from_pixels(width, height, src.image.clone())?;
         let (denoised, seconds) = denoisers.run(&image, src.features.as_ref(), guides, spec)?;
         out.push(Snapshot {

@@ -4,8 +4,8 @@
 
 use super::records::Budget;
 use super::run::{Results, SummaryRow};
+use crate::error::{Error, Result};
 use crate::plot::{Chart, Rgb8, Series, false_colour, tone_mapped, write_chart, write_image_grid};
-use anyhow::Result;
 use image_metrics::rel_mse_map;
 use std::path::Path;
 use volume_pt::Scene;
@@ -18,7 +18,7 @@ const ERROR_MAP_LOG_RANGE: (f64, f64) = (-4.0, 1.0);
 
 pub fn write_all(out: &Path, results: &Results, scene: &Scene) -> Result<Vec<Figure>> {
     let dir = out.join("plots");
-    std::fs::create_dir_all(&dir)?;
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, "cannot create", e))?;
     let mut figs = vec![error_against_time(&dir, results)?];
     figs.extend(image_grids(&dir, results, scene)?);
     figs.extend(cache_levels(&dir, results, scene)?);

@@ -8,7 +8,7 @@ use super::config::{EventDesc, FlythroughDesc, Method};
 use super::measure::method_session;
 use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
-use anyhow::{Context, Result};
+use crate::error::{Result, Within, refuse};
 use glam::Vec3;
 use image_metrics::rel_mse;
 use render_session::{Accumulation, Control, Edit};
@@ -62,7 +62,7 @@ pub fn event_edit(scene: &Scene, event: &EventDesc) -> Result<(Edit, String)> {
         };
         return Ok((edit, format!("scene {}", path.display())));
     }
-    anyhow::bail!("event at frame {} changes nothing", event.frame)
+    refuse!("event at frame {} changes nothing", event.frame)
 }
 
 /// Flies `fly` with each method (one seed), returning every frame's record.
@@ -88,7 +88,7 @@ pub fn fly(
         for f in 0..total {
             for e in fly.events.iter().filter(|e| e.frame == f) {
                 let (edit, what) = event_edit(session.scene(), e)
-                    .with_context(|| format!("flythrough `{}`", fly.name))?;
+                    .within(|| format!("flythrough `{}`", fly.name))?;
                 session.edit(edit)?;
                 state.push_str(&format!("{f}:{what};"));
             }
@@ -96,7 +96,7 @@ pub fn fly(
                 orbit(&scene.camera, centre, fly.orbit_degrees, f, total)
             } else {
                 keyframed(&scene.camera, &fly.keys, f)
-                    .with_context(|| format!("flythrough `{}`", fly.name))?
+                    .within(|| format!("flythrough `{}`", fly.name))?
             };
             session.edit(Edit::Camera(cam))?;
             let r = session.next_frame(&Control::none())?;

@@ -2,6 +2,7 @@
 //! (`gscache experiment`, or [`run_experiment`] from Rust) measures it and writes the tables,
 //! plots and report. The image metrics are the `image-metrics` crate's.
 //!
+//! - [`error`]: the runner's one error type ([`Error`]); an interrupted run is its own variant.
 //! - [`config`]: the experiment file (scene, methods, budgets, seeds, reference, fly-throughs,
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
 //! - [`reference`](mod@reference): high-spp references, made once and kept on disk by a hash of their inputs.
@@ -25,6 +26,7 @@ pub mod command;
 pub mod config;
 pub mod csv;
 pub mod denoised;
+pub mod error;
 pub mod figures;
 pub mod flythrough;
 pub mod measure;
@@ -36,10 +38,11 @@ pub mod run;
 pub mod shard;
 
 pub use config::{Experiment, load_experiment};
+pub use error::{Error, Interrupted, Result};
 
 /// Writes a text file for the user atomically ([`render_base::write_atomically`]): reports,
 /// tables, charts and shard files alike.
-pub fn write_text(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
+pub fn write_text(path: &std::path::Path, text: &str) -> Result<()> {
     render_base::write_atomically(path, |file| {
         std::io::Write::write_all(file, text.as_bytes()).map_err(|e| e.to_string())
     })?;
@@ -47,7 +50,7 @@ pub fn write_text(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
 }
 pub use run::Results;
 
-use anyhow::{Context, Result};
+use error::refuse;
 use std::path::Path;
 
 /// Runs the experiment in `path` (its output folder replaced by `output` when given) and
@@ -61,23 +64,6 @@ pub fn run_experiment(
     let results = run::run(&exp, progress)?;
     write_outputs(&exp, &results, progress)?;
     Ok(results)
-}
-
-/// An experiment stopped between units (Ctrl-C): the units measured so far were written to
-/// `file`, which `--resume` reads to go on from there.
-#[derive(Debug, thiserror::Error)]
-#[error(
-    "interrupted after {done} of {total} units; the measured units are in {}: go on with \
-     `gscache experiment {} --resume {}`",
-    file.display(),
-    experiment.display(),
-    file.display()
-)]
-pub struct Interrupted {
-    pub done: usize,
-    pub total: usize,
-    pub file: std::path::PathBuf,
-    pub experiment: std::path::PathBuf,
 }
 
 /// The folder of a run's finished units, one signed file each (`unit-NNNNN.json`), written as
@@ -122,7 +108,7 @@ pub fn run_experiment_resumable(
     };
     let journal = exp.output.join(UNITS_FOLDER);
     std::fs::create_dir_all(&journal)
-        .with_context(|| format!("{}: cannot create the folder", journal.display()))?;
+        .map_err(|e| Error::io(&journal, "cannot create the folder", e))?;
     let mut journal_error = None;
     let mut kept: Vec<(usize, shard::UnitResult)> =
         done.iter().map(|(k, r)| (*k, r.clone())).collect();
@@ -143,7 +129,7 @@ pub fn run_experiment_resumable(
         }
     });
     if let Some(e) = journal_error {
-        return Err(e.context("recording a finished unit for --resume"));
+        return Err(e.within("recording a finished unit for --resume"));
     }
     match outcome {
         Ok(results) => {
@@ -152,8 +138,9 @@ pub fn run_experiment_resumable(
             let _ = std::fs::remove_dir_all(&journal);
             Ok(results)
         }
-        Err(e) if e.is::<run::Cancelled>() => {
-            std::fs::create_dir_all(&exp.output)?;
+        Err(Error::Cancelled) => {
+            std::fs::create_dir_all(&exp.output)
+                .map_err(|e| Error::io(&exp.output, "cannot create the output folder", e))?;
             let file = exp.output.join("interrupted-units.json");
             kept.sort_by_key(|(k, _)| *k);
             let done = kept.len();
@@ -195,7 +182,7 @@ fn resume_files(from: &Path) -> Result<Vec<(std::path::PathBuf, shard::ShardFile
             from.to_path_buf()
         };
         let mut units: Vec<_> = std::fs::read_dir(&folder)
-            .with_context(|| format!("{}: cannot read the folder", folder.display()))?
+            .map_err(|e| Error::io(&folder, "cannot read the folder", e))?
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| {
                 p.file_name()
@@ -206,7 +193,7 @@ fn resume_files(from: &Path) -> Result<Vec<(std::path::PathBuf, shard::ShardFile
         units.sort();
         paths.extend(units);
         if paths.is_empty() {
-            anyhow::bail!(
+            refuse!(
                 "{}: no finished units to resume from (expected interrupted-units.json or {UNITS_FOLDER}/unit-*.json)",
                 from.display()
             );

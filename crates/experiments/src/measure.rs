@@ -6,7 +6,7 @@
 use super::config::{DenoiseSpec, Method};
 use super::denoised::Denoisers;
 use super::records::{Budget, CacheRecord, Snapshot};
-use anyhow::Result;
+use crate::error::Result;
 use glam::Vec3;
 use render_session::{Control, FrameReport, Session};
 use std::time::Instant;

@@ -3,7 +3,7 @@
 //! bitmap backend and encoded by `image`; text uses a bundled font through the pure-Rust
 //! ab_glyph, so no system font or C library is needed.
 
-use anyhow::{Result, anyhow};
+use crate::error::{Error, Result};
 use glam::Vec3;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -60,7 +60,7 @@ pub fn write_chart(stem: &Path, chart: &Chart) -> Result<(PathBuf, PathBuf)> {
         let root = SVGBackend::with_string(&mut svg_text, CHART_SIZE).into_drawing_area();
         draw_chart(&root, chart)?;
         root.present()
-            .map_err(|e| anyhow!("{}: {e}", svg.display()))?;
+            .map_err(|e| Error::file(&svg, e.to_string()))?;
     }
     crate::write_text(&svg, &svg_text)?;
     let (w, h) = CHART_SIZE;
@@ -69,7 +69,7 @@ pub fn write_chart(stem: &Path, chart: &Chart) -> Result<(PathBuf, PathBuf)> {
         let root = BitMapBackend::with_buffer(&mut buf, CHART_SIZE).into_drawing_area();
         draw_chart(&root, chart)?;
         root.present()
-            .map_err(|e| anyhow!("{}: {e}", png.display()))?;
+            .map_err(|e| Error::file(&png, e.to_string()))?;
     }
     save_png(&png, w, h, &buf)?;
     Ok((svg, png))
@@ -206,7 +206,9 @@ fn draw_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, c: &Chart) -> R
 where
     DB::ErrorType: 'static,
 {
-    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow!("drawing `{}`: {e:?}", c.title);
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| {
+        Error::Invalid(format!("drawing `{}`: {e:?}", c.title))
+    };
     root.fill(&WHITE).map_err(err)?;
     let pts = |s: &Series| -> Vec<(f64, f64)> {
         s.points
@@ -407,7 +409,7 @@ pub fn write_image_grid(
     }
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        let err = |e: DrawingAreaErrorKind<_>| anyhow!("{}: {e:?}", path.display());
+        let err = |e: DrawingAreaErrorKind<_>| Error::file(path, format!("{e:?}"));
         let style = ("sans-serif", 15).into_font().color(&BLACK);
         root.draw(&Text::new(title.to_string(), (8, 6), ("sans-serif", 18)))
             .map_err(err)?;

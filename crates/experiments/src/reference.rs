@@ -4,7 +4,7 @@
 //! input makes a new one and an unchanged one is reused. A JSON file beside each EXR says what
 //! it is.
 
-use anyhow::{Context, Result};
+use crate::error::{Error, Result};
 use glam::Vec3;
 use hdr_image::RgbImage;
 use splat_raster::Camera;
@@ -42,7 +42,7 @@ pub fn reference(
     progress: Option<&dyn Fn(&str)>,
 ) -> Result<Reference> {
     let scene_bytes = std::fs::read(scene_file)
-        .with_context(|| format!("{}: cannot read the scene file", scene_file.display()))?;
+        .map_err(|e| Error::io(scene_file, "cannot read the scene file", e))?;
     let volume_len = std::fs::metadata(&scene.volume_path)
         .map(|m| m.len())
         .unwrap_or(0);
@@ -125,7 +125,7 @@ pub fn reference(
         }
     }
     let seconds = start.elapsed().as_secs_f64();
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, "cannot create", e))?;
     // Written atomically, so an interrupted run leaves no half file that a later run would take
     // for a reference.
     let image = film.image();

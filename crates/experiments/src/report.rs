@@ -6,7 +6,7 @@ use super::csv::{budget_fields, csv_text};
 use super::figures::Figure;
 use super::records::Budget;
 use super::run::{Results, SummaryRow};
-use anyhow::Result;
+use crate::error::Result;
 use std::fmt::Write as _;
 use std::path::Path;
 

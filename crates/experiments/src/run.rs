@@ -8,7 +8,7 @@ use super::flythrough::FrameRecord;
 use super::records::{Budget, CacheRecord, Snapshot};
 use super::reference::reference;
 use super::shard::{UnitResult, measure_unit, units};
-use anyhow::{Context, Result, bail};
+use crate::error::{Error, Result, refuse};
 use glam::Vec3;
 use hdr_image::tone_map;
 use image_metrics::{
@@ -258,7 +258,7 @@ fn evaluate(
             record,
         } = cx.next()?
         else {
-            bail!(
+            refuse!(
                 "unit {} is not a run of `{}`: the shards do not match the experiment",
                 cx.next_unit - 1,
                 method.name
@@ -277,7 +277,7 @@ fn evaluate(
                 .cloned()
                 .collect();
             if mine.len() != budgets.len() {
-                bail!(
+                refuse!(
                     "unit {} holds {} images of `{}` for {} budgets: the shards do not match the \
                      experiment",
                     cx.next_unit - 1,
@@ -402,7 +402,10 @@ fn compare_with(rows: &mut [SummaryRow], baseline: &[SummaryRow]) {
 pub fn experiment_scene(exp: &Experiment) -> Result<Scene> {
     let mut scene = volume_pt::load_scene(&exp.scene)?;
     if let Some((w, h)) = exp.size {
-        scene.camera = scene.camera.with_size(w, h)?;
+        scene.camera = scene
+            .camera
+            .with_size(w, h)
+            .map_err(|e| Error::file(&exp.file, format!("width and height: {e}")))?;
     }
     Ok(scene)
 }
@@ -454,7 +457,7 @@ pub fn run_resumable(
             return Ok(r);
         }
         if control.cancelled() {
-            return Err(Cancelled.into());
+            return Err(Error::Cancelled);
         }
         let r = measure_unit(exp, &scene, units[k], &mut denoisers, progress)?;
         measured(k, &r);
@@ -472,7 +475,7 @@ pub fn merge(
     assemble(exp, &scene, progress, &mut |k| {
         measured
             .remove(&k)
-            .with_context(|| format!("unit {k} is missing from the shards"))
+            .ok_or_else(|| Error::Invalid(format!("unit {k} is missing from the shards")))
     })
 }
 
@@ -486,7 +489,7 @@ fn assemble(
 ) -> Result<Results> {
     let (w, h) = (scene.camera.width, scene.camera.height);
     std::fs::create_dir_all(&exp.output)
-        .with_context(|| format!("{}: cannot create the output folder", exp.output.display()))?;
+        .map_err(|e| Error::io(&exp.output, "cannot create the output folder", e))?;
     let r = reference(
         &exp.reference.dir,
         &exp.scene,
@@ -607,7 +610,7 @@ fn assemble(
                 .push((fl.name.clone(), e.frame, what));
         }
         let UnitResult::Fly(frames) = cx.next()? else {
-            bail!(
+            refuse!(
                 "unit {} is not fly-through `{}`: the shards do not match the experiment",
                 cx.next_unit - 1,
                 fl.name

@@ -17,7 +17,7 @@ use super::denoised::Denoisers;
 use super::flythrough::{FrameRecord, fly};
 use super::measure::run_method;
 use super::records::{Budget, CacheRecord, Snapshot};
-use anyhow::{Context, Result, bail};
+use crate::error::{Error, Result, refuse};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -124,7 +124,7 @@ pub fn measure_unit(
 
 /// The key of an experiment: its file's text, its scene file's text and its unit count.
 pub fn experiment_key(path: &Path, exp: &Experiment, unit_count: usize) -> Result<String> {
-    let read = |p: &Path| std::fs::read(p).with_context(|| format!("{}: cannot read", p.display()));
+    let read = |p: &Path| std::fs::read(p).map_err(|e| Error::io(p, "cannot read", e));
     Ok(RenderKey::new()
         .part(&read(path)?)
         .part(&read(&exp.scene)?)
@@ -211,27 +211,29 @@ impl ShardFile {
         // the memory available bounds what is read.
         let limit = volume_pt::io::available_memory() / 4;
         let bytes = volume_pt::io::read_regular(path, limit, "an experiment shard file")?;
-        let f: ShardFile = serde_json::from_slice(&bytes).with_context(|| {
-            format!(
-                "{}: not an experiment shard file (written by `gscache experiment --shard`)",
-                path.display()
+        let f: ShardFile = serde_json::from_slice(&bytes).map_err(|e| {
+            Error::file(
+                path,
+                format!(
+                    "not an experiment shard file (written by `gscache experiment --shard`): {e}"
+                ),
             )
         })?;
         if f.format != FORMAT {
-            bail!(
+            refuse!(
                 "{}: shard file format {}: expected {FORMAT} (run the shard again with this gscache)",
                 path.display(),
                 f.format
             );
         }
         if f.checksum.is_empty() {
-            bail!(
+            refuse!(
                 "{}: the checksum is missing: the file was edited after it was written (every shard file gscache writes has one)",
                 path.display()
             );
         }
         if f.payload_checksum()? != f.checksum {
-            bail!(
+            refuse!(
                 "{}: the checksum does not match: the file was changed or damaged after it was written",
                 path.display()
             );
@@ -256,7 +258,7 @@ pub fn gather_units(
         .map(|k| k.to_string())
         .collect();
     if !missing.is_empty() {
-        bail!(
+        refuse!(
             "units {} of {unit_count} are missing: merge every shard's file",
             missing.join(", ")
         );
@@ -277,7 +279,7 @@ pub fn checked_units(
     let mut out = BTreeMap::new();
     for (path, f) in files {
         if f.key != key || f.unit_count != unit_count {
-            bail!(
+            refuse!(
                 "{}: a shard of another version of the experiment (key {}, {} units; this file gives key {key}, {unit_count} units): run the shards again",
                 path.display(),
                 f.key,
@@ -286,13 +288,13 @@ pub fn checked_units(
         }
         for (k, r) in &f.units {
             if *k >= unit_count || out.insert(*k, r.clone()).is_some() {
-                bail!(
+                refuse!(
                     "{}: unit {k} is given twice or does not exist: each shard may be merged once",
                     path.display()
                 );
             }
             check_unit(&specs[*k], r, pixels)
-                .map_err(|e| anyhow::anyhow!("{}: unit {k}: {e}", path.display()))?;
+                .map_err(|e| Error::file(path, format!("unit {k}: {e}")))?;
         }
     }
     Ok(out)

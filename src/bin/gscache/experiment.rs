@@ -101,9 +101,7 @@ pub fn run(cli: ExperimentArgs, _global: &Global) -> Result<i32> {
             &control,
             cli.resume.as_deref(),
         );
-        if let Err(e) = &run
-            && let Some(stopped) = e.downcast_ref::<experiments::Interrupted>()
-        {
+        if let Err(experiments::Error::Interrupted(stopped)) = &run {
             eprintln!("{stopped}");
             return Ok(crate::common::INTERRUPTED);
         }

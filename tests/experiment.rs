@@ -389,7 +389,7 @@ fn sharded_experiment_merges_to_the_one_process_results() {
 #[test]
 fn tampered_shard_files_are_refused() {
     use experiments::records::Budget;
-    use experiments::shard::{ShardFile, UnitResult};
+    use experiments::units::{ShardFile, UnitResult};
     let dir = scratch("tampered");
     let file = tiny_experiment(&dir);
     let quiet = |_: &str| {};

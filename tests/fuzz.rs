@@ -210,7 +210,7 @@ fn seed_partial() -> (Vec<u8>, volume_pt::PartialRender) {
 
 fn seed_shard(dir: &Path) -> Vec<u8> {
     use experiments::records::{Budget, Snapshot};
-    use experiments::shard::{FORMAT, ShardFile, UnitResult};
+    use experiments::units::{FORMAT, ShardFile, UnitResult};
     let image = |k: f32| {
         (0..24)
             .map(|i| glam::Vec3::splat(0.01 * i as f32 + k))
@@ -282,7 +282,7 @@ fn expected(scratch: &Path) -> Expected {
     let shard = seed_shard(scratch);
     let path = scratch.join("expected-shard.json");
     std::fs::write(&path, shard).unwrap();
-    let f = experiments::shard::ShardFile::read(&path).unwrap();
+    let f = experiments::units::ShardFile::read(&path).unwrap();
     Expected {
         partial: seed_partial().1,
         shard: shard_text(&f),
@@ -290,7 +290,7 @@ fn expected(scratch: &Path) -> Expected {
 }
 
 /// What a shard's units say, for comparing a mutant's with the seed's.
-fn shard_text(f: &experiments::shard::ShardFile) -> String {
+fn shard_text(f: &experiments::units::ShardFile) -> String {
     serde_json::to_string(&(&f.key, f.unit_count, &f.units)).unwrap()
 }
 
@@ -329,7 +329,7 @@ fn run_reader(reader: Reader, path: &Path, expected: &Expected) -> Result<Outcom
                 Ok(_) => Outcome::SilentWrong,
                 Err(_) => Outcome::Refused,
             },
-            Reader::ExperimentShard => match experiments::shard::ShardFile::read(&path) {
+            Reader::ExperimentShard => match experiments::units::ShardFile::read(&path) {
                 Ok(f) if shard_text(&f) == expected.shard => Outcome::Read,
                 Ok(_) => Outcome::SilentWrong,
                 Err(_) => Outcome::Refused,

@@ -4,7 +4,7 @@
 //! sampling rule (frame `k` of `s` spp takes sample indices `k*s .. (k+1)*s`) makes a run's
 //! image at `n` spp the same as one render of `n` spp, or of `n` frames of 1 spp.
 
-use super::config::Method;
+use super::config::MethodSpec;
 use gs_cache::CacheConfig;
 use nrc_cache::NrcConfig;
 use std::path::Path;
@@ -45,7 +45,7 @@ pub fn render_args(
     scene: &Path,
     width: u32,
     height: u32,
-    method: &Method,
+    method: &MethodSpec,
     seed: u64,
     spp: u32,
 ) -> Vec<String> {
@@ -103,7 +103,7 @@ pub fn render_command(
     scene: &Path,
     width: u32,
     height: u32,
-    method: &Method,
+    method: &MethodSpec,
     seed: u64,
     spp: u32,
 ) -> String {

@@ -330,7 +330,7 @@ pub struct AblationDesc {
 
 /// A method ready to run.
 #[derive(Debug, Clone, Serialize)]
-pub struct Method {
+pub struct MethodSpec {
     pub name: String,
     pub integrator: IntegratorKind,
     pub cache: Option<CacheDesc>,
@@ -340,14 +340,14 @@ pub struct Method {
     pub denoised: Option<denoise::Aux>,
 }
 
-impl Method {
+impl MethodSpec {
     /// This method's twin measured after the denoiser with `guides`.
-    pub fn denoised_twin(&self, guides: denoise::Aux) -> Method {
+    pub fn denoised_twin(&self, guides: denoise::Aux) -> MethodSpec {
         let suffix = match guides {
             denoise::Aux::None => String::new(),
             g => format!(" ({g})"),
         };
-        Method {
+        MethodSpec {
             name: format!("{} + OIDN{suffix}", self.name),
             denoised: Some(guides),
             ..self.clone()
@@ -400,7 +400,7 @@ pub struct Experiment {
     pub reference: ReferenceDesc,
     pub budgets: Budgets,
     pub baseline: Option<String>,
-    pub methods: Vec<Method>,
+    pub methods: Vec<MethodSpec>,
     pub flythroughs: Vec<FlythroughDesc>,
     pub ablations: Vec<Ablation>,
     /// The denoised twins, where the file asks for them (`denoise = true`).
@@ -414,7 +414,7 @@ pub struct Ablation {
     pub parameter: String,
     pub budgets: Budgets,
     /// (value as written, the method with that value).
-    pub variants: Vec<(String, Method)>,
+    pub variants: Vec<(String, MethodSpec)>,
 }
 
 /// Reads and checks an experiment file.
@@ -455,7 +455,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     }
     let mut methods = Vec::new();
     for m in &f.methods {
-        if methods.iter().any(|x: &Method| x.name == m.name) {
+        if methods.iter().any(|x: &MethodSpec| x.name == m.name) {
             refuse!("method `{}` is defined twice", m.name);
         }
         methods.push(method(
@@ -465,7 +465,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             m.nrc.clone(),
         )?);
     }
-    let find = |name: &str, what: &str| -> Result<&Method> {
+    let find = |name: &str, what: &str| -> Result<&MethodSpec> {
         methods.iter().find(|m| m.name == name).ok_or_else(|| {
             Error::Invalid(format!(
                 "{what} names method `{name}`, which is not a [[method]] (known: {})",
@@ -638,7 +638,7 @@ fn method(
     integrator: IntegratorKind,
     cache: Option<CacheDesc>,
     nrc: Option<NrcDesc>,
-) -> Result<Method> {
+) -> Result<MethodSpec> {
     if cache.is_some() && nrc.is_some() {
         refuse!("method `{name}`: both `cache` and `nrc`: a method reads one cache");
     }
@@ -658,7 +658,7 @@ fn method(
         }
         c.config().within(|| format!("method `{name}`: cache"))?;
     }
-    Ok(Method {
+    Ok(MethodSpec {
         denoised: None,
         name,
         integrator,

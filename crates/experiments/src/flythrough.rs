@@ -4,7 +4,7 @@
 //! image is compared with a reference of that view and scene state. With a still camera and an
 //! edit this is the adaptation curve: how many frames the cache takes to learn the new scene.
 
-use super::config::{EventDesc, FlythroughDesc, Method};
+use super::config::{EventDesc, FlythroughDesc, MethodSpec};
 use super::measure::method_session;
 use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
@@ -70,7 +70,7 @@ pub fn fly(
     scene: &Scene,
     scene_file: &Path,
     fly: &FlythroughDesc,
-    methods: &[&Method],
+    methods: &[&MethodSpec],
     seed: u64,
     reference_dir: &Path,
     progress: &dyn Fn(&str),

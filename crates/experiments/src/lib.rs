@@ -14,7 +14,8 @@
 //! - [`command`]: the `gscache render` line that renders one frame of a method, bit for bit.
 //! - [`flythrough`]: camera paths with scene edits; per-frame times and error.
 //! - [`run`]: all of it, with the metrics and their spread over seeds.
-//! - [`shard`]: the same work split into units that shards measure and a merge assembles.
+//! - [`units`]: the same work split into units that shards measure and a merge assembles
+//!   (volume-pt's `shard` splits one render's samples; this splits an experiment's units).
 //! - [`figures`] and [`report`]: the plots, CSV, JSON and Markdown.
 //! - [`camera_path`]: the camera paths of fly-throughs (an orbit, or key frames).
 //! - [`plot`]: charts and image grids (SVG, PNG) for reports.
@@ -35,7 +36,7 @@ pub mod records;
 pub mod reference;
 pub mod report;
 pub mod run;
-pub mod shard;
+pub mod units;
 
 pub use config::{Experiment, load_experiment};
 pub use error::{Error, Interrupted, Result};
@@ -87,15 +88,15 @@ pub fn run_experiment_resumable(
 ) -> Result<Results> {
     let exp = load_with_output(path, output)?;
     let (main, ablation) = run::all_budgets(&exp);
-    let specs = shard::units(&exp, &main, &ablation);
-    let key = shard::experiment_key(path, &exp, specs.len())?;
+    let specs = units::all(&exp, &main, &ablation);
+    let key = units::experiment_key(path, &exp, specs.len())?;
     let done = match resume {
         Some(from) => {
             let files = resume_files(from)?;
             let scene = run::experiment_scene(&exp)?;
             let pixels = scene.camera.width as usize * scene.camera.height as usize;
             // The checks of a shard merge, without requiring every unit.
-            let units = shard::checked_units(&files, &key, &specs, pixels)?;
+            let units = units::checked_units(&files, &key, &specs, pixels)?;
             progress(&format!(
                 "resuming: {} of {} units read from {}",
                 units.len(),
@@ -110,13 +111,13 @@ pub fn run_experiment_resumable(
     std::fs::create_dir_all(&journal)
         .map_err(|e| Error::io(&journal, "cannot create the folder", e))?;
     let mut journal_error = None;
-    let mut kept: Vec<(usize, shard::UnitResult)> =
+    let mut kept: Vec<(usize, units::UnitResult)> =
         done.iter().map(|(k, r)| (*k, r.clone())).collect();
     let outcome = run::run_resumable(&exp, progress, control, done, &mut |k, r| {
         kept.push((k, r.clone()));
         // On disk as soon as it is measured: a killed run loses only the unit under way.
-        let unit = shard::ShardFile {
-            format: shard::FORMAT,
+        let unit = units::ShardFile {
+            format: units::FORMAT,
             experiment: exp.name.clone(),
             key: key.clone(),
             shard: format!("unit {k}"),
@@ -144,8 +145,8 @@ pub fn run_experiment_resumable(
             let file = exp.output.join("interrupted-units.json");
             kept.sort_by_key(|(k, _)| *k);
             let done = kept.len();
-            shard::ShardFile {
-                format: shard::FORMAT,
+            units::ShardFile {
+                format: units::FORMAT,
                 experiment: exp.name.clone(),
                 key,
                 shard: "interrupted".into(),
@@ -169,7 +170,7 @@ pub fn run_experiment_resumable(
 /// The unit files `--resume` names: one file (`interrupted-units.json`, a shard file), or a
 /// folder's `*.json` files (a run's [`UNITS_FOLDER`], or its output folder, whose
 /// `interrupted-units.json` and [`UNITS_FOLDER`] are both read).
-fn resume_files(from: &Path) -> Result<Vec<(std::path::PathBuf, shard::ShardFile)>> {
+fn resume_files(from: &Path) -> Result<Vec<(std::path::PathBuf, units::ShardFile)>> {
     let mut paths = Vec::new();
     if from.is_dir() {
         let interrupted = from.join("interrupted-units.json");
@@ -203,7 +204,7 @@ fn resume_files(from: &Path) -> Result<Vec<(std::path::PathBuf, shard::ShardFile
     }
     let mut files = Vec::with_capacity(paths.len());
     for p in paths {
-        let f = shard::ShardFile::read(&p)?;
+        let f = units::ShardFile::read(&p)?;
         files.push((p, f));
     }
     // A unit both in interrupted-units.json and in the folder is the same measurement: kept
@@ -225,8 +226,8 @@ pub fn run_experiment_shard(
     let exp = load_experiment(path)?;
     let scene = run::experiment_scene(&exp)?;
     let (main, ablation) = run::all_budgets(&exp);
-    let units = shard::units(&exp, &main, &ablation);
-    let file = shard::run_shard(path, &exp, &scene, &units, shard, progress)?;
+    let units = units::all(&exp, &main, &ablation);
+    let file = units::run_shard(path, &exp, &scene, &units, shard, progress)?;
     file.write(shard_file)?;
     progress(&format!(
         "shard {shard}: {} of {} units; wrote {}",
@@ -247,15 +248,15 @@ pub fn merge_experiment(
 ) -> Result<Results> {
     let exp = load_with_output(path, output)?;
     let (main, ablation) = run::all_budgets(&exp);
-    let specs = shard::units(&exp, &main, &ablation);
-    let key = shard::experiment_key(path, &exp, specs.len())?;
+    let specs = units::all(&exp, &main, &ablation);
+    let key = units::experiment_key(path, &exp, specs.len())?;
     let files = shard_files
         .iter()
-        .map(|p| Ok((p.clone(), shard::ShardFile::read(p)?)))
+        .map(|p| Ok((p.clone(), units::ShardFile::read(p)?)))
         .collect::<Result<Vec<_>>>()?;
     let scene = run::experiment_scene(&exp)?;
     let pixels = scene.camera.width as usize * scene.camera.height as usize;
-    let measured = shard::gather_units(&files, &key, &specs, pixels)?;
+    let measured = units::gather_units(&files, &key, &specs, pixels)?;
     let results = run::merge(&exp, measured, progress)?;
     write_outputs(&exp, &results, progress)?;
     Ok(results)

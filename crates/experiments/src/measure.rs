@@ -3,7 +3,7 @@
 //! so a method's images at 1, 4 and 16 spp are the prefixes of one progressive render, as a
 //! user watching it would see them. Times are wall-clock around each pass.
 
-use super::config::{DenoiseSpec, Method};
+use super::config::{DenoiseSpec, MethodSpec};
 use super::denoised::Denoisers;
 use super::records::{Budget, CacheRecord, Snapshot};
 use crate::error::Result;
@@ -75,7 +75,7 @@ fn progressive_with<S>(
 }
 
 /// The render session of `method` on `scene` with `seed`: one sample per pixel a frame.
-pub fn method_session(scene: &Scene, method: &Method, seed: u64) -> Result<Session> {
+pub fn method_session(scene: &Scene, method: &MethodSpec, seed: u64) -> Result<Session> {
     let mut scene = scene.clone();
     scene.settings.spp = 1;
     scene.settings.path.integrator = method.integrator;
@@ -88,7 +88,7 @@ pub fn method_session(scene: &Scene, method: &Method, seed: u64) -> Result<Sessi
 /// [`super::denoised`]).
 pub fn run_method(
     scene: &Scene,
-    method: &Method,
+    method: &MethodSpec,
     seed: u64,
     budgets: &[Budget],
     denoise: Option<&DenoiseSpec>,

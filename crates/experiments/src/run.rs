@@ -2,12 +2,12 @@
 //! fly-throughs and the ablation sweeps. Each run's row is appended to `runs.csv` as soon as it
 //! is measured, so an interrupted experiment keeps what it measured.
 
-use super::config::{Budgets, Experiment, Method};
+use super::config::{Budgets, Experiment, MethodSpec};
 use super::csv::{budget_fields, csv_text};
 use super::flythrough::FrameRecord;
 use super::records::{Budget, CacheRecord, Snapshot};
 use super::reference::reference;
-use super::shard::{UnitResult, measure_unit, units};
+use super::units::{UnitResult, measure_unit};
 use crate::error::{Error, Result, refuse};
 use glam::Vec3;
 use hdr_image::tone_map;
@@ -134,7 +134,7 @@ pub struct Results {
     pub threads: usize,
     pub seeds: Vec<u64>,
     pub baseline: Option<String>,
-    pub methods: Vec<Method>,
+    pub methods: Vec<MethodSpec>,
     pub reference: ReferenceInfo,
     pub runs: Vec<RunRow>,
     pub summary: Vec<SummaryRow>,
@@ -217,7 +217,7 @@ struct Setup<'a, 's> {
     /// keeps the rows it has and the file is never written through a planted link.
     csv: RunsCsv,
     source: &'a mut UnitSource<'s>,
-    /// The next unit the assembly reads (the order of `shard::units`).
+    /// The next unit the assembly reads (the order of `units::all`).
     next_unit: usize,
 }
 
@@ -234,12 +234,12 @@ impl Setup<'_, '_> {
 /// their snapshots).
 fn evaluate(
     cx: &mut Setup,
-    method: &Method,
+    method: &MethodSpec,
     budgets: &[Budget],
-    twins: &[Method],
+    twins: &[MethodSpec],
 ) -> Result<Vec<Evaluation>> {
     let (w, h) = (cx.scene.camera.width, cx.scene.camera.height);
-    let variants: Vec<&Method> = std::iter::once(method).chain(twins).collect();
+    let variants: Vec<&MethodSpec> = std::iter::once(method).chain(twins).collect();
     let mut runs: Vec<Vec<RunRow>> = variants.iter().map(|_| Vec::new()).collect();
     let mut spreads: Vec<Vec<SeedSpread>> = variants
         .iter()
@@ -449,7 +449,7 @@ pub fn run_resumable(
 ) -> Result<Results> {
     let scene = experiment_scene(exp)?;
     let (main, ablation) = all_budgets(exp);
-    let units = units(exp, &main, &ablation);
+    let units = super::units::all(exp, &main, &ablation);
     // The run's own denoisers and costs: the twins' timings do not depend on earlier runs.
     let mut denoisers = super::denoised::Denoisers::new();
     assemble(exp, &scene, progress, &mut |k| {
@@ -465,7 +465,7 @@ pub fn run_resumable(
     })
 }
 
-/// Runs the experiment from units measured by shards (`shard::gather_units`).
+/// Runs the experiment from units measured by shards (`units::gather_units`).
 pub fn merge(
     exp: &Experiment,
     mut measured: std::collections::BTreeMap<usize, UnitResult>,
@@ -480,7 +480,7 @@ pub fn merge(
 }
 
 /// Everything but the measuring: the reference, the metrics of every unit read from `source`
-/// in the order of `shard::units`, summaries and comparisons, `runs.csv`.
+/// in the order of `units::all`, summaries and comparisons, `runs.csv`.
 fn assemble(
     exp: &Experiment,
     scene: &Scene,
@@ -552,7 +552,7 @@ fn assemble(
     };
     let mut methods = Vec::new();
     for m in &exp.methods {
-        let twins: Vec<Method> = exp
+        let twins: Vec<MethodSpec> = exp
             .denoise
             .iter()
             .flat_map(|d| d.guides.iter().map(|&g| m.denoised_twin(g)))

@@ -191,7 +191,7 @@ impl CacheFrame {
 
 /// What the last frame cost, in seconds, and the losses it reached.
 #[derive(Debug, Clone, Default)]
-pub struct FrameReport {
+pub struct GsCacheReport {
     /// Drawing the levels (the paper's splat time, ST).
     pub lookup_seconds: f64,
     /// The frame reused the last frame's level images (same camera, no training step since):
@@ -234,7 +234,7 @@ pub struct GsCache {
     /// may reuse the drawn images only while this is false.
     levels_changed: bool,
     frame: Option<CacheFrame>,
-    report: FrameReport,
+    report: GsCacheReport,
     raster: RasterConfig,
     /// With the unbiased estimator: the last frames' statistics per cache pixel.
     continuation: Option<Continuation>,
@@ -355,7 +355,7 @@ impl GsCache {
             fresh: false,
             levels_changed: true,
             frame: None,
-            report: FrameReport::default(),
+            report: GsCacheReport::default(),
             raster: RasterConfig::default(),
             continuation: None,
             spare_targets: None,
@@ -588,7 +588,7 @@ impl GsCache {
     /// One optimisation step per level against this frame's samples (HDR loss, Eq. 4, with the
     /// prediction detached in the denominator; AdamW; Eq. 5's schedule). Does nothing when
     /// training is off. The targets must match the frame's camera.
-    pub fn train(&mut self, targets: &TrainingTargets) -> Result<&FrameReport> {
+    pub fn train(&mut self, targets: &TrainingTargets) -> Result<&GsCacheReport> {
         let start = Instant::now();
         self.report.losses = vec![None; self.levels.len()];
         self.report.dropped_samples = targets.dropped();
@@ -700,7 +700,7 @@ impl GsCache {
     }
 
     /// Timings and losses of the last frame.
-    pub fn report(&self) -> &FrameReport {
+    pub fn report(&self) -> &GsCacheReport {
         &self.report
     }
 }

@@ -203,7 +203,7 @@ pub mod targets;
 pub mod termination;
 pub mod warm_start;
 
-pub use cache::{CacheFrame, FrameReport, GsCache, Level};
+pub use cache::{CacheFrame, GsCache, GsCacheReport, Level};
 pub use config::{
     CacheConfig, Decay, LearningRates, Lookup, MAX_LEVELS, Optimizer, TerminationConfig,
 };

@@ -50,7 +50,7 @@ pub fn _view(
         scene.scene.clone(),
         text,
         file,
-        viewer::Options {
+        viewer::ServeOptions {
             bind,
             port,
             output,

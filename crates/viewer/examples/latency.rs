@@ -19,7 +19,7 @@ fn start(width: u32, height: u32) -> viewer::Viewer {
         scene,
         text,
         file,
-        viewer::Options {
+        viewer::ServeOptions {
             port: 0,
             output: std::env::temp_dir().join("gscache-view-latency"),
             ..Default::default()

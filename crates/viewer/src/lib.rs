@@ -27,7 +27,7 @@ pub mod server;
 pub mod worker;
 
 pub use connections::Limits;
-pub use server::{Options, Viewer, serve};
+pub use server::{ServeOptions, Viewer, serve};
 
 /// Errors of the viewer, naming what failed.
 #[derive(Debug, thiserror::Error)]

@@ -7,7 +7,7 @@
 //! Every request must carry the token (compared in constant time); a missing or wrong one is
 //! refused with 403 before anything else. Bound to a loopback address, the server also refuses
 //! a `Host` that is not a loopback name (a DNS-rebinding page cannot reach it), and a WebSocket
-//! whose `Origin` is not the page's own. At most [`Options::max_clients`] pages are connected at
+//! whose `Origin` is not the page's own. At most [`ServeOptions::max_clients`] pages are connected at
 //! once; one more is refused with 503 and the reason. Each client is its own task: it forwards
 //! the latest frame when the render thread publishes one and drops what it could not send in
 //! time, so a slow or vanished client costs nothing but its own connection.
@@ -31,7 +31,7 @@ use volume_pt::Scene;
 
 /// How the viewer serves.
 #[derive(Debug)]
-pub struct Options {
+pub struct ServeOptions {
     /// The address to listen on: 127.0.0.1 unless told otherwise.
     pub bind: IpAddr,
     /// The port (0: any free one).
@@ -47,7 +47,7 @@ pub struct Options {
     pub denoiser: denoise::OnDemand,
 }
 
-impl Default for Options {
+impl Default for ServeOptions {
     fn default() -> Self {
         Self {
             bind: IpAddr::V4(Ipv4Addr::LOCALHOST),
@@ -188,7 +188,7 @@ pub fn serve(
     scene: Scene,
     scene_text: String,
     scene_file: PathBuf,
-    options: Options,
+    options: ServeOptions,
 ) -> crate::Result<Viewer> {
     crate::save::check_output_folder(&options.output)?;
     let listener = std::net::TcpListener::bind((options.bind, options.port)).map_err(|source| {

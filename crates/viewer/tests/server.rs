@@ -7,7 +7,7 @@ use futures_util::{SinkExt, StreamExt};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::{self, Message, client::IntoClientRequest};
-use viewer::{Options, Viewer, serve};
+use viewer::{ServeOptions, Viewer, serve};
 
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("gscache-view-{}-{name}", std::process::id()));
@@ -22,14 +22,14 @@ fn serve_default(
     output: &Path,
     (width, height): (u32, u32),
     spp: u32,
-    options: Options,
+    options: ServeOptions,
 ) -> viewer::Result<Viewer> {
     let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
     let text = std::fs::read_to_string(&file).unwrap();
     let mut scene = volume_pt::load_scene(&file).unwrap();
     scene.camera = scene.camera.with_size(width, height).unwrap();
     scene.settings.spp = spp;
-    let options = Options {
+    let options = ServeOptions {
         port: 0,
         output: output.to_path_buf(),
         ..options
@@ -39,7 +39,7 @@ fn serve_default(
 
 /// The bundled default scene at 64x36, refining to 8 spp.
 fn start(output: &Path, max_clients: usize) -> Viewer {
-    let options = Options {
+    let options = ServeOptions {
         max_clients,
         ..Default::default()
     };
@@ -426,7 +426,7 @@ async fn the_still_view_converges_to_the_render() {
         scene.clone(),
         text,
         file,
-        Options {
+        ServeOptions {
             port: 0,
             output: out.clone(),
             ..Default::default()
@@ -481,7 +481,7 @@ async fn the_still_view_converges_to_the_render() {
 
 /// A viewer on the default scene at 64x36 whose denoiser is `denoiser` (loaded on first use).
 fn start_with_denoiser(output: &Path, denoiser: denoise::OnDemand) -> Viewer {
-    let options = Options {
+    let options = ServeOptions {
         denoiser,
         ..Default::default()
     };
@@ -574,7 +574,7 @@ fn a_bad_output_folder_is_refused_at_start() {
 }
 
 fn serve_into(output: &Path) -> viewer::Result<Viewer> {
-    serve_default(output, (16, 9), 8, Options::default())
+    serve_default(output, (16, 9), 8, ServeOptions::default())
 }
 
 /// Issue 48, item 10: bound to `::1`, the printed URL is the IPv6 loopback's, and it answers.
@@ -585,7 +585,7 @@ async fn a_viewer_on_the_ipv6_loopback_prints_a_url_that_answers() {
         return;
     }
     let out = scratch("ipv6");
-    let options = Options {
+    let options = ServeOptions {
         bind: "::1".parse().unwrap(),
         ..Default::default()
     };
@@ -657,7 +657,7 @@ async fn no_client_means_no_rendering_and_a_leaving_client_ends_its_drag() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_idle_connection_flood_does_not_keep_out_a_page() {
     let out = scratch("flood");
-    let options = Options {
+    let options = ServeOptions {
         limits: viewer::Limits {
             max_connections: 32,
             idle_timeout: Duration::from_secs(1),
@@ -755,7 +755,8 @@ async fn an_oversized_message_is_answered_with_a_close_frame_that_says_why() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_viewers_saving_into_one_folder_never_share_a_name() {
     let out = scratch("two-savers");
-    let start_sized = |w: u32, h: u32| serve_default(&out, (w, h), 1, Options::default()).unwrap();
+    let start_sized =
+        |w: u32, h: u32| serve_default(&out, (w, h), 1, ServeOptions::default()).unwrap();
     let viewers = [start_sized(32, 18), start_sized(24, 24)];
     let mut sockets = Vec::new();
     for v in &viewers {

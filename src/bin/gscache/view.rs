@@ -48,7 +48,7 @@ pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
         scene,
         text,
         file,
-        viewer::Options {
+        viewer::ServeOptions {
             bind: args.bind,
             port: args.port,
             output: args.output,

@@ -12,7 +12,7 @@
 //! (a hash of the experiment and scene files), so a merge refuses shards of another version of
 //! the experiment, a unit given twice and a missing one.
 
-use super::config::{Experiment, Method};
+use super::config::{Experiment, MethodSpec};
 use super::denoised::Denoisers;
 use super::flythrough::{FrameRecord, fly};
 use super::measure::run_method;
@@ -29,7 +29,7 @@ use volume_pt::{RenderKey, Scene, Shard};
 pub enum UnitSpec<'a> {
     /// `method` with `seed` at `budgets` (a main method or an ablation variant).
     Method {
-        method: &'a Method,
+        method: &'a MethodSpec,
         seed: u64,
         budgets: &'a [Budget],
         /// The denoised twins to measure beside it (main methods of a `denoise = true` file).
@@ -52,7 +52,7 @@ pub enum UnitResult {
 /// Every unit of `exp` in the order the assembly reads them: the methods' seeds, then the
 /// fly-throughs, then the ablation variants' seeds. `budgets` holds the main budgets and each
 /// ablation's, as `run` computes them.
-pub fn units<'a>(
+pub fn all<'a>(
     exp: &'a Experiment,
     main_budgets: &'a [Budget],
     ablation_budgets: &'a [Vec<Budget>],
@@ -104,7 +104,7 @@ pub fn measure_unit(
         }
         UnitSpec::Fly { index } => {
             let fl = &exp.flythroughs[index];
-            let methods: Vec<&Method> = exp
+            let methods: Vec<&MethodSpec> = exp
                 .methods
                 .iter()
                 .filter(|m| fl.methods.is_empty() || fl.methods.contains(&m.name))

@@ -260,7 +260,15 @@ fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
                 snap.spp
             ));
             let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
-                .args(render_args(&exp.scene, w, h, method, seed, snap.spp))
+                .args(render_args(
+                    &exp.scene,
+                    w,
+                    h,
+                    method,
+                    exp.denoise.as_ref(),
+                    seed,
+                    snap.spp,
+                ))
                 .args(["-q", "-o"])
                 .arg(&exr)
                 .output()

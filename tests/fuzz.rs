@@ -239,7 +239,7 @@ fn seed_shard(dir: &Path) -> Vec<u8> {
                         spp: 4,
                         seconds: 0.0501,
                         image: image(0.2),
-                        denoised: Some(denoise::Aux::Albedo),
+                        denoised: Some(denoise::Guides::Albedo),
                         features: None,
                     },
                 ],

@@ -328,16 +328,17 @@ def denoise(
     albedo: Optional[np.ndarray] = None,
     normal: Optional[np.ndarray] = None,
     *,
-    quality: str = "high",
-    prefilter: bool = False,
+    quality: Optional[str] = None,
+    prefilter: Optional[bool] = None,
     library: Optional[str] = None,
     threads: int = 0,
 ) -> np.ndarray:
     """Denoises ``image`` (float32 (height, width, 3), linear HDR radiance) with Intel Open
     Image Denoise, guided by ``albedo`` (values in [0, 1]) and ``normal`` (components in
     [-1, 1]; only beside an albedo) where given: the arrays ``render(..., features=True)``
-    returns. ``quality`` is ``"fast"``, ``"balanced"`` or ``"high"``; ``prefilter`` denoises
-    the guides first (OIDN's advice for clean final frames). The library is ``library`` (a
+    returns. ``quality`` is ``"fast"``, ``"balanced"`` or ``"high"`` (default); ``prefilter``
+    denoises the guides first (the default, as ``gscache render --denoise``: OIDN's advice for
+    clean final frames; ``False`` is one filter pass instead of three). The library is ``library`` (a
     file or folder), else the one ``GSCACHE_OIDN`` names, the system's, or the copy inside the
     ``pyoidn`` package (``pip install pyoidn``); a missing one raises ``GscacheError`` saying
     how to install it. The device is kept between calls (``threads`` 0: every core)."""

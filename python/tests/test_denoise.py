@@ -65,6 +65,12 @@ def test_denoising_a_one_spp_render_cuts_its_error(repo, tmp_path):
     # Measured (OIDN 2.5.1, high, seed 7): 0.105 raw, 0.0059 alone, 0.0059 with the albedo
     # (18x). Required: 8x, which no denoiser that did not run can reach.
     assert alone * 8 < before and guided * 8 < before, (before, alone, guided)
+    # The defaults are the program's (denoise::Options::default()): high quality, guides
+    # denoised first. Prefiltering changes the pixels, so the comparison can tell them apart.
+    albedo = features["albedo"]
+    by_default = gscache.denoise(image, albedo=albedo)
+    assert np.array_equal(by_default, gscache.denoise(image, albedo=albedo, quality="high", prefilter=True))
+    assert not np.array_equal(by_default, gscache.denoise(image, albedo=albedo, prefilter=False))
     # The normal is taken beside the albedo only.
     with pytest.raises(gscache.GscacheError, match="without an albedo"):
         gscache.denoise(image, normal=features["normal"])

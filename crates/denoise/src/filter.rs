@@ -46,13 +46,14 @@ impl std::fmt::Display for Quality {
     }
 }
 
-/// Which feature buffers guide the filter.
+/// Which of the film's feature buffers guide the filter: the one name of the guides, in the
+/// program (`--denoise-guides`), the experiments (`denoise_guides`) and the reports.
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
 )]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
-pub enum Aux {
+pub enum Guides {
     /// Colour alone: the default. Guided by the albedo, OIDN leaves a few background pixels
     /// near a light's disc many times too bright (BENCHMARKS.md); its trimmed error is the same
     /// at 1 spp and lower from 16 spp.
@@ -66,18 +67,22 @@ pub enum Aux {
     AlbedoNormal,
 }
 
-impl std::fmt::Display for Aux {
+impl std::fmt::Display for Guides {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
-            Aux::None => "none",
-            Aux::Albedo => "albedo",
-            Aux::AlbedoNormal => "albedo,normal",
+            Guides::None => "none",
+            Guides::Albedo => "albedo",
+            Guides::AlbedoNormal => "albedo,normal",
         })
     }
 }
 
 /// The settings of one denoising call: quality, and whether noisy guides are denoised first.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Its [`Default`] is the one default of the program, the Python package and the viewer
+/// (`high`, guides prefiltered: OIDN's advice for final frames); the experiment runner sets
+/// `prefilter: false` on purpose (one filter pass, the interactive setting its time budgets
+/// charge).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Options {
     pub quality: Quality,
     /// Denoise the albedo and normal on their own first, then tell the colour filter they are
@@ -85,6 +90,15 @@ pub struct Options {
     /// are noisy and the colour filter keeps the noise it sees in them. Costs two more filter
     /// passes; what it buys on volumes is in BENCHMARKS.md.
     pub prefilter: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            quality: Quality::High,
+            prefilter: true,
+        }
+    }
 }
 
 /// One `RT` filter and the buffers it reads and writes.
@@ -180,7 +194,7 @@ impl Filter {
 /// The filters for one size, set of guides and options: the colour filter, and the guides'
 /// prefilters where asked for.
 struct Pipeline {
-    key: (u32, u32, Aux, Options),
+    key: (u32, u32, Guides, Options),
     albedo: Option<Filter>,
     normal: Option<Filter>,
     color: Filter,
@@ -342,7 +356,7 @@ impl Denoiser {
 
     /// Makes the filters for `key` (size, guides, options), reusing the present ones if they
     /// fit: building a filter costs far more than running it.
-    fn prepare(&mut self, key: (u32, u32, Aux, Options)) -> Result<()> {
+    fn prepare(&mut self, key: (u32, u32, Guides, Options)) -> Result<()> {
         if self.pipeline.as_ref().is_some_and(|p| p.key == key) {
             return Ok(());
         }
@@ -352,8 +366,8 @@ impl Denoiser {
         let prefilter = |name: &'static str| -> Result<Option<Filter>> {
             let wanted = options.prefilter
                 && match name {
-                    "albedo" => aux != Aux::None,
-                    _ => aux == Aux::AlbedoNormal,
+                    "albedo" => aux != Guides::None,
+                    _ => aux == Guides::AlbedoNormal,
                 };
             wanted
                 .then(|| Filter::build(api, device, (w, h), &[name], false, false, q))
@@ -362,11 +376,11 @@ impl Denoiser {
         let albedo = prefilter("albedo")?;
         let normal = prefilter("normal")?;
         let inputs: &[&'static str] = match aux {
-            Aux::None => &["color"],
-            Aux::Albedo => &["color", "albedo"],
-            Aux::AlbedoNormal => &["color", "albedo", "normal"],
+            Guides::None => &["color"],
+            Guides::Albedo => &["color", "albedo"],
+            Guides::AlbedoNormal => &["color", "albedo", "normal"],
         };
-        let clean = options.prefilter && aux != Aux::None;
+        let clean = options.prefilter && aux != Guides::None;
         let color = Filter::build(api, device, (w, h), inputs, true, clean, q)?;
         self.pipeline = Some(Pipeline {
             key,
@@ -388,7 +402,11 @@ impl Denoiser {
 }
 
 /// Checks the inputs of [`Denoiser::denoise`] and says which guides they are.
-fn check_inputs(color: &RgbImage, albedo: Option<&[Vec3]>, normal: Option<&[Vec3]>) -> Result<Aux> {
+fn check_inputs(
+    color: &RgbImage,
+    albedo: Option<&[Vec3]>,
+    normal: Option<&[Vec3]>,
+) -> Result<Guides> {
     let (w, h) = (color.width(), color.height());
     let n = w as usize * h as usize;
     let input = |what: &str, message: String| DenoiseError::Input {
@@ -396,9 +414,9 @@ fn check_inputs(color: &RgbImage, albedo: Option<&[Vec3]>, normal: Option<&[Vec3
         message,
     };
     let aux = match (albedo, normal) {
-        (None, None) => Aux::None,
-        (Some(_), None) => Aux::Albedo,
-        (Some(_), Some(_)) => Aux::AlbedoNormal,
+        (None, None) => Guides::None,
+        (Some(_), None) => Guides::Albedo,
+        (Some(_), Some(_)) => Guides::AlbedoNormal,
         (None, Some(_)) => {
             return Err(input(
                 "normal",

@@ -11,14 +11,14 @@
 //! Read it in this order:
 //! - [`library`]: where the library is looked for, and the part of its C API used here.
 //! - [`filter`]: [`Denoiser`], one device and its `RT` filters: colour alone, or with the
-//!   albedo, or with the albedo and the normal ([`Aux`]), at a [`Quality`].
+//!   albedo, or with the albedo and the normal ([`Guides`]), at a [`Quality`].
 //! - [`on_demand`]: [`OnDemand`], a denoiser loaded the first time it is used.
 
 pub mod filter;
 pub mod library;
 pub mod on_demand;
 
-pub use filter::{Aux, Denoiser, Options, Quality};
+pub use filter::{Denoiser, Guides, Options, Quality};
 pub use library::{ENV_VAR, INSTALL_HINT};
 pub use on_demand::OnDemand;
 

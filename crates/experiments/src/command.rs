@@ -4,7 +4,7 @@
 //! sampling rule (frame `k` of `s` spp takes sample indices `k*s .. (k+1)*s`) makes a run's
 //! image at `n` spp the same as one render of `n` spp, or of `n` frames of 1 spp.
 
-use super::config::MethodSpec;
+use super::config::{DenoiseSpec, MethodSpec};
 use gs_cache::CacheConfig;
 use nrc_cache::NrcConfig;
 use std::path::Path;
@@ -40,12 +40,14 @@ fn flag_args<T: serde::Serialize>(prefix: &str, config: &T, defaults: &T) -> Vec
 
 /// The arguments of `gscache render` that render `method`'s image of `spp` samples per pixel
 /// (the `spp` of a run's row, whatever its budget) with `seed` at `width` x `height`: for a
-/// cache, `spp` frames of 1 spp after its warm-up along the same orbit.
+/// cache, `spp` frames of 1 spp after its warm-up along the same orbit; for a denoised twin,
+/// denoised as `denoise` (the experiment's) says.
 pub fn render_args(
     scene: &Path,
     width: u32,
     height: u32,
     method: &MethodSpec,
+    denoise: Option<&DenoiseSpec>,
     seed: u64,
     spp: u32,
 ) -> Vec<String> {
@@ -87,13 +89,21 @@ pub fn render_args(
             ]);
         }
     }
-    // A twin is the method's image denoised, at the experiment's quality (default high).
+    // A twin is the method's image denoised with the runner's settings, which the program's
+    // flags repeat where they differ from the program's defaults.
     if let Some(guides) = method.denoised {
+        let options = denoise.map_or(denoise::Options::default(), DenoiseSpec::options);
         args.extend([
             "--denoise".into(),
-            "--denoise-aovs".into(),
+            "--denoise-guides".into(),
             guides.to_string(),
         ]);
+        if options.quality != denoise::Options::default().quality {
+            args.extend(["--denoise-quality".into(), options.quality.to_string()]);
+        }
+        if guides != denoise::Guides::None && !options.prefilter {
+            args.push("--denoise-raw-guides".into());
+        }
     }
     args
 }
@@ -104,6 +114,7 @@ pub fn render_command(
     width: u32,
     height: u32,
     method: &MethodSpec,
+    denoise: Option<&DenoiseSpec>,
     seed: u64,
     spp: u32,
 ) -> String {
@@ -116,7 +127,7 @@ pub fn render_command(
             format!("'{}'", a.replace('\'', r"'\''"))
         }
     };
-    let args: Vec<String> = render_args(scene, width, height, method, seed, spp)
+    let args: Vec<String> = render_args(scene, width, height, method, denoise, seed, spp)
         .iter()
         .map(|a| quote(a))
         .collect();

@@ -48,14 +48,26 @@ pub struct ExperimentFile {
     pub denoise_quality: Option<denoise::Quality>,
     /// The guides of each twin (default `["none", "albedo"]`: colour alone, and with the
     /// albedo feature buffer).
-    pub denoise_guides: Option<Vec<denoise::Aux>>,
+    pub denoise_guides: Option<Vec<denoise::Guides>>,
 }
 
 /// How the experiment's denoised twins are made.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DenoiseSpec {
     pub quality: denoise::Quality,
-    pub guides: Vec<denoise::Aux>,
+    pub guides: Vec<denoise::Guides>,
+}
+
+impl DenoiseSpec {
+    /// The denoiser's settings for every twin: the experiment's quality and no prefiltered
+    /// guides, on purpose (one filter pass, the interactive setting the time budgets charge),
+    /// where `denoise::Options::default()` prefilters them.
+    pub fn options(&self) -> denoise::Options {
+        denoise::Options {
+            quality: self.quality,
+            prefilter: false,
+        }
+    }
 }
 
 /// The folder experiments write into, one subfolder per experiment, when neither the file nor
@@ -337,14 +349,14 @@ pub struct MethodSpec {
     pub nrc: Option<NrcDesc>,
     /// For a denoised twin: the guides its denoiser took (its image is the method's, denoised).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub denoised: Option<denoise::Aux>,
+    pub denoised: Option<denoise::Guides>,
 }
 
 impl MethodSpec {
     /// This method's twin measured after the denoiser with `guides`.
-    pub fn denoised_twin(&self, guides: denoise::Aux) -> MethodSpec {
+    pub fn denoised_twin(&self, guides: denoise::Guides) -> MethodSpec {
         let suffix = match guides {
-            denoise::Aux::None => String::new(),
+            denoise::Guides::None => String::new(),
             g => format!(" ({g})"),
         };
         MethodSpec {
@@ -584,7 +596,7 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
         let guides = f
             .denoise_guides
             .clone()
-            .unwrap_or_else(|| vec![denoise::Aux::None, denoise::Aux::Albedo]);
+            .unwrap_or_else(|| vec![denoise::Guides::None, denoise::Guides::Albedo]);
         if guides.is_empty() {
             refuse!(
                 "denoise_guides = []: expected at least one of \"none\", \"albedo\", \"albedo,normal\""

@@ -11,14 +11,14 @@
 use super::config::DenoiseSpec;
 use super::records::{Budget, Snapshot};
 use crate::error::{Error, Result, Within};
-use denoise::{Aux, Denoiser, Options};
+use denoise::{Denoiser, Guides};
 use glam::Vec3;
 use hdr_image::RgbImage;
 use std::collections::HashMap;
 use std::time::Instant;
 
 /// What a denoising cost is measured for: image width and height, guides, quality.
-type CostKey = (u32, u32, Aux, denoise::Quality);
+type CostKey = (u32, u32, Guides, denoise::Quality);
 
 /// The denoisers of one run and the costs measured with them: a value the run owns, so that a
 /// twin's timing does not depend on what ran before it in the process (they were statics).
@@ -27,7 +27,7 @@ type CostKey = (u32, u32, Aux, denoise::Quality);
 /// timings).
 #[derive(Debug, Default)]
 pub struct Denoisers {
-    by_guides: HashMap<Aux, Denoiser>,
+    by_guides: HashMap<Guides, Denoiser>,
     /// Costs measured so far, in seconds.
     costs: HashMap<CostKey, f64>,
 }
@@ -39,7 +39,7 @@ impl Denoisers {
     }
 
     /// The denoiser for `guides`, loaded on first use.
-    fn for_guides(&mut self, guides: Aux) -> Result<&mut Denoiser> {
+    fn for_guides(&mut self, guides: Guides) -> Result<&mut Denoiser> {
         Ok(match self.by_guides.entry(guides) {
             std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
             std::collections::hash_map::Entry::Vacant(e) => {
@@ -55,26 +55,18 @@ impl Denoisers {
         &mut self,
         image: &RgbImage,
         features: Option<&hdr_image::FeatureImages>,
-        guides: Aux,
+        guides: Guides,
         spec: &DenoiseSpec,
     ) -> Result<(RgbImage, f64)> {
         let albedo = features
-            .filter(|_| guides != Aux::None)
+            .filter(|_| guides != Guides::None)
             .map(|f| f.albedo.as_slice());
         let normal = features
-            .filter(|_| guides == Aux::AlbedoNormal)
+            .filter(|_| guides == Guides::AlbedoNormal)
             .map(|f| f.normal.as_slice());
         let d = self.for_guides(guides)?;
         let start = Instant::now();
-        let out = d.denoise(
-            image,
-            albedo,
-            normal,
-            Options {
-                quality: spec.quality,
-                prefilter: false,
-            },
-        )?;
+        let out = d.denoise(image, albedo, normal, spec.options())?;
         Ok((out, start.elapsed().as_secs_f64()))
     }
 
@@ -83,7 +75,7 @@ impl Denoisers {
         &mut self,
         width: u32,
         height: u32,
-        guides: Aux,
+        guides: Guides,
         spec: &DenoiseSpec,
     ) -> Result<f64> {
         let key = (width, height, guides, spec.quality);
@@ -126,7 +118,7 @@ pub fn plan(
     spec: &DenoiseSpec,
     width: u32,
     height: u32,
-) -> Result<Vec<(Aux, Budget, Budget)>> {
+) -> Result<Vec<(Guides, Budget, Budget)>> {
     let mut out = Vec::new();
     for &guides in &spec.guides {
         let c = denoisers.cost(width, height, guides, spec)?;
@@ -146,7 +138,7 @@ pub fn plan(
 /// plus the denoiser's.
 pub fn twins(
     denoisers: &mut Denoisers,
-    plan: &[(Aux, Budget, Budget)],
+    plan: &[(Guides, Budget, Budget)],
     raw: &[Snapshot],
     spec: &DenoiseSpec,
     width: u32,

@@ -107,7 +107,7 @@ pub fn run_method(
         }
     }
     let session = method_session(scene, method, seed)?;
-    let wants_features = plan.iter().any(|p| p.0 != denoise::Aux::None);
+    let wants_features = plan.iter().any(|p| p.0 != denoise::Guides::None);
     let mut session = session.with_features(wants_features);
     let mut finish = |raw: Vec<Snapshot>| -> Result<Vec<Snapshot>> {
         let mut twins = match denoise {

@@ -34,7 +34,7 @@ pub struct Snapshot {
     pub image: Vec<Vec3>,
     /// For a denoised twin's image: the guides its denoiser took (`None`: the method's own).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub denoised: Option<denoise::Aux>,
+    pub denoised: Option<denoise::Guides>,
     /// The feature buffers at this image, kept only until the twins are denoised.
     #[serde(skip)]
     pub features: Option<hdr_image::FeatureImages>,

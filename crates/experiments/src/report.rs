@@ -192,7 +192,15 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
             "  - its image at 1 spp (seed {}): `{}`; with N in place of the 1 after `{}`, its \
              image at N spp, whatever the budget that reached it (a run's spp is in runs.csv)",
             r.seeds[0],
-            super::command::render_command(&r.scene, r.width, r.height, m, r.seeds[0], 1),
+            super::command::render_command(
+                &r.scene,
+                r.width,
+                r.height,
+                m,
+                r.denoise.as_ref(),
+                r.seeds[0],
+                1
+            ),
             if m.has_cache() { "--frames" } else { "--spp" }
         );
     }

@@ -2,7 +2,7 @@
 //! fly-throughs and the ablation sweeps. Each run's row is appended to `runs.csv` as soon as it
 //! is measured, so an interrupted experiment keeps what it measured.
 
-use super::config::{Budgets, Experiment, MethodSpec};
+use super::config::{Budgets, DenoiseSpec, Experiment, MethodSpec};
 use super::csv::{budget_fields, csv_text};
 use super::flythrough::FrameRecord;
 use super::records::{Budget, CacheRecord, Snapshot};
@@ -143,6 +143,9 @@ pub struct Results {
     /// (flythrough, frame, what changed).
     pub flythrough_events: Vec<(String, u32, String)>,
     pub ablations: Vec<AblationResult>,
+    /// How the denoised twins were made (the report's command lines repeat it).
+    #[serde(skip)]
+    pub denoise: Option<DenoiseSpec>,
     #[serde(skip)]
     pub images: Images,
 }
@@ -545,6 +548,7 @@ fn assemble(
         flythroughs: Vec::new(),
         flythrough_events: Vec::new(),
         ablations: Vec::new(),
+        denoise: exp.denoise.clone(),
         images: Images {
             reference: r.image.clone(),
             snapshots: Vec::new(),

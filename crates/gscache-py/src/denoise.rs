@@ -62,21 +62,27 @@ impl Denoiser {
     }
 
     /// Denoises `image`; see `gscache.denoise`.
-    #[pyo3(signature = (image, albedo=None, normal=None, quality="high", prefilter=false))]
+    /// `quality` and `prefilter` left out are `denoise::Options::default()`'s, the program's.
+    #[pyo3(signature = (image, albedo=None, normal=None, quality=None, prefilter=None))]
     fn denoise<'py>(
         &self,
         py: Python<'py>,
         image: PyReadonlyArray3<'py, f32>,
         albedo: Option<PyReadonlyArray3<'py, f32>>,
         normal: Option<PyReadonlyArray3<'py, f32>>,
-        quality: &str,
-        prefilter: bool,
+        quality: Option<&str>,
+        prefilter: Option<bool>,
     ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-        let quality: Quality = clap::ValueEnum::from_str(quality, true).map_err(|_| {
-            crate::error(format!(
-                "quality `{quality}`: expected \"fast\", \"balanced\" or \"high\""
-            ))
-        })?;
+        let defaults = Options::default();
+        let quality: Quality = match quality {
+            None => defaults.quality,
+            Some(q) => clap::ValueEnum::from_str(q, true).map_err(|_| {
+                crate::error(format!(
+                    "quality `{q}`: expected \"fast\", \"balanced\" or \"high\""
+                ))
+            })?,
+        };
+        let prefilter = prefilter.unwrap_or(defaults.prefilter);
         let color = to_image(image)?;
         let (albedo, normal) = (guide(albedo)?, guide(normal)?);
         let out = py

@@ -1,8 +1,8 @@
-//! A render's denoised twin (`--denoise`, `--denoise-quality`, `--denoise-aovs`) and the EXR
+//! A render's denoised twin (`--denoise`, `--denoise-quality`, `--denoise-guides`) and the EXR
 //! that carries its feature buffers: shared by `render` and `merge`.
 
 use anyhow::{Result, bail};
-use denoise::{Aux, Denoiser, Options, Quality};
+use denoise::{Denoiser, Guides, Options, Quality};
 use hdr_image::{FeatureImages, RgbImage, ToneMap};
 use std::path::{Path, PathBuf};
 
@@ -14,15 +14,22 @@ pub struct DenoiseArgs {
     #[arg(long)]
     pub denoise: bool,
     /// Open Image Denoise's quality: `high` for final frames, `balanced` or `fast` for previews.
-    #[arg(long, value_enum, default_value_t = Quality::High, requires = "denoise")]
+    #[arg(long, value_enum, default_value_t = Options::default().quality, requires = "denoise")]
     pub denoise_quality: Quality,
     /// Feature buffers that guide the denoiser. Colour alone by default: guided by the albedo,
     /// the filter leaves a few background pixels near a light many times too bright, though
     /// its error elsewhere is lower from 16 spp on (BENCHMARKS.md).
-    #[arg(long, value_enum, default_value_t = Aux::None, requires = "denoise")]
-    pub denoise_aovs: Aux,
-    /// Give the guides to the colour filter as they are, instead of denoising them first
-    /// (faster: one filter pass instead of three; noisier at low sample counts).
+    #[arg(
+        long,
+        value_enum,
+        default_value_t = Guides::None,
+        requires = "denoise",
+        alias = "denoise-aovs"
+    )]
+    pub denoise_guides: Guides,
+    /// Give the guides to the colour filter as they are, instead of denoising them first as
+    /// `denoise::Options::default()` does (faster: one filter pass instead of three; noisier at
+    /// low sample counts).
     #[arg(long, requires = "denoise")]
     pub denoise_raw_guides: bool,
 }
@@ -32,13 +39,13 @@ impl DenoiseArgs {
     pub fn options(&self) -> Options {
         Options {
             quality: self.denoise_quality,
-            prefilter: !self.denoise_raw_guides,
+            prefilter: Options::default().prefilter && !self.denoise_raw_guides,
         }
     }
 
     /// Whether the denoiser needs the film's feature buffers.
     pub fn needs_features(&self) -> bool {
-        self.denoise && self.denoise_aovs != Aux::None
+        self.denoise && self.denoise_guides != Guides::None
     }
 
     /// The denoiser, loaded before any rendering so that a missing library is said at once;
@@ -93,10 +100,10 @@ pub fn write_denoised(
     tonemap: ToneMap,
 ) -> Result<(PathBuf, f64)> {
     let albedo = features
-        .filter(|_| args.denoise_aovs != Aux::None)
+        .filter(|_| args.denoise_guides != Guides::None)
         .map(|f| f.albedo.as_slice());
     let normal = features
-        .filter(|_| args.denoise_aovs == Aux::AlbedoNormal)
+        .filter(|_| args.denoise_guides == Guides::AlbedoNormal)
         .map(|f| f.normal.as_slice());
     let start = std::time::Instant::now();
     let out = denoiser.denoise(image, albedo, normal, args.options())?;

@@ -354,7 +354,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         eprintln!(
             "denoised ({} quality, guided by {}) in {:.0} ms: wrote {} and its PNG",
             args.denoise.denoise_quality,
-            args.denoise.denoise_aovs,
+            args.denoise.denoise_guides,
             seconds * 1e3,
             path.display()
         );

@@ -533,6 +533,8 @@ pub unsafe extern "C" fn gs_cache_begin_frame(
     guarded(|| {
         // SAFETY: the caller passes a live handle and a camera (NULL is checked).
         let h = unsafe { handle(cache) }?;
+        // SAFETY: `camera` is NULL (refused here) or points to a readable GsCacheCamera, by the
+        // caller's contract.
         let c = unsafe { camera.as_ref() }.ok_or_else(|| null("camera"))?;
         let camera = Camera::look_at(
             Vec3::from_array(c.eye),
@@ -594,6 +596,8 @@ pub unsafe extern "C" fn gs_cache_add_sample(
         if rgb.is_null() {
             return Err(null("rgb"));
         }
+        // SAFETY: `rgb` is not NULL (checked above) and points to 3 readable floats, by the
+        // caller's contract.
         let rgb = unsafe { std::slice::from_raw_parts(rgb, 3) };
         let t = h.targets.as_mut().ok_or((
             GsCacheStatus::NoFrame,
@@ -645,6 +649,8 @@ pub unsafe extern "C" fn gs_cache_control_variate(
     let Some(frame) = h.cache.frame() else {
         return -1;
     };
+    // SAFETY: `throughput` is not NULL (checked above) and points to 3 readable floats, by the
+    // caller's contract.
     let w = unsafe { std::slice::from_raw_parts(throughput, 3) };
     let w = Vec3::new(w[0], w[1], w[2]);
     let (level, pixel) = (level as usize, pixel as usize);
@@ -734,6 +740,8 @@ pub unsafe extern "C" fn gs_cache_add_path_statistics(
                 "statistics at pixel {pixel}: the frame has {pixels} pixels"
             )));
         }
+        // SAFETY: `reads` is not NULL (checked above) and points to `levels` entries, by the
+        // caller's contract; `n` is that count, checked against the cache's levels.
         let reads = unsafe { std::slice::from_raw_parts(reads, n) };
         let mut tails = [crate::control::TailSample::default(); crate::config::MAX_LEVELS];
         for (tail, read) in tails.iter_mut().zip(reads) {
@@ -838,6 +846,7 @@ pub unsafe extern "C" fn gs_cache_save(
         if dir.is_null() {
             return Err(null("dir"));
         }
+        // SAFETY: `dir` is not NULL (checked above) and NUL-terminated, by the caller's contract.
         let dir = unsafe { CStr::from_ptr(dir) }
             .to_str()
             .map_err(|_| invalid("dir is not UTF-8"))?;
@@ -862,13 +871,17 @@ mod tests {
         // SAFETY: NULL arguments are allowed and reported.
         let status = unsafe { gs_cache_begin_frame(std::ptr::null_mut(), std::ptr::null()) };
         assert_eq!(status, GsCacheStatus::NullArgument);
+        // SAFETY: the message is the thread's NUL-terminated last error, valid until its next
+        // failing call.
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert_eq!(msg.to_str().unwrap(), "cache is NULL");
         let c = gs_cache_default_config();
         let p = [0.0f32; 3];
         // One point cannot make 3 levels: NULL handle and a message.
+        // SAFETY: one point of 3 floats for the positions and the colours, as `count` = 1 says.
         let h = unsafe { gs_cache_new(p.as_ptr(), p.as_ptr(), 1, &c) };
         assert!(h.is_null());
+        // SAFETY: the thread's NUL-terminated last error, valid until its next failing call.
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert!(!msg.to_bytes().is_empty());
         // An enum code out of range is refused by name, never read as an enum.
@@ -877,13 +890,17 @@ mod tests {
             ..gs_cache_default_config()
         };
         let p = [0.0f32; 3 * 64];
+        // SAFETY: 64 points of 3 floats each, as `count` = 64 says.
         let h = unsafe { gs_cache_new(p.as_ptr(), p.as_ptr(), 64, &bad) };
         assert!(h.is_null());
+        // SAFETY: the thread's NUL-terminated last error, valid until its next failing call.
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert!(msg.to_str().unwrap().contains("lookup = 7"), "{msg:?}");
         // A count no slice can hold is refused before it sizes one (3 * count would wrap).
+        // SAFETY: the call refuses the count before it reads any point (the test's subject).
         let h = unsafe { gs_cache_new(p.as_ptr(), p.as_ptr(), usize::MAX / 2, &c) };
         assert!(h.is_null());
+        // SAFETY: the thread's NUL-terminated last error, valid until its next failing call.
         let msg = unsafe { CStr::from_ptr(gs_cache_last_error()) };
         assert!(msg.to_str().unwrap().contains("count = "), "{msg:?}");
     }

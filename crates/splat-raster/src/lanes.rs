@@ -412,7 +412,20 @@ impl Lanes for Portable {
 #[cfg(target_arch = "x86_64")]
 pub use x86::{Avx2, Avx2Mask, Avx2Token, Sse2, Sse2Mask};
 
+/// The x86-64 lanes.
+///
+/// SAFETY (every `unsafe` block in this module, which is why clippy's
+/// `undocumented_unsafe_blocks` is expected here rather than a copy of this proof on each):
+/// the SSE2 intrinsics need only SSE2, which the x86-64 baseline guarantees. The AVX/AVX2/FMA intrinsics run only where an `Avx2` or
+/// `Avx2Mask` value exists, and those are made only by functions that take an `Avx2Token`
+/// (or from other such values), which `Avx2Token::detect` creates only after detecting AVX2
+/// and FMA. Loads and stores index slices with bounds checks first (`x[..N]`), so they read
+/// and write only inside them; the unaligned forms (`loadu`/`storeu`) need no alignment.
 #[cfg(target_arch = "x86_64")]
+#[expect(
+    clippy::undocumented_unsafe_blocks,
+    reason = "one proof, above, covers every intrinsic block of the module"
+)]
 mod x86 {
     use super::Lanes;
     use super::{MANTISSA_BITS, ONE_BITS};
@@ -444,13 +457,6 @@ mod x86 {
     /// An [`Avx2`] lane condition.
     #[derive(Clone, Copy, Debug)]
     pub struct Avx2Mask(__m256);
-
-    // SAFETY (every `unsafe` block in this module): the SSE2 intrinsics need only SSE2, which the
-    // x86-64 baseline guarantees. The AVX/AVX2/FMA intrinsics run only where an `Avx2` or
-    // `Avx2Mask` value exists, and those are made only by functions that take an `Avx2Token`
-    // (or from other such values), which `Avx2Token::detect` creates only after detecting AVX2
-    // and FMA. Loads and stores index slices with bounds checks first (`x[..N]`), so they read
-    // and write only inside them; the unaligned forms (`loadu`/`storeu`) need no alignment.
 
     macro_rules! binop {
         ($ty:ident, $tr:ident, $f:ident, $intr:ident) => {

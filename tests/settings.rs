@@ -101,6 +101,7 @@ fn settings_written_as_flags_read_back_the_same() {
         early: false,
         natural: false,
         survivor_weights: true,
+        stopper_weights: true,
         optimizer: Optimizer::Adam,
         decay: gs_cache::Decay::Off,
         lr_position: 1e-4,

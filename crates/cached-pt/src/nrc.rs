@@ -102,6 +102,7 @@ pub fn termination(config: &NrcConfig) -> TerminationConfig {
         early: true,
         natural: false,
         survivor_weights: false,
+        stopper_weights: false,
         unbiased: false,
         min_continuation: 1.0,
     }

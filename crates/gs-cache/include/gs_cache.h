@@ -57,6 +57,10 @@
 // frames running, for the pixel to be distrusted.
 #define STALE_ERROR 0.5
 
+// The relative training weight, with `stopper_weights`, of a sample from a path that always
+// goes on at its level's vertex (see [`CachedPath::samples`]).
+#define ALWAYS_ON_WEIGHT 1e-3
+
 // Once the error has levelled off on a still view, a training step is taken on one frame in
 // this many (with adaptive training).
 #define SETTLED_TRAIN_EVERY 4
@@ -104,6 +108,9 @@ typedef struct GsCacheConfig {
   bool natural;
   // Training samples weighted by 1 / (probability of going on).
   bool survivor_weights;
+  // Training samples weighted `(1 - q) lum(W) / q`, for the paths that stop (takes
+  // precedence over `survivor_weights`).
+  bool stopper_weights;
   // `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
   uint32_t optimizer;
   // `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.

@@ -107,6 +107,9 @@ pub struct GsCacheConfig {
     pub natural: bool,
     /// Training samples weighted by 1 / (probability of going on).
     pub survivor_weights: bool,
+    /// Training samples weighted `(1 - q) lum(W) / q`, for the paths that stop (takes
+    /// precedence over `survivor_weights`).
+    pub stopper_weights: bool,
     /// `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
     pub optimizer: u32,
     /// `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.
@@ -290,6 +293,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             early: c.early,
             natural: c.natural,
             survivor_weights: c.survivor_weights,
+            stopper_weights: c.stopper_weights,
             optimizer,
             decay,
             lr_position: c.lr_position,
@@ -341,6 +345,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         early: d.early,
         natural: d.natural,
         survivor_weights: d.survivor_weights,
+        stopper_weights: d.stopper_weights,
         optimizer: match d.optimizer {
             Optimizer::AdamW => GS_CACHE_OPTIMIZER_ADAMW,
             Optimizer::Adam => GS_CACHE_OPTIMIZER_ADAM,
@@ -396,6 +401,7 @@ pub unsafe extern "C" fn gs_cache_continue_probability(
         early: config.early && !config.unbiased,
         natural: config.natural && !config.unbiased,
         survivor_weights: config.survivor_weights && !config.unbiased,
+        stopper_weights: config.stopper_weights && !config.unbiased,
         unbiased: config.unbiased,
         min_continuation: config.min_continuation,
     };

@@ -29,6 +29,9 @@ pub struct TerminationConfig {
     pub natural: bool,
     /// Training samples weighted by the inverse of the probability of going on.
     pub survivor_weights: bool,
+    /// Training samples weighted for the paths that stop: `(1 - q) lum(W) / q`; takes
+    /// precedence over `survivor_weights`.
+    pub stopper_weights: bool,
     /// The unbiased estimator: every path reaching a level reads the cache and goes on with
     /// probability `q`, adding `(L - C) / q` (the crate docs). Algorithm 1's selection and
     /// natural termination are off.
@@ -110,6 +113,14 @@ pub struct CacheConfig {
     /// that reached the vertex rather than over the survivors (see `CachedPath::samples`).
     #[cfg_attr(feature = "clap", arg(long = "cache-survivor-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.survivor_weights))]
     pub survivor_weights: bool,
+    /// Weight each training sample by `(1 - q) lum(W) / q` (`q`: Algorithm 1's probability of
+    /// going on at the level's vertex, `W`: the path's throughput there), so that a level
+    /// learns what the paths that *stop* into it would have gathered, which is what the image
+    /// needs of it (see `CachedPath::samples`). Takes precedence over `survivor_weights`. Off
+    /// by default until measured at equal time on every volume: on hydrogen it takes the
+    /// first level's bias from -1.1% to -0.3% in the dense core (docs/results/cache_error.md).
+    #[cfg_attr(feature = "clap", arg(long = "cache-stopper-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.stopper_weights))]
+    pub stopper_weights: bool,
     /// `adamw` or `adam` (no weight decay).
     #[cfg_attr(feature = "clap", arg(long = "cache-optimizer", value_enum, default_value_t = DEFAULT.optimizer))]
     pub optimizer: Optimizer,
@@ -230,6 +241,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     early: true,
     natural: true,
     survivor_weights: false,
+    stopper_weights: false,
     optimizer: Optimizer::AdamW,
     decay: Decay::Plateau,
     lr_position: 1.16e-3,
@@ -413,6 +425,7 @@ impl CacheConfig {
             early: self.early && !self.unbiased,
             natural: self.natural && !self.unbiased,
             survivor_weights: self.survivor_weights && !self.unbiased,
+            stopper_weights: self.stopper_weights && !self.unbiased,
             unbiased: self.unbiased,
             min_continuation: self.min_continuation,
         }

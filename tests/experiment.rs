@@ -222,6 +222,33 @@ fn bad_experiment_files_are_refused_with_the_fault_named() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Runs `gscache` with a report's command line `args`, writing `-o exr`, and counts the pixels
+/// of `read` (the image written, or its denoised twin) whose bits differ from `want`.
+fn pixels_differing_from_the_line(
+    args: &[String],
+    exr: &Path,
+    read: &Path,
+    want: &[glam::Vec3],
+) -> usize {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
+        .args(args)
+        .args(["-q", "-o"])
+        .arg(exr)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let got = hdr_image::RgbImage::read_exr(read).unwrap().into_pixels();
+    assert_eq!(got.len(), want.len());
+    got.iter()
+        .zip(want)
+        .filter(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits))
+        .count()
+}
+
 /// The report gives, per method, a `gscache render` line that renders its image at any spp:
 /// that line must give the runner's own image at every budget, bit for bit, a time budget
 /// included (for a cache: after the same warm-up along the same orbit). This is the one
@@ -259,33 +286,16 @@ fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
                 method.name.replace(' ', "_"),
                 snap.spp
             ));
-            let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
-                .args(render_args(
-                    &exp.scene,
-                    w,
-                    h,
-                    method,
-                    exp.denoise.as_ref(),
-                    seed,
-                    snap.spp,
-                ))
-                .args(["-q", "-o"])
-                .arg(&exr)
-                .output()
-                .unwrap();
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
+            let args = render_args(
+                &exp.scene,
+                w,
+                h,
+                method,
+                exp.denoise.as_ref(),
+                seed,
+                snap.spp,
             );
-            let got = hdr_image::RgbImage::read_exr(&exr).unwrap().into_pixels();
-            let want = &snap.image;
-            assert_eq!(got.len(), want.len());
-            let differing = got
-                .iter()
-                .zip(want)
-                .filter(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits))
-                .count();
+            let differing = pixels_differing_from_the_line(&args, &exr, &exr, &snap.image);
             assert_eq!(
                 differing, 0,
                 "method `{}` at {} ({} spp): {differing} pixels differ",
@@ -719,33 +729,17 @@ integrator = "uniform"
             .unwrap();
         let exr = dir.join("twin.exr");
         let (w, h) = exp.size.unwrap();
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gscache"))
-            .args(experiments::command::render_args(
-                &exp.scene,
-                w,
-                h,
-                method,
-                r.denoise.as_ref(),
-                r.seeds[0],
-                1,
-            ))
-            .args(["-q", "-o"])
-            .arg(&exr)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
+        let args = experiments::command::render_args(
+            &exp.scene,
+            w,
+            h,
+            method,
+            r.denoise.as_ref(),
+            r.seeds[0],
+            1,
         );
-        let got = hdr_image::RgbImage::read_exr(&exr.with_extension("denoised.exr"))
-            .unwrap()
-            .into_pixels();
-        let differing = got
-            .iter()
-            .zip(want)
-            .filter(|(a, b)| a.to_array().map(f32::to_bits) != b.to_array().map(f32::to_bits))
-            .count();
+        let denoised = exr.with_extension("denoised.exr");
+        let differing = pixels_differing_from_the_line(&args, &exr, &denoised, want);
         assert_eq!(differing, 0, "`{twin}`: {differing} pixels differ");
     }
     std::fs::remove_dir_all(&dir).ok();

@@ -32,31 +32,15 @@ Pillow (for the maps):
 import argparse
 import json
 import pathlib
-import re
 import tempfile
 import time
 
 import numpy as np
 
 import gscache
+from scene_at import scene_at
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 EPSILON = 0.01
-
-
-def scene_at(name: str, width: int, height: int, folder: pathlib.Path) -> gscache.Scene:
-    path = ROOT / "data" / "scenes" / f"{name}.toml"
-    text = path.read_text()
-    text = re.sub(r"(?m)^width = \d+", f"width = {width}", text)
-    text = re.sub(r"(?m)^height = \d+", f"height = {height}", text)
-    text = re.sub(
-        r'(file|preset) = "([^"/][^"]*)"',
-        lambda m: f'{m.group(1)} = "{(path.parent / m.group(2)).resolve()}"',
-        text,
-    )
-    out = folder / f"{name}.toml"
-    out.write_text(text)
-    return gscache.Scene.load(str(out))
 
 
 class Moments:

@@ -11,12 +11,12 @@ Run from the repository root with the package installed and Open Image Denoise a
 """
 
 import pathlib
-import re
 import tempfile
 
 import numpy as np
 
 import gscache
+from scene_at import scene_at
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 W, H = 640, 360
@@ -25,21 +25,6 @@ CROPS = [
     ("default", 250, 120, 160, 120),
     ("embryo", 260, 110, 160, 120),
 ]
-
-
-def scene_at(name: str, folder: pathlib.Path) -> gscache.Scene:
-    path = ROOT / "data" / "scenes" / f"{name}.toml"
-    text = path.read_text()
-    text = re.sub(r"(?m)^width = \d+", f"width = {W}", text)
-    text = re.sub(r"(?m)^height = \d+", f"height = {H}", text)
-    text = re.sub(
-        r'file = "([^"/][^"]*)"',
-        lambda m: f'file = "{(path.parent / m.group(1)).resolve()}"',
-        text,
-    )
-    out = folder / f"{name}.toml"
-    out.write_text(text)
-    return gscache.Scene.load(str(out))
 
 
 def rel_mse(a, r):
@@ -51,7 +36,7 @@ def main():
     tmp = pathlib.Path(tempfile.mkdtemp())
     rows = []
     for name, x0, y0, cw, ch in CROPS:
-        scene = scene_at(name, tmp)
+        scene = scene_at(name, W, H, tmp)
         reference = gscache.render(scene, spp=256)
         image, aovs = gscache.render(scene, spp=4, seed=11, features=True)
         cache = gscache.Cache(scene)

@@ -4,7 +4,7 @@
 //! x86-64, NEON on aarch64). Each splat visits the chunks its rectangle touches; a lane outside
 //! the rectangle, past the image edge, already saturated, or whose exponent is out of range is
 //! masked, and a chunk with no live lane skips `exp`. The arithmetic is the scalar kernel's
-//! (`raster.rs`) with three differences, all within rounding: the exponent is evaluated as
+//! (`raster/forward.rs`) with three differences, all within rounding: the exponent is evaluated as
 //! `dx (a' dx + b' dy) + c' dy^2` (two FMAs), `exp` is [`crate::lanes::exp`] (at most
 //! [`crate::lanes::EXP_MAX_REL_ERROR`] from the exact value, libm's `expf` is within 1 ulp), and
 //! products are fused where the lanes have FMA. A pixel whose alpha or transmittance sits within
@@ -440,7 +440,7 @@ fn lane_columns<L: Lanes>(token: L::Token, x0: u32) -> ([L; MAX_ROW_CHUNKS], [L;
     (centres, columns)
 }
 
-/// Front-to-back compositing of one tile (`raster.rs` has the scalar twin and the equations).
+/// Front-to-back compositing of one tile (`raster/forward.rs` has the scalar twin, `raster` the equations).
 #[inline(always)]
 fn forward<L: Lanes, const DEPTH: bool>(
     token: L::Token,
@@ -540,7 +540,7 @@ fn forward<L: Lanes, const DEPTH: bool>(
     }
 }
 
-/// Back-to-front gradients of one tile (`raster.rs` has the scalar twin and the equations).
+/// Back-to-front gradients of one tile (`raster/backward.rs` has the scalar twin, `raster` the equations).
 #[inline(always)]
 fn backward<L: Lanes, const DEPTH: bool>(
     token: L::Token,

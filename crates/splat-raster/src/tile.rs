@@ -1,4 +1,4 @@
-//! A tile's shared buffers: what the rasteriser (`raster.rs`) hands the per-pixel kernels (the
+//! A tile's shared buffers: what the rasteriser (`raster`) hands the per-pixel kernels (the
 //! scalar one there, the lane kernels in `simd.rs`) and gets back. Both sides import this
 //! module; neither imports the other's internals.
 
@@ -14,7 +14,7 @@ pub(crate) struct TileOut<F> {
     pub t: [F; TILE_PIXELS],
     pub depth: [F; TILE_PIXELS],
     pub n: [u32; TILE_PIXELS],
-    /// Pixel evaluations run (see `ForwardState::lane_evaluations` in `raster.rs`).
+    /// Pixel evaluations run (see `ForwardState::lane_evaluations` in `raster`).
     pub lane_evaluations: u64,
 }
 

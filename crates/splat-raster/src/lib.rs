@@ -8,7 +8,9 @@
 //! - [`io`]: 3DGS PLY (read, write) and `.splat` (read).
 //! - [`project`]: EWA projection of one Gaussian, and its exact adjoint.
 //! - `project_lanes`: the same projection and adjoint, 8 or 4 Gaussians at a time in SIMD lanes.
-//! - [`raster`]: tiles, depth order, front-to-back compositing, and the backward pass.
+//! - [`raster`]: tiles, front-to-back compositing, and the backward pass.
+//! - [`depth_sort`]: the front-to-back order of a list of depths (a radix sort), which the
+//!   stochastic ray tracer's camera grid shares.
 //! - [`simd`]: the per-tile kernels across pixels in SIMD lanes, and the choice of lane width.
 //! - [`lanes`]: fixed-width f32 lanes and a vector `exp` with a tested error bound.
 //! - [`sh`]: spherical harmonics (degree 0-3) and their gradients.
@@ -25,6 +27,7 @@ pub mod adamw;
 /// The camera lives in render-base (every renderer shares it); re-exported here.
 pub use render_base::camera;
 pub mod cloud;
+pub mod depth_sort;
 pub mod io;
 pub mod lanes;
 pub mod loss;

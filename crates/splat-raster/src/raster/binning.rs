@@ -2,6 +2,7 @@
 //! tiles, and each tile's list sorted front to back by a radix sort of the depths.
 
 use super::*;
+use crate::depth_sort::depth_order;
 
 pub(super) struct Bins<F: Real> {
     pub(super) splats: Vec<Splat<F>>,
@@ -208,74 +209,6 @@ pub(super) fn project_and_bin<F: Real>(
         ids,
         entries,
         tile_ranges,
-    }
-}
-
-/// Lists shorter than this are sorted by comparison; longer ones by radix.
-pub(super) const RADIX_MIN: usize = 96;
-
-/// Writes the splat indices of a tile's `keys` to `list` in depth order, ties in index order.
-/// A key is a depth's f32 bits (positive, so ordered as the depths) above a 32-bit index;
-/// `list` has one entry a key. The stochastic ray tracer's camera grid orders its Gaussians
-/// with it too.
-///
-/// The keys arrive in index order (the chunks' lists concatenated), so a stable sort on the
-/// depth bits alone gives the order of sorting the whole keys. Long lists take a least
-/// significant digit radix sort over the depth's four bytes, skipping a byte that all keys
-/// share (the exponent byte usually is) and scattering the last pass straight into `list`:
-/// at the 300-odd entries of a 300k-Gaussian frame's tile it is about twice as fast as
-/// comparison sorting them, with no branch to mispredict.
-pub fn depth_order(keys: &mut [u64], scratch: &mut Vec<u64>, list: &mut [u32]) {
-    if keys.len() < RADIX_MIN {
-        keys.sort_unstable();
-        for (e, k) in list.iter_mut().zip(keys.iter()) {
-            *e = *k as u32;
-        }
-        return;
-    }
-    let digit = |key: u64, byte: usize| ((key >> (32 + 8 * byte)) & 0xff) as usize;
-    let mut counts = [[0u32; 256]; 4];
-    for &key in keys.iter() {
-        for (byte, count) in counts.iter_mut().enumerate() {
-            count[digit(key, byte)] += 1;
-        }
-    }
-    let n = keys.len() as u32;
-    let mut passes = [0usize; 4];
-    let mut n_passes = 0;
-    for byte in 0..4 {
-        if counts[byte][digit(keys[0], byte)] != n {
-            passes[n_passes] = byte;
-            n_passes += 1;
-        }
-    }
-    scratch.resize(keys.len(), 0);
-    let (mut from, mut to) = (keys, &mut scratch[..]);
-    for (i, &byte) in passes[..n_passes].iter().enumerate() {
-        let mut offsets = [0u32; 256];
-        let mut sum = 0;
-        for (offset, &count) in offsets.iter_mut().zip(&counts[byte]) {
-            *offset = sum;
-            sum += count;
-        }
-        if i + 1 == n_passes {
-            for &key in from.iter() {
-                let slot = &mut offsets[digit(key, byte)];
-                list[*slot as usize] = key as u32;
-                *slot += 1;
-            }
-            return;
-        }
-        for &key in from.iter() {
-            let slot = &mut offsets[digit(key, byte)];
-            to[*slot as usize] = key;
-            *slot += 1;
-        }
-        std::mem::swap(&mut from, &mut to);
-    }
-    // Every key at one depth: index order already.
-    for (e, k) in list.iter_mut().zip(from.iter()) {
-        *e = *k as u32;
     }
 }
 

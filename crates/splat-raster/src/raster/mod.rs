@@ -22,7 +22,7 @@
 //! records in tile order; no atomics, so gradients are bit-identical for any thread count.
 //!
 //! - [`binning`]: projection and binning into tiles, each tile's list sorted by depth
-//!   ([`depth_order`], the radix sort the stochastic ray tracer uses too).
+//!   ([`crate::depth_sort`], the radix sort the stochastic ray tracer uses too).
 //! - [`forward`]: compositing a tile (the scalar kernel) and [`render`], the forward pass.
 //! - [`backward`]: [`backward`], the gradients over the same lists.
 
@@ -44,7 +44,6 @@ mod binning;
 mod forward;
 
 pub use backward::{PixelGrads, backward};
-pub use binning::depth_order;
 use binning::*;
 pub(crate) use binning::{bin_for_stochastic, tile_pixels};
 use forward::*;
@@ -225,41 +224,5 @@ impl<F: Real> ForwardState<F> {
                 n
             })
             .sum()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::random::hash32;
-
-    /// The radix depth order is the comparison sort's order of the whole keys, ties in index
-    /// order included, on lists of every length around the switch between the two, with
-    /// depths drawn from a few values (many ties), from one exponent (a skipped byte), and
-    /// from all at once (no byte skipped).
-    #[test]
-    fn depth_order_is_the_order_of_the_sorted_keys() {
-        let mut scratch = Vec::new();
-        for len in [0, 1, 2, RADIX_MIN - 1, RADIX_MIN, RADIX_MIN + 1, 350, 4000] {
-            for spread in 0..3 {
-                let keys: Vec<u64> = (0..len as u32)
-                    .map(|i| {
-                        let h = hash32(&[i, len as u32, spread]);
-                        let depth = match spread {
-                            0 => 1.0 + (h % 5) as f32,
-                            1 => 1.0 + (h >> 9) as f32 / 8_388_608.0,
-                            _ => f32::from_bits(h >> 2).max(f32::MIN_POSITIVE),
-                        };
-                        (depth.to_bits() as u64) << 32 | i as u64
-                    })
-                    .collect();
-                let mut want = keys.clone();
-                want.sort_unstable();
-                let want: Vec<u32> = want.iter().map(|&k| k as u32).collect();
-                let mut got = vec![u32::MAX; len];
-                depth_order(&mut keys.clone(), &mut scratch, &mut got);
-                assert_eq!(got, want, "{len} keys, spread {spread}");
-            }
-        }
     }
 }

@@ -57,8 +57,8 @@ use splat_raster::Camera;
 use splat_raster::lanes::{Avx2, Avx2Token};
 use splat_raster::lanes::{Lanes, exp};
 
+use splat_raster::depth_sort::depth_order;
 use splat_raster::project::{ALPHA_MAX, ALPHA_MIN};
-use splat_raster::raster::depth_order;
 use wide::{Wide, Wide3};
 
 mod facing;

@@ -111,63 +111,7 @@ pub struct CacheRun {
 
 pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
-    let from_volume = !volume_pt::scene::is_scene_file(&args.scene);
-    if !from_volume && (args.colormap.is_some() || args.save_scene.is_some()) {
-        bail!(
-            "--colormap and --save-scene are for a volume file: {} is a scene already (edit its [transfer] table)",
-            args.scene.display()
-        );
-    }
-    if from_volume && args.shard.is_some() {
-        bail!(
-            "--shard needs a scene file (its text keys the shards): write one with --save-scene and render that"
-        );
-    }
-    if let Some(path) = &args.save_scene {
-        // The scene must not replace the volume it describes (a slip of the tab key).
-        let target = path.canonicalize().ok();
-        if target.is_some() && target == args.scene.canonicalize().ok() {
-            bail!(
-                "--save-scene {}: that is the volume being rendered; name a new .toml file",
-                path.display()
-            );
-        }
-        prepare_output(path)?;
-    }
-    let opened = volume_pt::open_scene(&args.scene, args.colormap.unwrap_or_default())?;
-    if opened.automatic {
-        let text = &opened.text;
-        match &args.save_scene {
-            Some(path) => {
-                render_base::write_atomically(path, |f| {
-                    std::io::Write::write_all(f, text.as_bytes()).map_err(|e| e.to_string())
-                })?;
-                eprintln!(
-                    "the scene chosen for {} is in {}",
-                    args.scene.display(),
-                    path.display()
-                );
-            }
-            None if !global.quiet => eprintln!(
-                "the scene chosen for {} (--save-scene FILE writes it for editing):\n{text}",
-                args.scene.display()
-            ),
-            None => {}
-        }
-    }
-    let mut scene = opened.scene;
-    for n in &scene.notes {
-        let (kind, text) = n
-            .strip_prefix("warning: ")
-            .map_or(("note", n.as_str()), |w| ("warning", w));
-        eprintln!("{kind}: {}: {text}", scene.volume_path.display());
-    }
-    args.overrides.apply(&mut scene)?;
-    check_image_memory(
-        scene.camera.width,
-        scene.camera.height,
-        args.features || args.denoise.needs_features(),
-    )?;
+    let scene = load_scene_for_render(&args, global)?;
     if let (Some(shard), Some(partial)) = (args.shard, &args.partial) {
         if args.cache.cache || args.cache.nrc {
             bail!(
@@ -183,27 +127,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     }
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
-    // The name up to its first dot: `neghip.nii.gz` renders to out/neghip.exr.
-    let stem = args
-        .scene
-        .file_name()
-        .map(|s| s.to_string_lossy().into_owned())
-        .and_then(|n| n.split('.').next().map(str::to_string))
-        .filter(|n| !n.is_empty())
-        .unwrap_or_else(|| "render".into());
-    // Cached renders are named apart from the plain one, so that neither overwrites the other.
-    let method = if args.cache.cache {
-        ".cache"
-    } else if args.cache.nrc {
-        ".nrc"
-    } else {
-        ""
-    };
-    let (exr_path, png_path) = crate::common::output_paths(
-        args.output.as_deref(),
-        args.png.as_deref(),
-        &PathBuf::from("out").join(format!("{stem}{method}.exr")),
-    );
+    let (exr_path, png_path) = output_paths(&args);
     prepare_output(&exr_path)?;
     prepare_output(&png_path)?;
     // Loaded before any work: a missing library is said now, not after the render.
@@ -214,25 +138,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     {
         prepare_folder(dir)?;
     }
-    if args.cache.nrc
-        && (args.cache.save_cache.is_some()
-            || args.cache.load_cache.is_some()
-            || args.cache.cache_images.is_some())
-    {
-        bail!(
-            "--save-cache, --load-cache and --cache-images are the Gaussian cache's: not with --nrc"
-        );
-    }
-    if !args.cache.cache
-        && !args.cache.nrc
-        && (args.cache.frames != 1
-            || args.cache.warmup != 0
-            || args.cache.save_cache.is_some()
-            || args.cache.load_cache.is_some()
-            || args.cache.cache_images.is_some())
-    {
-        bail!("--frames, --warmup and the cache's files need a cache: add --cache (or --nrc)");
-    }
+    check_cache_flags(&args.cache)?;
     if scene.settings.spp == 0 {
         bail!("--spp 0: expected at least 1 sample per pixel");
     }
@@ -335,19 +241,154 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         );
         return Ok(INTERRUPTED);
     }
+    write_outputs(
+        &mut session,
+        &args,
+        denoiser.as_mut(),
+        &exr_path,
+        &png_path,
+        (exposure, tonemap),
+    )?;
+    print_summary(&session, &args, &stats, frames, &exr_path, &png_path);
+    Ok(if stats.cancelled { INTERRUPTED } else { 0 })
+}
+
+/// The scene `args` name with its overrides: a scene file, or a bare volume's automatic scene
+/// (printed, or saved with `--save-scene`); its notes are printed and its image's memory
+/// checked.
+fn load_scene_for_render(args: &RenderArgs, global: &Global) -> Result<Scene> {
+    let from_volume = !volume_pt::scene::is_scene_file(&args.scene);
+    if !from_volume && (args.colormap.is_some() || args.save_scene.is_some()) {
+        bail!(
+            "--colormap and --save-scene are for a volume file: {} is a scene already (edit its [transfer] table)",
+            args.scene.display()
+        );
+    }
+    if from_volume && args.shard.is_some() {
+        bail!(
+            "--shard needs a scene file (its text keys the shards): write one with --save-scene and render that"
+        );
+    }
+    if let Some(path) = &args.save_scene {
+        // The scene must not replace the volume it describes (a slip of the tab key).
+        let target = path.canonicalize().ok();
+        if target.is_some() && target == args.scene.canonicalize().ok() {
+            bail!(
+                "--save-scene {}: that is the volume being rendered; name a new .toml file",
+                path.display()
+            );
+        }
+        prepare_output(path)?;
+    }
+    let opened = volume_pt::open_scene(&args.scene, args.colormap.unwrap_or_default())?;
+    if opened.automatic {
+        let text = &opened.text;
+        match &args.save_scene {
+            Some(path) => {
+                render_base::write_atomically(path, |f| {
+                    std::io::Write::write_all(f, text.as_bytes()).map_err(|e| e.to_string())
+                })?;
+                eprintln!(
+                    "the scene chosen for {} is in {}",
+                    args.scene.display(),
+                    path.display()
+                );
+            }
+            None if !global.quiet => eprintln!(
+                "the scene chosen for {} (--save-scene FILE writes it for editing):\n{text}",
+                args.scene.display()
+            ),
+            None => {}
+        }
+    }
+    let mut scene = opened.scene;
+    for n in &scene.notes {
+        let (kind, text) = n
+            .strip_prefix("warning: ")
+            .map_or(("note", n.as_str()), |w| ("warning", w));
+        eprintln!("{kind}: {}: {text}", scene.volume_path.display());
+    }
+    args.overrides.apply(&mut scene)?;
+    check_image_memory(
+        scene.camera.width,
+        scene.camera.height,
+        args.features || args.denoise.needs_features(),
+    )?;
+    Ok(scene)
+}
+
+/// The cache flags that make sense only together: refused before any work.
+fn check_cache_flags(cache: &CacheRun) -> Result<()> {
+    if cache.nrc
+        && (cache.save_cache.is_some()
+            || cache.load_cache.is_some()
+            || cache.cache_images.is_some())
+    {
+        bail!(
+            "--save-cache, --load-cache and --cache-images are the Gaussian cache's: not with --nrc"
+        );
+    }
+    if !cache.cache
+        && !cache.nrc
+        && (cache.frames != 1
+            || cache.warmup != 0
+            || cache.save_cache.is_some()
+            || cache.load_cache.is_some()
+            || cache.cache_images.is_some())
+    {
+        bail!("--frames, --warmup and the cache's files need a cache: add --cache (or --nrc)");
+    }
+    Ok(())
+}
+
+/// The EXR and PNG a render writes: `-o` and `--png`, else `out/NAME[.cache|.nrc].exr`.
+fn output_paths(args: &RenderArgs) -> (PathBuf, PathBuf) {
+    // The name up to its first dot: `neghip.nii.gz` renders to out/neghip.exr.
+    let stem = args
+        .scene
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .and_then(|n| n.split('.').next().map(str::to_string))
+        .filter(|n| !n.is_empty())
+        .unwrap_or_else(|| "render".into());
+    // Cached renders are named apart from the plain one, so that neither overwrites the other.
+    let method = if args.cache.cache {
+        ".cache"
+    } else if args.cache.nrc {
+        ".nrc"
+    } else {
+        ""
+    };
+    crate::common::output_paths(
+        args.output.as_deref(),
+        args.png.as_deref(),
+        &PathBuf::from("out").join(format!("{stem}{method}.exr")),
+    )
+}
+
+/// Writes what the render made: the image (first: a cache that cannot be saved must not cost
+/// it), its denoised twin, the cache's level images and the cache itself.
+fn write_outputs(
+    session: &mut Session,
+    args: &RenderArgs,
+    denoiser: Option<&mut denoise::Denoiser>,
+    exr_path: &std::path::Path,
+    png_path: &std::path::Path,
+    (exposure, tonemap): (f32, ToneMap),
+) -> Result<()> {
     // The image first: it is what the user waited for, and a cache that cannot be saved (a
     // full disk) must not cost it.
     let image = session.image();
     let features = session.feature_images();
     let layers = features.as_ref().filter(|_| args.features);
-    write_image(&image, layers, &exr_path, &png_path, exposure, tonemap)?;
-    if let Some(denoiser) = &mut denoiser {
+    write_image(&image, layers, exr_path, png_path, exposure, tonemap)?;
+    if let Some(denoiser) = denoiser {
         let (path, seconds) = write_denoised(
             denoiser,
             &args.denoise,
             &image,
             features.as_ref(),
-            &exr_path,
+            exr_path,
             exposure,
             tonemap,
         )?;
@@ -379,6 +420,18 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             );
         }
     }
+    Ok(())
+}
+
+/// The render's last line (what was rendered, how, how fast, where it went) and its warnings.
+fn print_summary(
+    session: &Session,
+    args: &RenderArgs,
+    stats: &RenderStats,
+    frames: u32,
+    exr_path: &std::path::Path,
+    png_path: &std::path::Path,
+) {
     let scene = session.scene();
     let film = session.film();
     let depth = match scene.settings.path.max_depth {
@@ -391,7 +444,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             stats.nonfinite_samples
         );
     }
-    let (w, h) = (cam.width, cam.height);
+    let (w, h) = (scene.camera.width, scene.camera.height);
     let done = if stats.cancelled {
         let counts = film.counts();
         let (fewest, most) = counts
@@ -427,7 +480,6 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         exr_path.display(),
         png_path.display()
     );
-    Ok(if stats.cancelled { INTERRUPTED } else { 0 })
 }
 
 /// Renders one shard of the scene's samples and writes its partial film.

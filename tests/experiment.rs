@@ -266,7 +266,7 @@ fn the_reports_command_line_renders_the_runners_image_at_every_budget() {
     scene.camera.width = w;
     scene.camera.height = h;
     let seed = exp.seeds[1];
-    assert!(exp.methods.iter().any(|m| m.cache.is_some()));
+    assert!(exp.methods.iter().any(|m| m.cache.gaussian().is_some()));
     assert!(exp.methods.iter().any(|m| !m.has_cache()));
     let budgets = [Budget::Spp(1), Budget::Spp(3), Budget::Seconds(0.005)];
     for method in &exp.methods {

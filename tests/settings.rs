@@ -4,7 +4,7 @@
 //! flags likewise.
 
 use clap::{Args, FromArgMatches};
-use experiments::command::{cache_args, nrc_args};
+use experiments::method::CacheSettings;
 use gs_cache::{CacheConfig, Lookup, Optimizer};
 use nrc_cache::NrcConfig;
 
@@ -125,13 +125,13 @@ fn settings_written_as_flags_read_back_the_same() {
         min_continuation: 0.2,
         continuation_scale: 0.75,
     };
-    let args = cache_args(&changed);
+    let args = changed.changed_flags();
     // Every field differs from its default, so every field is written.
     assert_eq!(args.len(), 2 * serde_keys().len(), "{args:?}");
     let m = command().try_get_matches_from(&args).unwrap();
     assert_eq!(CacheConfig::from_arg_matches(&m).unwrap(), changed);
     // The defaults need no flags at all.
-    assert!(cache_args(&CacheConfig::default()).is_empty());
+    assert!(CacheConfig::default().changed_flags().is_empty());
 }
 
 fn nrc_command() -> clap::Command {
@@ -186,10 +186,10 @@ fn neural_cache_settings_written_as_flags_read_back_the_same() {
         threshold: 0.75,
         seed: 7,
     };
-    let args = nrc_args(&changed);
+    let args = changed.changed_flags();
     let keys = toml::Table::try_from(NrcConfig::default()).unwrap().len();
     assert_eq!(args.len(), 2 * keys, "{args:?}");
     let m = nrc_command().try_get_matches_from(&args).unwrap();
     assert_eq!(NrcConfig::from_arg_matches(&m).unwrap(), changed);
-    assert!(nrc_args(&NrcConfig::default()).is_empty());
+    assert!(NrcConfig::default().changed_flags().is_empty());
 }

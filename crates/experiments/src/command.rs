@@ -5,23 +5,10 @@
 //! image at `n` spp the same as one render of `n` spp, or of `n` frames of 1 spp.
 
 use super::config::{DenoiseSpec, MethodSpec};
-use gs_cache::CacheConfig;
-use nrc_cache::NrcConfig;
 use std::path::Path;
 
-/// `--cache-KEY VALUE` for every cache setting that differs from the default: the experiment
-/// file's `cache` keys, spelt as the command line's flags (`lr_color` is `--cache-lr-color`).
-pub fn cache_args(config: &CacheConfig) -> Vec<String> {
-    flag_args("cache", config, &CacheConfig::default())
-}
-
-/// `--nrc-KEY VALUE` for every neural cache setting that differs from its default.
-pub fn nrc_args(config: &NrcConfig) -> Vec<String> {
-    flag_args("nrc", config, &NrcConfig::default())
-}
-
 /// `--PREFIX-KEY VALUE` for each of `config`'s keys whose value differs from `defaults`'.
-fn flag_args<T: serde::Serialize>(prefix: &str, config: &T, defaults: &T) -> Vec<String> {
+pub fn flag_args<T: serde::Serialize>(prefix: &str, config: &T, defaults: &T) -> Vec<String> {
     let table = toml::Table::try_from(config).expect("settings are plain TOML values");
     let defaults = toml::Table::try_from(defaults).expect("settings are plain TOML values");
     let mut args = Vec::new();
@@ -66,29 +53,7 @@ pub fn render_args(
         "--seed".into(),
         seed.to_string(),
     ];
-    match (&method.cache, &method.nrc) {
-        (None, None) => {}
-        (None, Some(n)) => {
-            args.extend(["--nrc".into(), "--frames".into(), spp.to_string()]);
-            args.extend(nrc_args(&n.settings));
-            args.extend([
-                "--warmup".into(),
-                n.warmup.to_string(),
-                "--warmup-orbit-degrees".into(),
-                n.warmup_orbit_degrees.to_string(),
-            ]);
-        }
-        (Some(c), _) => {
-            args.extend(["--cache".into(), "--frames".into(), spp.to_string()]);
-            args.extend(cache_args(&c.settings));
-            args.extend([
-                "--warmup".into(),
-                c.warmup.to_string(),
-                "--warmup-orbit-degrees".into(),
-                c.warmup_orbit_degrees.to_string(),
-            ]);
-        }
-    }
+    args.extend(method.cache.render_flags(spp));
     // A twin is the method's image denoised with the runner's settings, which the program's
     // flags repeat where they differ from the program's defaults.
     if let Some(guides) = method.denoised {
@@ -158,6 +123,7 @@ pub fn settings_text<T: serde::Serialize>(settings: &T) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gs_cache::CacheConfig;
 
     #[test]
     fn settings_print_as_they_were_typed() {
@@ -166,7 +132,7 @@ mod tests {
             c: 0.7,
             ..Default::default()
         };
-        let args = cache_args(&c);
+        let args = crate::method::CacheSettings::changed_flags(&c);
         let at = args.iter().position(|a| a == "--cache-lr-color").unwrap();
         assert_eq!(args[at + 1], "0.3");
         let text = settings_text(&c);

@@ -4,8 +4,7 @@
 
 use crate::camera_path::{Keyframe, check_keyframes};
 use crate::error::{Error, Result, Within, refuse};
-use gs_cache::CacheConfig;
-use nrc_cache::NrcConfig;
+pub use crate::method::{CacheDesc, MethodCache, MethodSpec, NrcDesc};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use volume_pt::IntegratorKind;
@@ -124,154 +123,6 @@ pub struct MethodDesc {
     pub nrc: Option<NrcDesc>,
 }
 
-/// A cache's settings in the experiment file: the library's [`CacheConfig`], key for key (the
-/// same keys as `gscache render --cache-KEY`), plus how it is warmed up before it is measured.
-#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
-#[serde(try_from = "toml::Table", into = "toml::Table")]
-pub struct CacheDesc {
-    pub settings: CacheConfig,
-    /// Frames (1 spp each) trained along an orbit ending at the camera before measuring: the
-    /// cache a user has after moving to this view. Not counted in the image's time.
-    pub warmup: u32,
-    /// Degrees of that orbit.
-    pub warmup_orbit_degrees: f32,
-}
-
-impl Default for CacheDesc {
-    fn default() -> Self {
-        Self {
-            settings: CacheConfig::default(),
-            warmup: 40,
-            warmup_orbit_degrees: 60.0,
-        }
-    }
-}
-
-/// Takes a cache table's warm-up keys out: `(warmup, warmup_orbit_degrees)`, the defaults for
-/// keys not given.
-fn take_warmup(table: &mut toml::Table) -> std::result::Result<(u32, f32), String> {
-    let d = CacheDesc::default();
-    let warmup = match table.remove("warmup") {
-        None => d.warmup,
-        Some(v) => v
-            .as_integer()
-            .and_then(|n| u32::try_from(n).ok())
-            .ok_or_else(|| format!("warmup = {v}: expected a frame count >= 0"))?,
-    };
-    let warmup_orbit_degrees = match table.remove("warmup_orbit_degrees") {
-        None => d.warmup_orbit_degrees,
-        Some(v) => {
-            let x = v.as_float().or_else(|| v.as_integer().map(|n| n as f64));
-            match x {
-                Some(x) if x.is_finite() => x as f32,
-                _ => {
-                    return Err(format!(
-                        "warmup_orbit_degrees = {v}: expected a finite angle"
-                    ));
-                }
-            }
-        }
-    };
-    Ok((warmup, warmup_orbit_degrees))
-}
-
-/// A warm-up's keys added back to a cache's settings table.
-fn put_warmup(t: &mut toml::Table, warmup: u32, warmup_orbit_degrees: f32) {
-    t.insert("warmup".into(), toml::Value::Integer(warmup.into()));
-    t.insert(
-        "warmup_orbit_degrees".into(),
-        toml::Value::Float(warmup_orbit_degrees.into()),
-    );
-}
-
-impl TryFrom<toml::Table> for CacheDesc {
-    type Error = String;
-    /// Takes the warm-up keys out and reads every other key as a [`CacheConfig`] key (unknown
-    /// keys are refused by it).
-    fn try_from(mut table: toml::Table) -> std::result::Result<Self, String> {
-        let (warmup, warmup_orbit_degrees) = take_warmup(&mut table)?;
-        let settings =
-            CacheConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
-        Ok(Self {
-            settings,
-            warmup,
-            warmup_orbit_degrees,
-        })
-    }
-}
-
-impl From<CacheDesc> for toml::Table {
-    fn from(d: CacheDesc) -> toml::Table {
-        let mut t =
-            toml::Table::try_from(d.settings).expect("cache settings are plain TOML values");
-        put_warmup(&mut t, d.warmup, d.warmup_orbit_degrees);
-        t
-    }
-}
-
-/// The neural radiance cache's settings in the experiment file (its `nrc` table): nrc-cache's
-/// [`NrcConfig`], key for key, plus the same warm-up keys as the Gaussian cache's table.
-#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
-#[serde(try_from = "toml::Table", into = "toml::Table")]
-pub struct NrcDesc {
-    pub settings: NrcConfig,
-    pub warmup: u32,
-    pub warmup_orbit_degrees: f32,
-}
-
-impl Default for NrcDesc {
-    fn default() -> Self {
-        let d = CacheDesc::default();
-        Self {
-            settings: NrcConfig::default(),
-            warmup: d.warmup,
-            warmup_orbit_degrees: d.warmup_orbit_degrees,
-        }
-    }
-}
-
-impl TryFrom<toml::Table> for NrcDesc {
-    type Error = String;
-    fn try_from(mut table: toml::Table) -> std::result::Result<Self, String> {
-        let (warmup, warmup_orbit_degrees) = take_warmup(&mut table)?;
-        let settings =
-            NrcConfig::deserialize(toml::Value::Table(table)).map_err(|e| e.to_string())?;
-        Ok(Self {
-            settings,
-            warmup,
-            warmup_orbit_degrees,
-        })
-    }
-}
-
-impl From<NrcDesc> for toml::Table {
-    fn from(d: NrcDesc) -> toml::Table {
-        let mut t = toml::Table::try_from(d.settings).expect("nrc settings are plain TOML values");
-        put_warmup(&mut t, d.warmup, d.warmup_orbit_degrees);
-        t
-    }
-}
-
-impl NrcDesc {
-    /// The library configuration, checked.
-    pub fn config(&self) -> Result<NrcConfig> {
-        self.settings
-            .validate()
-            .map_err(|e| Error::Invalid(e.to_string()))?;
-        Ok(self.settings)
-    }
-}
-
-impl CacheDesc {
-    /// The library configuration, checked.
-    pub fn config(&self) -> Result<CacheConfig> {
-        self.settings
-            .validate()
-            .map_err(|e| Error::Invalid(e.to_string()))?;
-        Ok(self.settings)
-    }
-}
-
 /// A camera path of `frames` frames after `warmup` frames, with scene edits on the way.
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -340,66 +191,6 @@ pub struct AblationDesc {
     pub budgets: Option<Budgets>,
 }
 
-/// A method ready to run.
-#[derive(Debug, Clone, Serialize)]
-pub struct MethodSpec {
-    pub name: String,
-    pub integrator: IntegratorKind,
-    pub cache: Option<CacheDesc>,
-    pub nrc: Option<NrcDesc>,
-    /// For a denoised twin: the guides its denoiser took (its image is the method's, denoised).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub denoised: Option<denoise::Guides>,
-}
-
-impl MethodSpec {
-    /// This method's twin measured after the denoiser with `guides`.
-    pub fn denoised_twin(&self, guides: denoise::Guides) -> MethodSpec {
-        let suffix = match guides {
-            denoise::Guides::None => String::new(),
-            g => format!(" ({g})"),
-        };
-        MethodSpec {
-            name: format!("{} + OIDN{suffix}", self.name),
-            denoised: Some(guides),
-            ..self.clone()
-        }
-    }
-
-    /// Warm-up frames before the method is measured (0 without a cache).
-    pub fn warmup(&self) -> u32 {
-        match (&self.cache, &self.nrc) {
-            (Some(c), _) => c.warmup,
-            (_, Some(n)) => n.warmup,
-            _ => 0,
-        }
-    }
-
-    /// Degrees of orbit over the warm-up (0 without a cache).
-    pub fn warmup_orbit_degrees(&self) -> f32 {
-        match (&self.cache, &self.nrc) {
-            (Some(c), _) => c.warmup_orbit_degrees,
-            (_, Some(n)) => n.warmup_orbit_degrees,
-            _ => 0.0,
-        }
-    }
-
-    /// Whether the method reads a cache of either kind.
-    pub fn has_cache(&self) -> bool {
-        self.cache.is_some() || self.nrc.is_some()
-    }
-
-    /// The cache a render session builds for this method, its settings checked.
-    pub fn cache_choice(&self) -> Result<render_session::CacheChoice> {
-        use render_session::CacheChoice;
-        Ok(match (&self.cache, &self.nrc) {
-            (Some(c), _) => CacheChoice::gaussian(c.config()?),
-            (_, Some(n)) => CacheChoice::Neural(n.config()?),
-            _ => CacheChoice::None,
-        })
-    }
-}
-
 /// The parsed file with its paths resolved and every method checked.
 #[derive(Debug, Clone)]
 pub struct Experiment {
@@ -444,101 +235,21 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "experiment".into())
     });
-    if f.seeds.len() < 3 {
-        refuse!(
-            "seeds = {:?}: expected at least 3 (the spread across seeds gives the error bars and the bias estimate)",
-            f.seeds
-        );
-    }
-    let mut seen = std::collections::HashSet::new();
-    for s in &f.seeds {
-        if !seen.insert(s) {
-            refuse!("seed {s} is listed twice: each seed must be distinct");
-        }
-    }
+    check_seeds(&f.seeds)?;
     check_budgets(&f.budgets, "[budgets]")?;
     if f.reference.spp == 0 {
         refuse!("[reference] spp = 0: expected at least 1 (and far more than any budget)");
     }
-    if f.methods.is_empty() {
-        refuse!(
-            "no [[method]]: expected at least one (e.g. `name = \"nee\"`, `integrator = \"nee\"`)"
-        );
-    }
-    let mut methods = Vec::new();
-    for m in &f.methods {
-        if methods.iter().any(|x: &MethodSpec| x.name == m.name) {
-            refuse!("method `{}` is defined twice", m.name);
-        }
-        methods.push(method(
-            m.name.clone(),
-            m.integrator,
-            m.cache.clone(),
-            m.nrc.clone(),
-        )?);
-    }
-    let find = |name: &str, what: &str| -> Result<&MethodSpec> {
-        methods.iter().find(|m| m.name == name).ok_or_else(|| {
-            Error::Invalid(format!(
-                "{what} names method `{name}`, which is not a [[method]] (known: {})",
-                methods
-                    .iter()
-                    .map(|m| m.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ))
-        })
-    };
+    let methods = build_methods(&f.methods)?;
     let baseline = match &f.baseline {
-        Some(b) => Some(find(b, "baseline")?.name.clone()),
+        Some(b) => Some(find_method(&methods, b, "baseline")?.name.clone()),
         None => methods
             .iter()
             .find(|m| m.name == "nee")
             .map(|m| m.name.clone()),
     };
     for fly in &f.flythroughs {
-        if fly.frames == 0 {
-            refuse!("flythrough `{}`: frames = 0: expected at least 1", fly.name);
-        }
-        if fly.error_every == 0 || fly.reference_spp == 0 {
-            refuse!(
-                "flythrough `{}`: error_every and reference_spp must be at least 1",
-                fly.name
-            );
-        }
-        for m in &fly.methods {
-            find(m, &format!("flythrough `{}`", fly.name))?;
-        }
-        if !fly.orbit_degrees.is_finite() {
-            refuse!(
-                "flythrough `{}`: orbit_degrees = {}: expected a finite angle",
-                fly.name,
-                fly.orbit_degrees
-            );
-        }
-        let last_frame = fly.warmup.saturating_add(fly.frames);
-        for e in &fly.events {
-            check_event(e, &fly.name)?;
-            if e.frame >= last_frame {
-                refuse!(
-                    "flythrough `{}`: the event at frame {} is past the last frame ({} warm-up + \
-                     {} frames, counted from 0): it would never happen",
-                    fly.name,
-                    e.frame,
-                    fly.warmup,
-                    fly.frames
-                );
-            }
-        }
-        if !fly.keys.is_empty() {
-            check_keyframes(&fly.keys).within(|| format!("flythrough `{}`", fly.name))?;
-            if fly.orbit_degrees != 0.0 {
-                refuse!(
-                    "flythrough `{}`: both orbit_degrees and [[flythrough.key]]: expected one camera path",
-                    fly.name
-                );
-            }
-        }
+        check_flythrough(fly, &methods)?;
     }
     let mut flythroughs = f.flythroughs.clone();
     for fly in &mut flythroughs {
@@ -548,83 +259,13 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
             }
         }
     }
-    let mut ablations = Vec::new();
-    for a in &f.ablations {
-        let m = find(&a.method, &format!("ablation `{}`", a.name))?;
-        let Some(cache) = &m.cache else {
-            refuse!(
-                "ablation `{}` varies method `{}`, which has no Gaussian cache (ablations vary a `cache` table's keys; to compare neural cache settings, give each its own [[method]])",
-                a.name,
-                a.method
-            );
-        };
-        let budgets = a.budgets.clone().unwrap_or_else(|| f.budgets.clone());
-        check_budgets(&budgets, &format!("ablation `{}` budgets", a.name))?;
-        if a.values.is_empty() {
-            refuse!("ablation `{}` has no values", a.name);
-        }
-        let mut variants = Vec::new();
-        for v in &a.values {
-            let varied = with_parameter(cache, &a.parameter, v)
-                .within(|| format!("ablation `{}`", a.name))?;
-            let label = value_label(v);
-            let name = format!("{} [{}={}]", m.name, a.parameter, label);
-            variants.push((label, method(name, m.integrator, Some(varied), None)?));
-        }
-        ablations.push(Ablation {
-            name: a.name.clone(),
-            parameter: a.parameter.clone(),
-            budgets,
-            variants,
-        });
-    }
-    let size = match (f.width, f.height) {
-        (Some(w), Some(h)) if w > 0 && h > 0 => {
-            let most = splat_raster::camera::MAX_IMAGE_SIDE;
-            if w > most || h > most {
-                refuse!("width and height {w}x{h}: expected at most {most} pixels a side");
-            }
-            Some((w, h))
-        }
-        (None, None) => None,
-        _ => refuse!("width and height: give both, each at least 1, or neither"),
-    };
-    if !f.denoise && (f.denoise_quality.is_some() || f.denoise_guides.is_some()) {
-        refuse!("denoise_quality and denoise_guides set the denoised twins: add `denoise = true`");
-    }
-    let denoise = if f.denoise {
-        let guides = f
-            .denoise_guides
-            .clone()
-            .unwrap_or_else(|| vec![denoise::Guides::None, denoise::Guides::Albedo]);
-        if guides.is_empty() {
-            refuse!(
-                "denoise_guides = []: expected at least one of \"none\", \"albedo\", \"albedo,normal\""
-            );
-        }
-        for (i, g) in guides.iter().enumerate() {
-            if guides[..i].contains(g) {
-                refuse!("denoise_guides lists \"{g}\" twice");
-            }
-        }
-        for m in &methods {
-            for &g in &guides {
-                let twin = m.denoised_twin(g).name;
-                if methods.iter().any(|x| x.name == twin) {
-                    refuse!(
-                        "method `{twin}` clashes with the name of `{}`'s denoised twin: rename it",
-                        m.name
-                    );
-                }
-            }
-        }
-        Some(DenoiseSpec {
-            quality: f.denoise_quality.unwrap_or_default(),
-            guides,
-        })
-    } else {
-        None
-    };
+    let ablations = f
+        .ablations
+        .iter()
+        .map(|a| build_ablation(a, &methods, &f.budgets))
+        .collect::<Result<Vec<_>>>()?;
+    let size = image_size(f.width, f.height)?;
+    let denoise = denoise_spec(&f, &methods)?;
     Ok(Experiment {
         denoise,
         output: f
@@ -645,38 +286,190 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     })
 }
 
-fn method(
-    name: String,
-    integrator: IntegratorKind,
-    cache: Option<CacheDesc>,
-    nrc: Option<NrcDesc>,
-) -> Result<MethodSpec> {
-    if cache.is_some() && nrc.is_some() {
-        refuse!("method `{name}`: both `cache` and `nrc`: a method reads one cache");
+/// At least three seeds, each once.
+fn check_seeds(seeds: &[u64]) -> Result<()> {
+    if seeds.len() < 3 {
+        refuse!(
+            "seeds = {seeds:?}: expected at least 3 (the spread across seeds gives the error bars and the bias estimate)"
+        );
     }
-    if let Some(n) = &nrc {
-        if integrator != IntegratorKind::Nee {
-            refuse!(
-                "method `{name}`: the neural cache needs `integrator = \"nee\"` (its training paths are NEE paths)"
-            );
+    let mut seen = std::collections::HashSet::new();
+    for s in seeds {
+        if !seen.insert(s) {
+            refuse!("seed {s} is listed twice: each seed must be distinct");
         }
-        n.config().within(|| format!("method `{name}`: nrc"))?;
     }
-    if let Some(c) = &cache {
-        if integrator != IntegratorKind::Nee {
-            refuse!(
-                "method `{name}`: a cache needs `integrator = \"nee\"` (the GSCache paper caches NEE paths)"
-            );
+    Ok(())
+}
+
+/// The file's `[[method]]` tables as methods, each checked, each name once.
+fn build_methods(descs: &[MethodDesc]) -> Result<Vec<MethodSpec>> {
+    if descs.is_empty() {
+        refuse!(
+            "no [[method]]: expected at least one (e.g. `name = \"nee\"`, `integrator = \"nee\"`)"
+        );
+    }
+    let mut methods = Vec::new();
+    for m in descs {
+        if methods.iter().any(|x: &MethodSpec| x.name == m.name) {
+            refuse!("method `{}` is defined twice", m.name);
         }
-        c.config().within(|| format!("method `{name}`: cache"))?;
+        let cache = MethodCache::from_tables(m.cache.clone(), m.nrc.clone())
+            .within(|| format!("method `{}`", m.name))?;
+        methods.push(MethodSpec::new(m.name.clone(), m.integrator, cache)?);
     }
-    Ok(MethodSpec {
-        denoised: None,
-        name,
-        integrator,
-        cache,
-        nrc,
+    Ok(methods)
+}
+
+/// The method `name`, which `what` (a baseline, a fly-through, an ablation) names.
+fn find_method<'m>(methods: &'m [MethodSpec], name: &str, what: &str) -> Result<&'m MethodSpec> {
+    methods.iter().find(|m| m.name == name).ok_or_else(|| {
+        Error::Invalid(format!(
+            "{what} names method `{name}`, which is not a [[method]] (known: {})",
+            methods
+                .iter()
+                .map(|m| m.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
     })
+}
+
+/// A fly-through's frames, methods, camera path and events, checked.
+fn check_flythrough(fly: &FlythroughDesc, methods: &[MethodSpec]) -> Result<()> {
+    if fly.frames == 0 {
+        refuse!("flythrough `{}`: frames = 0: expected at least 1", fly.name);
+    }
+    if fly.error_every == 0 || fly.reference_spp == 0 {
+        refuse!(
+            "flythrough `{}`: error_every and reference_spp must be at least 1",
+            fly.name
+        );
+    }
+    for m in &fly.methods {
+        find_method(methods, m, &format!("flythrough `{}`", fly.name))?;
+    }
+    if !fly.orbit_degrees.is_finite() {
+        refuse!(
+            "flythrough `{}`: orbit_degrees = {}: expected a finite angle",
+            fly.name,
+            fly.orbit_degrees
+        );
+    }
+    let last_frame = fly.warmup.saturating_add(fly.frames);
+    for e in &fly.events {
+        check_event(e, &fly.name)?;
+        if e.frame >= last_frame {
+            refuse!(
+                "flythrough `{}`: the event at frame {} is past the last frame ({} warm-up + \
+                 {} frames, counted from 0): it would never happen",
+                fly.name,
+                e.frame,
+                fly.warmup,
+                fly.frames
+            );
+        }
+    }
+    if !fly.keys.is_empty() {
+        check_keyframes(&fly.keys).within(|| format!("flythrough `{}`", fly.name))?;
+        if fly.orbit_degrees != 0.0 {
+            refuse!(
+                "flythrough `{}`: both orbit_degrees and [[flythrough.key]]: expected one camera path",
+                fly.name
+            );
+        }
+    }
+    Ok(())
+}
+
+/// An ablation's variants: its method with one key of its Gaussian cache's table set to each
+/// value (budgets: the ablation's, else the experiment's).
+fn build_ablation(a: &AblationDesc, methods: &[MethodSpec], budgets: &Budgets) -> Result<Ablation> {
+    let m = find_method(methods, &a.method, &format!("ablation `{}`", a.name))?;
+    let Some(cache) = m.cache.gaussian() else {
+        refuse!(
+            "ablation `{}` varies method `{}`, which has no Gaussian cache (ablations vary a `cache` table's keys; to compare neural cache settings, give each its own [[method]])",
+            a.name,
+            a.method
+        );
+    };
+    let budgets = a.budgets.clone().unwrap_or_else(|| budgets.clone());
+    check_budgets(&budgets, &format!("ablation `{}` budgets", a.name))?;
+    if a.values.is_empty() {
+        refuse!("ablation `{}` has no values", a.name);
+    }
+    let mut variants = Vec::new();
+    for v in &a.values {
+        let varied =
+            with_parameter(cache, &a.parameter, v).within(|| format!("ablation `{}`", a.name))?;
+        let label = value_label(v);
+        let name = format!("{} [{}={}]", m.name, a.parameter, label);
+        let varied = MethodSpec::new(name, m.integrator, MethodCache::Gaussian(varied))?;
+        variants.push((label, varied));
+    }
+    Ok(Ablation {
+        name: a.name.clone(),
+        parameter: a.parameter.clone(),
+        budgets,
+        variants,
+    })
+}
+
+/// `width` and `height`: both or neither (the scene's size).
+fn image_size(width: Option<u32>, height: Option<u32>) -> Result<Option<(u32, u32)>> {
+    match (width, height) {
+        (Some(w), Some(h)) if w > 0 && h > 0 => {
+            let most = splat_raster::camera::MAX_IMAGE_SIDE;
+            if w > most || h > most {
+                refuse!("width and height {w}x{h}: expected at most {most} pixels a side");
+            }
+            Ok(Some((w, h)))
+        }
+        (None, None) => Ok(None),
+        _ => refuse!("width and height: give both, each at least 1, or neither"),
+    }
+}
+
+/// The denoised twins the file asks for: their guides listed once each, no twin's name taken
+/// by a method.
+fn denoise_spec(f: &ExperimentFile, methods: &[MethodSpec]) -> Result<Option<DenoiseSpec>> {
+    if !f.denoise {
+        if f.denoise_quality.is_some() || f.denoise_guides.is_some() {
+            refuse!(
+                "denoise_quality and denoise_guides set the denoised twins: add `denoise = true`"
+            );
+        }
+        return Ok(None);
+    }
+    let guides = f
+        .denoise_guides
+        .clone()
+        .unwrap_or_else(|| vec![denoise::Guides::None, denoise::Guides::Albedo]);
+    if guides.is_empty() {
+        refuse!(
+            "denoise_guides = []: expected at least one of \"none\", \"albedo\", \"albedo,normal\""
+        );
+    }
+    for (i, g) in guides.iter().enumerate() {
+        if guides[..i].contains(g) {
+            refuse!("denoise_guides lists \"{g}\" twice");
+        }
+    }
+    for m in methods {
+        for &g in &guides {
+            let twin = m.denoised_twin(g).name;
+            if methods.iter().any(|x| x.name == twin) {
+                refuse!(
+                    "method `{twin}` clashes with the name of `{}`'s denoised twin: rename it",
+                    m.name
+                );
+            }
+        }
+    }
+    Ok(Some(DenoiseSpec {
+        quality: f.denoise_quality.unwrap_or_default(),
+        guides,
+    }))
 }
 
 fn check_budgets(b: &Budgets, what: &str) -> Result<()> {
@@ -793,14 +586,20 @@ mod tests {
         let size = &e.ablations[0];
         assert_eq!(size.variants.len(), 2);
         assert_eq!(
-            size.variants[1].1.cache.as_ref().unwrap().settings.points,
+            size.variants[1].1.cache.gaussian().unwrap().settings.points,
             2000
         );
-        assert_eq!(size.variants[1].1.cache.as_ref().unwrap().settings.c, 0.5);
+        assert_eq!(size.variants[1].1.cache.gaussian().unwrap().settings.c, 0.5);
         assert_eq!(size.variants[0].1.name, "cache [points=100]");
         let opt = &e.ablations[1];
         assert_eq!(
-            opt.variants[1].1.cache.as_ref().unwrap().settings.optimizer,
+            opt.variants[1]
+                .1
+                .cache
+                .gaussian()
+                .unwrap()
+                .settings
+                .optimizer,
             Optimizer::Adam
         );
     }

@@ -2,6 +2,7 @@
 //! the cache's levels, loss over frames, and the fly-through curves. Each returns the files it
 //! wrote (relative to the output folder) with a caption, for the report.
 
+use super::method::MethodCache;
 use super::records::Budget;
 use super::run::{Results, SummaryRow};
 use crate::error::{Error, Result};
@@ -204,7 +205,7 @@ fn loss_over_frames(dir: &Path, r: &Results) -> Result<Vec<Figure>> {
         let neural = r
             .methods
             .iter()
-            .any(|m| m.name == c.method && m.nrc.is_some());
+            .any(|m| m.name == c.method && matches!(m.cache, MethodCache::Neural(_)));
         let levels = c
             .record
             .level_mse

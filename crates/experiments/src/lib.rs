@@ -5,6 +5,8 @@
 //! - [`error`]: the runner's one error type ([`Error`]); an interrupted run is its own variant.
 //! - [`config`]: the experiment file (scene, methods, budgets, seeds, reference, fly-throughs,
 //!   ablation sweeps), checked, with the sweeps expanded into methods.
+//! - [`method`]: a method and the one cache it reads ([`method::MethodCache`]), with the
+//!   warm-up settings of either cache in one generic table.
 //! - [`reference`](mod@reference): high-spp references, made once and kept on disk by a hash of their inputs.
 //! - [`records`]: what a measured run leaves (budgets, snapshots, a cache's record) and how its
 //!   images travel in files; [`csv`]: the reports' CSV fields.
@@ -31,6 +33,7 @@ pub mod error;
 pub mod figures;
 pub mod flythrough;
 pub mod measure;
+pub mod method;
 pub mod plot;
 pub mod records;
 pub mod reference;

@@ -136,8 +136,8 @@ pub fn run_method(
     };
     let start = Instant::now();
     let warm = session.warm_up(
-        method.warmup(),
-        method.warmup_orbit_degrees(),
+        method.cache.warmup(),
+        method.cache.warmup_orbit_degrees(),
         &Control::none(),
     )?;
     record.warmup_seconds = start.elapsed().as_secs_f64();
@@ -156,7 +156,7 @@ pub fn run_method(
                 .push([r.trace_seconds, r.lookup_seconds, r.train_seconds]);
         }
     })?;
-    if let Some(frame) = session.cache().gaussian().and_then(|c| c.frame()) {
+    if let Some(frame) = session.cache().drawn_levels() {
         record.level_images = (0..frame.levels())
             .map(|l| {
                 frame

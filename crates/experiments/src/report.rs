@@ -180,12 +180,7 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     );
     let _ = writeln!(md, "## Methods\n");
     for m in &r.methods {
-        use super::command::settings_text;
-        let cache = match (&m.cache, &m.nrc) {
-            (Some(c), _) => format!(": cache `{}`", settings_text(c)),
-            (_, Some(n)) => format!(": neural cache `{}`", settings_text(n)),
-            _ => String::new(),
-        };
+        let cache = m.cache.report_text();
         let _ = writeln!(md, "- `{}`: {}{cache}", m.name, m.integrator);
         let _ = writeln!(
             md,

@@ -327,7 +327,7 @@ fn evaluate(
                 method: method.name.clone(),
                 init_seconds: r.init_seconds,
                 warmup_seconds: r.warmup_seconds,
-                warmup_frames: method.warmup(),
+                warmup_frames: method.cache.warmup(),
                 parameter_bytes: r.parameter_bytes,
                 trace_ms: mean(0),
                 splat_ms: mean(1),
@@ -493,25 +493,7 @@ fn assemble(
     let (w, h) = (scene.camera.width, scene.camera.height);
     std::fs::create_dir_all(&exp.output)
         .map_err(|e| Error::io(&exp.output, "cannot create the output folder", e))?;
-    let r = reference(
-        &exp.reference.dir,
-        &exp.scene,
-        "",
-        scene,
-        &scene.camera,
-        exp.reference.spp,
-        Some(progress),
-    )?;
-    progress(&if r.reused {
-        format!("reference: reused {}", r.file.display())
-    } else {
-        format!(
-            "reference: rendered {} ({} spp, {:.1} s)",
-            r.file.display(),
-            r.spp,
-            r.seconds
-        )
-    });
+    let r = experiment_reference(exp, scene, progress)?;
     let peak = hdr_peak(&r.image);
     let csv_path = exp.output.join("runs.csv");
     let csv = RunsCsv::create(csv_path)?;
@@ -525,7 +507,6 @@ fn assemble(
         source,
         next_unit: 0,
     };
-    let budgets = budgets_of(&exp.budgets);
     let mut results = Results {
         name: exp.name.clone(),
         scene: exp.scene.clone(),
@@ -554,6 +535,50 @@ fn assemble(
             snapshots: Vec::new(),
         },
     };
+    evaluate_methods(&mut cx, exp, &mut results, progress)?;
+    let base_rows = compare_with_baseline(exp, &mut results);
+    gather_flythroughs(&mut cx, exp, &mut results)?;
+    evaluate_ablations(&mut cx, exp, &base_rows, &mut results, progress)?;
+    Ok(results)
+}
+
+/// The experiment's reference image, rendered or reused (and said which).
+fn experiment_reference(
+    exp: &Experiment,
+    scene: &Scene,
+    progress: &dyn Fn(&str),
+) -> Result<super::reference::Reference> {
+    let r = reference(
+        &exp.reference.dir,
+        &exp.scene,
+        "",
+        scene,
+        &scene.camera,
+        exp.reference.spp,
+        Some(progress),
+    )?;
+    progress(&if r.reused {
+        format!("reference: reused {}", r.file.display())
+    } else {
+        format!(
+            "reference: rendered {} ({} spp, {:.1} s)",
+            r.file.display(),
+            r.spp,
+            r.seconds
+        )
+    });
+    Ok(r)
+}
+
+/// Every method and its denoised twins at the experiment's budgets: their runs, summaries,
+/// cache records and snapshots (the methods list gains the twins, each after its method).
+fn evaluate_methods(
+    cx: &mut Setup<'_, '_>,
+    exp: &Experiment,
+    results: &mut Results,
+    progress: &dyn Fn(&str),
+) -> Result<()> {
+    let budgets = budgets_of(&exp.budgets);
     let mut methods = Vec::new();
     for m in &exp.methods {
         let twins: Vec<MethodSpec> = exp
@@ -561,7 +586,7 @@ fn assemble(
             .iter()
             .flat_map(|d| d.guides.iter().map(|&g| m.denoised_twin(g)))
             .collect();
-        let evs = evaluate(&mut cx, m, &budgets, &twins)?;
+        let evs = evaluate(cx, m, &budgets, &twins)?;
         for (variant, ev) in std::iter::once(m).chain(&twins).zip(evs) {
             progress(&format!("{}: {} runs", variant.name, ev.runs.len()));
             results.runs.extend(ev.runs);
@@ -576,17 +601,25 @@ fn assemble(
         }
     }
     results.methods = methods;
-    let rows_of = |name: &str| -> Vec<SummaryRow> {
-        results
-            .summary
+    Ok(())
+}
+
+/// Each summary row's gains over the baseline's at its budget: a twin against the baseline's
+/// twin of the same guides (denoised against denoised), every other method against the
+/// baseline. Returns the baseline's rows (the ablations compare with them too).
+fn compare_with_baseline(exp: &Experiment, results: &mut Results) -> Vec<SummaryRow> {
+    let rows_of = |summary: &[SummaryRow], name: &str| -> Vec<SummaryRow> {
+        summary
             .iter()
             .filter(|r| r.method == name)
             .cloned()
             .collect()
     };
-    let base_rows: Vec<SummaryRow> = exp.baseline.as_deref().map(rows_of).unwrap_or_default();
-    // A twin is compared with the baseline's twin of the same guides (denoised against
-    // denoised); every other method with the baseline.
+    let base_rows: Vec<SummaryRow> = exp
+        .baseline
+        .as_deref()
+        .map(|b| rows_of(&results.summary, b))
+        .unwrap_or_default();
     let mut comparisons = Vec::new();
     if let Some(b) = exp
         .methods
@@ -598,7 +631,7 @@ fn assemble(
                 Some(g) => b.denoised_twin(g).name,
                 None => b.name.clone(),
             };
-            comparisons.push((m.name.clone(), rows_of(&base)));
+            comparisons.push((m.name.clone(), rows_of(&results.summary, &base)));
         }
     }
     for (name, base) in comparisons {
@@ -606,9 +639,18 @@ fn assemble(
             compare_with(std::slice::from_mut(r), &base);
         }
     }
+    base_rows
+}
+
+/// Each fly-through's frames (from its unit) and the scene edits on its way.
+fn gather_flythroughs(
+    cx: &mut Setup<'_, '_>,
+    exp: &Experiment,
+    results: &mut Results,
+) -> Result<()> {
     for fl in &exp.flythroughs {
         for e in &fl.events {
-            let (_, what) = super::flythrough::event_edit(scene, e)?;
+            let (_, what) = super::flythrough::event_edit(cx.scene, e)?;
             results
                 .flythrough_events
                 .push((fl.name.clone(), e.frame, what));
@@ -622,16 +664,27 @@ fn assemble(
         };
         results.flythroughs.extend(frames);
     }
+    Ok(())
+}
+
+/// Every ablation's variants at its budgets, compared with the baseline's rows.
+fn evaluate_ablations(
+    cx: &mut Setup<'_, '_>,
+    exp: &Experiment,
+    base_rows: &[SummaryRow],
+    results: &mut Results,
+    progress: &dyn Fn(&str),
+) -> Result<()> {
     for a in &exp.ablations {
         let budgets = budgets_of(&a.budgets);
         let mut rows = Vec::new();
         for (value, m) in &a.variants {
-            let ev = evaluate(&mut cx, m, &budgets, &[])?
+            let ev = evaluate(cx, m, &budgets, &[])?
                 .pop()
                 .expect("one evaluation: the method's own");
             progress(&format!("ablation `{}`: {}", a.name, m.name));
             let mut summary = ev.summary;
-            compare_with(&mut summary, &base_rows);
+            compare_with(&mut summary, base_rows);
             results.runs.extend(ev.runs);
             rows.push((value.clone(), summary));
         }
@@ -641,5 +694,5 @@ fn assemble(
             rows,
         });
     }
-    Ok(results)
+    Ok(())
 }

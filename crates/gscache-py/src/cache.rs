@@ -159,7 +159,10 @@ impl Cache {
 
     /// Writes the levels as 3DGS PLY files `length_N.ply` into `folder`.
     fn save(&self, folder: PathBuf) -> PyResult<()> {
-        self.session.save_cache(&folder).map_err(crate::error)
+        self.session
+            .save_cache(&folder)
+            .map(drop)
+            .map_err(crate::error)
     }
 
     /// Mean per accumulated frame so far, in milliseconds: `trace` (path tracing), `lookup`

@@ -122,7 +122,34 @@ impl Cache {
         }
     }
 
-    /// The Gaussian cache, if that is what this is.
+    /// Whether the cache trains, where that can be switched ([`Cache::set_training`]): the
+    /// Gaussian cache; `None` for the others.
+    pub fn training(&self) -> Option<bool> {
+        self.gaussian().map(|c| c.config().train)
+    }
+
+    /// Turns the Gaussian cache's training on or off (a frozen cache keeps being read);
+    /// refused for the others, which always train.
+    pub fn set_training(&mut self, on: bool) -> Result<()> {
+        match self {
+            Cache::Gaussian(c) => {
+                c.set_training(on);
+                Ok(())
+            }
+            _ => Err(SessionError::Invalid(
+                "training on or off: the method has no Gaussian cache".into(),
+            )),
+        }
+    }
+
+    /// The levels as the last frame drew and read them (the Gaussian cache, after its first
+    /// frame): what an experiment keeps as the cache's picture.
+    pub fn drawn_levels(&self) -> Option<&gs_cache::CacheFrame> {
+        self.gaussian().and_then(GsCache::frame)
+    }
+
+    /// The Gaussian cache, if that is what this is: for callers that study the cache itself
+    /// (its parameters, its files); a frame's figures are in [`FrameReport`].
     pub fn gaussian(&self) -> Option<&GsCache> {
         match self {
             Cache::Gaussian(c) => Some(c),
@@ -217,6 +244,7 @@ impl Cache {
                     nonfinite_samples: s.nonfinite_samples,
                     dropped_training_samples: s.dropped_training_samples,
                     loss: cache.report().mse.clone(),
+                    stale_fraction: cache.report().stale_fraction.clone(),
                     handed_off: cache.report().handed_off,
                     cancelled: s.cancelled,
                     ..Default::default()
@@ -248,10 +276,13 @@ impl Cache {
         })
     }
 
-    /// Writes the Gaussian cache's levels as 3DGS PLY files into `dir`.
-    pub fn save(&self, dir: &Path) -> Result<()> {
+    /// Writes the Gaussian cache's levels as 3DGS PLY files into `dir`; returns how many.
+    pub fn save(&self, dir: &Path) -> Result<usize> {
         match self {
-            Cache::Gaussian(c) => Ok(c.save(dir)?),
+            Cache::Gaussian(c) => {
+                c.save(dir)?;
+                Ok(c.levels().len())
+            }
             _ => Err(SessionError::Invalid(
                 "only the Gaussian cache is saved as files: this session has another or none"
                     .into(),

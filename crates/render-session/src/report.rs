@@ -35,6 +35,10 @@ pub struct FrameReport {
     /// relative L2 loss of the step taken during this frame, on the previous frame's records;
     /// none when it took no step).
     pub loss: Vec<Option<f64>>,
+    /// Per level of the Gaussian cache, the fraction of its pixels whose residual was gross
+    /// this frame (the fallback's verdict: paths there go on as plain path tracing); `None`
+    /// where the level was not judged. Empty for the other caches.
+    pub stale_fraction: Vec<Option<f64>>,
     /// The Gaussian cache had handed the image off to plain path tracing.
     pub handed_off: bool,
     /// The frame went into the session's image (a warm-up frame does not).

@@ -331,8 +331,8 @@ impl Session {
         )
     }
 
-    /// Writes the Gaussian cache's levels as 3DGS PLY files into `dir`.
-    pub fn save_cache(&self, dir: &Path) -> Result<()> {
+    /// Writes the Gaussian cache's levels as 3DGS PLY files into `dir`; returns how many.
+    pub fn save_cache(&self, dir: &Path) -> Result<usize> {
         self.cache.save(dir)
     }
 }

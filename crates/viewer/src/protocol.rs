@@ -108,31 +108,49 @@ pub enum Method {
 }
 
 impl Method {
-    pub const NAMES: [&'static str; 5] = ["nee", "cache", "cache-rt", "unbiased", "nrc"];
+    /// Every method, in the page's order.
+    pub const ALL: [Method; 5] = [
+        Method::Nee,
+        Method::Cache,
+        Method::CacheRt,
+        Method::Unbiased,
+        Method::Nrc,
+    ];
 
+    /// The name the page and the command line use.
     pub fn name(self) -> &'static str {
-        Self::NAMES[self as usize]
+        match self {
+            Method::Nee => "nee",
+            Method::Cache => "cache",
+            Method::CacheRt => "cache-rt",
+            Method::Unbiased => "unbiased",
+            Method::Nrc => "nrc",
+        }
+    }
+
+    /// Whether this build has the method (the neural cache is a feature).
+    fn is_built(self) -> bool {
+        self != Method::Nrc || cfg!(feature = "nrc")
     }
 
     fn parse(s: &str) -> Result<Self, String> {
-        match s {
-            "nee" => Ok(Method::Nee),
-            "cache" => Ok(Method::Cache),
-            "cache-rt" => Ok(Method::CacheRt),
-            "unbiased" => Ok(Method::Unbiased),
-            "nrc" if cfg!(feature = "nrc") => Ok(Method::Nrc),
-            _ => Err(format!(
-                "method `{s}`: expected one of {}",
-                Self::available().join(", ")
-            )),
-        }
+        Self::ALL
+            .into_iter()
+            .find(|m| m.is_built() && m.name() == s)
+            .ok_or_else(|| {
+                format!(
+                    "method `{s}`: expected one of {}",
+                    Self::available().join(", ")
+                )
+            })
     }
 
     /// The names this build offers.
     pub fn available() -> Vec<&'static str> {
-        Self::NAMES
+        Self::ALL
             .into_iter()
-            .filter(|n| *n != "nrc" || cfg!(feature = "nrc"))
+            .filter(|m| m.is_built())
+            .map(Method::name)
             .collect()
     }
 

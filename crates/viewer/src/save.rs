@@ -176,7 +176,7 @@ pub struct SaveRequest<'a> {
 /// first, the scene file last (a save whose scene file is empty did not finish).
 pub fn save(r: SaveRequest) -> Result<Saved, String> {
     std::fs::create_dir_all(r.dir).map_err(|e| format!("{}: {e}", r.dir.display()))?;
-    let cache = r.session.cache().gaussian().is_some();
+    let cache = matches!(r.session.cache(), render_session::Cache::Gaussian(_));
     let mut reserved = Reserved::first_free(r.dir, cache)?;
     let stem = reserved.stem.clone();
     let mut files = Vec::new();

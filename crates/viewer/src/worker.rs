@@ -325,12 +325,10 @@ impl Worker {
                 self.seconds = [0.0; 2];
             }
             Change::Train(on) => {
-                let cache = self
-                    .session
+                self.session
                     .cache_mut()
-                    .gaussian_mut()
-                    .ok_or("training on or off: the method has no Gaussian cache")?;
-                cache.set_training(on);
+                    .set_training(on)
+                    .map_err(|e| e.to_string())?;
             }
             Change::ShowLights(on) => {
                 let mut path = self.session.scene().settings.path;
@@ -506,10 +504,10 @@ impl Worker {
             // The training loss per level (none on frames without a step): the page's
             // sparkline; and whether the cache trains.
             "loss": report.loss,
-            "training": self.session.cache().gaussian().map(|c| c.config().train),
+            "training": self.session.cache().training(),
             // Per level, the fraction of cache pixels whose residual was gross this frame (the
             // fallback's verdict: paths there go on as plain path tracing).
-            "stale": self.session.cache().gaussian().map(|c| c.report().stale_fraction.clone()),
+            "stale": (!report.stale_fraction.is_empty()).then_some(&report.stale_fraction),
             "split": self.split.as_ref().map(|s| serde_json::json!({
                 "left": "nee",
                 "left_spp": s.frames_in_image(),

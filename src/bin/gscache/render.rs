@@ -112,8 +112,10 @@ pub struct CacheRun {
 pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
     let scene = load_scene_for_render(&args, global)?;
+    // The one place the flags become a cache: everything after asks the choice.
+    let choice = args.cache.choice()?;
     if let (Some(shard), Some(partial)) = (args.shard, &args.partial) {
-        if args.cache.cache || args.cache.nrc {
+        if !choice.is_none() {
             bail!(
                 "--shard with --cache or --nrc: a cached render's frames train the cache one after the other, so they cannot be split; shard an experiment's seeds instead"
             );
@@ -127,7 +129,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     }
     let exposure = args.exposure.unwrap_or(scene.output.exposure);
     let tonemap = args.tonemap.unwrap_or(scene.output.tonemap);
-    let (exr_path, png_path) = output_paths(&args);
+    let (exr_path, png_path) = output_paths(&args, &choice);
     prepare_output(&exr_path)?;
     prepare_output(&png_path)?;
     // Loaded before any work: a missing library is said now, not after the render.
@@ -138,7 +140,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     {
         prepare_folder(dir)?;
     }
-    check_cache_flags(&args.cache)?;
+    check_cache_flags(&args.cache, &choice)?;
     if scene.settings.spp == 0 {
         bail!("--spp 0: expected at least 1 sample per pixel");
     }
@@ -161,12 +163,11 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         load_start.elapsed().as_secs_f64()
     );
 
-    let frames = if args.cache.cache || args.cache.nrc {
-        args.cache.frames
-    } else {
+    let frames = if choice.is_none() {
         1
+    } else {
+        args.cache.frames
     };
-    let choice = args.cache.choice()?;
     let spp = scene.settings.spp;
     let mut session =
         Session::new(scene, choice)?.with_features(args.features || args.denoise.needs_features());
@@ -249,7 +250,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         &png_path,
         (exposure, tonemap),
     )?;
-    print_summary(&session, &args, &stats, frames, &exr_path, &png_path);
+    print_summary(&session, &stats, frames, &exr_path, &png_path);
     Ok(if stats.cancelled { INTERRUPTED } else { 0 })
 }
 
@@ -318,8 +319,8 @@ fn load_scene_for_render(args: &RenderArgs, global: &Global) -> Result<Scene> {
 }
 
 /// The cache flags that make sense only together: refused before any work.
-fn check_cache_flags(cache: &CacheRun) -> Result<()> {
-    if cache.nrc
+fn check_cache_flags(cache: &CacheRun, choice: &CacheChoice) -> Result<()> {
+    if matches!(choice, CacheChoice::Neural(_))
         && (cache.save_cache.is_some()
             || cache.load_cache.is_some()
             || cache.cache_images.is_some())
@@ -328,8 +329,7 @@ fn check_cache_flags(cache: &CacheRun) -> Result<()> {
             "--save-cache, --load-cache and --cache-images are the Gaussian cache's: not with --nrc"
         );
     }
-    if !cache.cache
-        && !cache.nrc
+    if choice.is_none()
         && (cache.frames != 1
             || cache.warmup != 0
             || cache.save_cache.is_some()
@@ -342,7 +342,7 @@ fn check_cache_flags(cache: &CacheRun) -> Result<()> {
 }
 
 /// The EXR and PNG a render writes: `-o` and `--png`, else `out/NAME[.cache|.nrc].exr`.
-fn output_paths(args: &RenderArgs) -> (PathBuf, PathBuf) {
+fn output_paths(args: &RenderArgs, choice: &CacheChoice) -> (PathBuf, PathBuf) {
     // The name up to its first dot: `neghip.nii.gz` renders to out/neghip.exr.
     let stem = args
         .scene
@@ -352,12 +352,10 @@ fn output_paths(args: &RenderArgs) -> (PathBuf, PathBuf) {
         .filter(|n| !n.is_empty())
         .unwrap_or_else(|| "render".into());
     // Cached renders are named apart from the plain one, so that neither overwrites the other.
-    let method = if args.cache.cache {
-        ".cache"
-    } else if args.cache.nrc {
-        ".nrc"
-    } else {
-        ""
+    let method = match choice {
+        CacheChoice::None => "",
+        CacheChoice::Gaussian { .. } => ".cache",
+        CacheChoice::Neural(_) => ".nrc",
     };
     crate::common::output_paths(
         args.output.as_deref(),
@@ -411,14 +409,8 @@ fn write_outputs(
         eprintln!("cache: wrote the level images to {}", dir.display());
     }
     if let Some(dir) = &args.cache.save_cache {
-        session.save_cache(dir)?;
-        if let Some(c) = session.cache().gaussian() {
-            eprintln!(
-                "cache: wrote {} levels to {}",
-                c.levels().len(),
-                dir.display()
-            );
-        }
+        let levels = session.save_cache(dir)?;
+        eprintln!("cache: wrote {levels} levels to {}", dir.display());
     }
     Ok(())
 }
@@ -426,7 +418,6 @@ fn write_outputs(
 /// The render's last line (what was rendered, how, how fast, where it went) and its warnings.
 fn print_summary(
     session: &Session,
-    args: &RenderArgs,
     stats: &RenderStats,
     frames: u32,
     exr_path: &std::path::Path,
@@ -455,20 +446,19 @@ fn print_summary(
             film.total_samples() as f64 / (w as f64 * h as f64),
             scene.settings.spp as u64 * frames as u64
         )
-    } else if args.cache.cache {
-        format!(
-            "rendered {w}x{h} at {} frames of {} spp with the cache ({} lookup)",
-            args.cache.frames,
-            scene.settings.spp,
-            format!("{:?}", args.cache.settings.lookup).to_lowercase()
-        )
-    } else if args.cache.nrc {
-        format!(
-            "rendered {w}x{h} at {} frames of {} spp with the neural cache",
-            args.cache.frames, scene.settings.spp
-        )
     } else {
-        format!("rendered {w}x{h} at {} spp", scene.settings.spp)
+        match session.cache_choice() {
+            CacheChoice::Gaussian { config, .. } => format!(
+                "rendered {w}x{h} at {frames} frames of {} spp with the cache ({} lookup)",
+                scene.settings.spp,
+                format!("{:?}", config.lookup).to_lowercase()
+            ),
+            CacheChoice::Neural(_) => format!(
+                "rendered {w}x{h} at {frames} frames of {} spp with the neural cache",
+                scene.settings.spp
+            ),
+            CacheChoice::None => format!("rendered {w}x{h} at {} spp", scene.settings.spp),
+        }
     };
     println!(
         "{done} ({}, {depth}, seed {}) in {:.2} s: {:.3} M samples/s on {} threads; wrote {} and {}",

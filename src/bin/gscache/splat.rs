@@ -238,228 +238,235 @@ fn make_camera(c: &CameraArgs, cloud: Option<&GaussianCloud<f32>>) -> Result<Cam
 }
 
 pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
-    // Set when a long render (stochastic splatting, ray tracing) was interrupted and wrote what
-    // it had: the exit status is then 130.
-    let mut interrupted = false;
-    match command {
-        SplatCommand::Render(a) => {
-            let (exr_path, png_path) = crate::common::output_paths(
-                a.output.as_deref(),
-                a.png.as_deref(),
-                &default_output(&a.asset, ""),
-            );
-            prepare_output(&exr_path)?;
-            prepare_output(&png_path)?;
-            let cloud = load_cloud(&a.asset)?;
-            let cam = make_camera(&a.camera, Some(&cloud))?;
-            let cfg = RasterConfig {
-                low_pass: if a.mip {
-                    LowPass::Mip
-                } else {
-                    LowPass::Classic
-                },
-                background: a.background.to_array(),
-                kernel: a.kernel,
-                ..Default::default()
-            };
-            let t0 = std::time::Instant::now();
-            let (img, info) = match a.stochastic {
-                Some(n) => {
-                    // Many samples per pixel take long: Ctrl-C keeps what each pixel has.
-                    let cancel = cancellation()?;
-                    let total = n as u64 * cam.width as u64 * cam.height as u64;
-                    let bar = global.progress(total, "samples");
-                    let report = |k| bar.inc(k);
-                    let (img, stopped) = render_stochastic_with(
-                        &cloud,
-                        &cam,
-                        &cfg,
-                        n,
-                        0,
-                        &Control::new(&cancel, &report),
-                    );
-                    bar.finish_and_clear();
-                    interrupted = stopped;
-                    let info = if stopped {
-                        format!("stochastic, interrupted before {n} samples per pixel")
-                    } else {
-                        format!("stochastic, {n} samples per pixel")
-                    };
-                    (img, info)
-                }
-                None => {
-                    let (img, state) = render(&cloud, &cam, &cfg);
-                    let info = format!(
-                        "sorted ({} kernel), {} visible, {} tile entries, {:.1} splat evaluations per pixel",
-                        state.kernel(),
-                        state.visible_count(),
-                        state.entry_count(),
-                        state.lane_evaluations() as f64 / (cam.width * cam.height) as f64
-                    );
-                    (img, info)
-                }
-            };
-            let secs = t0.elapsed().as_secs_f64();
-            let image = RgbImage::from_rgb(cam.width, cam.height, &img.color)?;
-            image.write_exr(&exr_path)?;
-            image.write_png(&png_path, 0.0, ToneMap::Clip)?;
-            println!(
-                "rendered {} Gaussians at {}x{} in {:.1} ms ({info}); wrote {} and {}",
-                cloud.len(),
-                cam.width,
-                cam.height,
-                secs * 1e3,
-                exr_path.display(),
-                png_path.display()
-            );
-        }
+    // True when a long render (stochastic splatting, ray tracing) was interrupted and wrote
+    // what it had: the exit status is then 130.
+    let interrupted = match command {
+        SplatCommand::Render(a) => render_splats(a, global)?,
         SplatCommand::Fit(a) => {
-            prepare_output(&a.output)?;
-            let target = RgbImage::read_exr(&a.target_image)?;
-            let (w, h) = (target.width(), target.height());
-            let target = target.into_pixels();
-            if let Some(i) = target.iter().position(|p| !p.is_finite()) {
-                bail!(
-                    "{}: pixel ({}, {}) is {}: a target must be finite everywhere",
-                    a.target_image.display(),
-                    i as u32 % w,
-                    i as u32 / w,
-                    target[i]
-                );
-            }
-            if (w, h) != (a.camera.width, a.camera.height) {
-                bail!(
-                    "{}: the target is {w}x{h} but the camera is {}x{}: pass --width {w} --height {h}",
-                    a.target_image.display(),
-                    a.camera.width,
-                    a.camera.height
-                );
-            }
-            let loss = a.loss;
-            // The fit writes its cloud back: an unusable row would be written back as it was
-            // (NaN in the output), so the start drops them (load_cloud's warning counts them).
-            let init = a
-                .init
-                .as_deref()
-                .map(load_cloud)
-                .transpose()?
-                .map(|c| c.without_unusable());
-            let cam = make_camera(&a.camera, init.as_ref())?;
-            let mut cloud = match init {
-                Some(c) => c,
-                None => {
-                    // Spread the start around the target's depth.
-                    let dist = match (a.camera.eye, a.camera.target) {
-                        (Some(e), Some(t)) => (t - e).length(),
-                        _ => a.camera.distance,
-                    };
-                    random_in_view(&cam, a.points as usize, 0.7 * dist, 1.3 * dist)
-                }
-            };
-            let target: Vec<[f32; 3]> = target.iter().map(|v| v.to_array()).collect();
-            let cfg = RasterConfig::default();
-            let mut opt = AdamW::new(AdamWConfig::default(), &cloud);
-            let t0 = std::time::Instant::now();
-            for it in 0..a.iterations {
-                let l = train_step(&mut cloud, &cam, &cfg, &target, None, loss, &mut opt, 1.0);
-                if it % 25 == 0 || it + 1 == a.iterations {
-                    println!("iteration {it:5}: loss {l:.5e}");
-                }
-            }
-            write_ply(&a.output, &cloud)?;
-            let (img, _) = render(&cloud, &cam, &cfg);
-            let png = a.output.with_extension("png");
-            RgbImage::from_rgb(w, h, &img.color)?.write_png(&png, 0.0, ToneMap::Clip)?;
-            println!(
-                "fitted {} Gaussians in {:.1} s; wrote {} and {}",
-                cloud.len(),
-                t0.elapsed().as_secs_f64(),
-                a.output.display(),
-                png.display()
-            );
+            fit(a)?;
+            false
         }
-        SplatCommand::Trace(a) => {
-            let (exr_path, png_path) = crate::common::output_paths(
-                a.output.as_deref(),
-                a.png.as_deref(),
-                &default_output(&a.asset, ".trace"),
-            );
-            prepare_output(&exr_path)?;
-            prepare_output(&png_path)?;
-            use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image_with};
-            let cloud = load_cloud(&a.asset)?;
-            let cam = make_camera(&a.camera, Some(&cloud))?;
-            let estimator = match a.mode {
-                TraceMode::Exact => Estimator::Exact,
-                TraceMode::Kbuffer => Estimator::KBuffer {
-                    k: a.k.into(),
-                    min_transmittance: a.min_transmittance,
-                },
-                TraceMode::Stochastic => Estimator::Stochastic {
-                    samples_per_traversal: a.samples_per_traversal,
-                },
-                TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k.into() },
-            };
-            let (depth_mode, random) = (a.depth, a.random);
-            let t0 = std::time::Instant::now();
-            let scene = GaussianScene::new(&cloud);
-            let build = t0.elapsed().as_secs_f64();
-            let settings = TraceSettings {
-                estimator,
-                depth_mode,
-                spp: a.spp,
-                seed: a.seed,
-                background: a.background,
-                random,
-            };
-            let t1 = std::time::Instant::now();
+        SplatCommand::Trace(a) => trace(a, global)?,
+    };
+    Ok(if interrupted { INTERRUPTED } else { 0 })
+}
+
+/// `gscache splat render`: the sorted rasteriser, or stochastic splatting with `--stochastic`.
+/// Returns whether it was interrupted.
+fn render_splats(a: RenderArgs, global: &Global) -> Result<bool> {
+    let mut interrupted = false;
+    let (exr_path, png_path) = crate::common::output_paths(
+        a.output.as_deref(),
+        a.png.as_deref(),
+        &default_output(&a.asset, ""),
+    );
+    prepare_output(&exr_path)?;
+    prepare_output(&png_path)?;
+    let cloud = load_cloud(&a.asset)?;
+    let cam = make_camera(&a.camera, Some(&cloud))?;
+    let cfg = RasterConfig {
+        low_pass: if a.mip {
+            LowPass::Mip
+        } else {
+            LowPass::Classic
+        },
+        background: a.background.to_array(),
+        kernel: a.kernel,
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let (img, info) = match a.stochastic {
+        Some(n) => {
+            // Many samples per pixel take long: Ctrl-C keeps what each pixel has.
             let cancel = cancellation()?;
-            let per_pixel = match estimator {
-                Estimator::Exact | Estimator::KBuffer { .. } => 1,
-                _ => settings.spp.max(1),
-            };
-            let bar = global.progress(
-                per_pixel as u64 * cam.width as u64 * cam.height as u64,
-                "rays",
-            );
+            let total = n as u64 * cam.width as u64 * cam.height as u64;
+            let bar = global.progress(total, "samples");
             let report = |k| bar.inc(k);
             let (img, stopped) =
-                trace_image_with(&scene, &cam, &settings, &Control::new(&cancel, &report));
+                render_stochastic_with(&cloud, &cam, &cfg, n, 0, &Control::new(&cancel, &report));
             bar.finish_and_clear();
             interrupted = stopped;
-            if stopped {
-                eprintln!(
-                    "interrupted: each pixel is the mean of the estimates it finished; writing them"
-                );
-            }
-            let secs = t1.elapsed().as_secs_f64();
-            let image = RgbImage::from_pixels(cam.width, cam.height, img)?;
-            image.write_exr(&exr_path)?;
-            image.write_png(&png_path, 0.0, ToneMap::Clip)?;
-            let rays = match estimator {
-                Estimator::Exact | Estimator::KBuffer { .. } => 1,
-                _ => settings.spp,
-            } as f64
-                * (cam.width * cam.height) as f64;
-            println!(
-                "traced {} Gaussians ({} traceable; BVH built in {:.0} ms) at {}x{}, {} in {:.2} s: {:.3} M rays/s on {} threads; wrote {} and {}",
-                cloud.len(),
-                scene.gaussians.len(),
-                build * 1e3,
-                cam.width,
-                cam.height,
-                clap::ValueEnum::to_possible_value(&a.mode)
-                    .expect("every mode has a name")
-                    .get_name(),
-                secs,
-                rays / secs / 1e6,
-                rayon::current_num_threads(),
-                exr_path.display(),
-                png_path.display()
+            let info = if stopped {
+                format!("stochastic, interrupted before {n} samples per pixel")
+            } else {
+                format!("stochastic, {n} samples per pixel")
+            };
+            (img, info)
+        }
+        None => {
+            let (img, state) = render(&cloud, &cam, &cfg);
+            let info = format!(
+                "sorted ({} kernel), {} visible, {} tile entries, {:.1} splat evaluations per pixel",
+                state.kernel(),
+                state.visible_count(),
+                state.entry_count(),
+                state.lane_evaluations() as f64 / (cam.width * cam.height) as f64
             );
+            (img, info)
+        }
+    };
+    let secs = t0.elapsed().as_secs_f64();
+    let image = RgbImage::from_rgb(cam.width, cam.height, &img.color)?;
+    image.write_exr(&exr_path)?;
+    image.write_png(&png_path, 0.0, ToneMap::Clip)?;
+    println!(
+        "rendered {} Gaussians at {}x{} in {:.1} ms ({info}); wrote {} and {}",
+        cloud.len(),
+        cam.width,
+        cam.height,
+        secs * 1e3,
+        exr_path.display(),
+        png_path.display()
+    );
+    Ok(interrupted)
+}
+
+/// `gscache splat fit`: a cloud fitted to a target image by gradient descent.
+fn fit(a: FitArgs) -> Result<()> {
+    prepare_output(&a.output)?;
+    let target = RgbImage::read_exr(&a.target_image)?;
+    let (w, h) = (target.width(), target.height());
+    let target = target.into_pixels();
+    if let Some(i) = target.iter().position(|p| !p.is_finite()) {
+        bail!(
+            "{}: pixel ({}, {}) is {}: a target must be finite everywhere",
+            a.target_image.display(),
+            i as u32 % w,
+            i as u32 / w,
+            target[i]
+        );
+    }
+    if (w, h) != (a.camera.width, a.camera.height) {
+        bail!(
+            "{}: the target is {w}x{h} but the camera is {}x{}: pass --width {w} --height {h}",
+            a.target_image.display(),
+            a.camera.width,
+            a.camera.height
+        );
+    }
+    let loss = a.loss;
+    // The fit writes its cloud back: an unusable row would be written back as it was
+    // (NaN in the output), so the start drops them (load_cloud's warning counts them).
+    let init = a
+        .init
+        .as_deref()
+        .map(load_cloud)
+        .transpose()?
+        .map(|c| c.without_unusable());
+    let cam = make_camera(&a.camera, init.as_ref())?;
+    let mut cloud = match init {
+        Some(c) => c,
+        None => {
+            // Spread the start around the target's depth.
+            let dist = match (a.camera.eye, a.camera.target) {
+                (Some(e), Some(t)) => (t - e).length(),
+                _ => a.camera.distance,
+            };
+            random_in_view(&cam, a.points as usize, 0.7 * dist, 1.3 * dist)
+        }
+    };
+    let target: Vec<[f32; 3]> = target.iter().map(|v| v.to_array()).collect();
+    let cfg = RasterConfig::default();
+    let mut opt = AdamW::new(AdamWConfig::default(), &cloud);
+    let t0 = std::time::Instant::now();
+    for it in 0..a.iterations {
+        let l = train_step(&mut cloud, &cam, &cfg, &target, None, loss, &mut opt, 1.0);
+        if it % 25 == 0 || it + 1 == a.iterations {
+            println!("iteration {it:5}: loss {l:.5e}");
         }
     }
-    Ok(if interrupted { INTERRUPTED } else { 0 })
+    write_ply(&a.output, &cloud)?;
+    let (img, _) = render(&cloud, &cam, &cfg);
+    let png = a.output.with_extension("png");
+    RgbImage::from_rgb(w, h, &img.color)?.write_png(&png, 0.0, ToneMap::Clip)?;
+    println!(
+        "fitted {} Gaussians in {:.1} s; wrote {} and {}",
+        cloud.len(),
+        t0.elapsed().as_secs_f64(),
+        a.output.display(),
+        png.display()
+    );
+    Ok(())
+}
+
+/// `gscache splat trace`: stochastic ray tracing of transparent Gaussians (or the exact and
+/// K-buffer baselines). Returns whether it was interrupted.
+fn trace(a: TraceArgs, global: &Global) -> Result<bool> {
+    let (exr_path, png_path) = crate::common::output_paths(
+        a.output.as_deref(),
+        a.png.as_deref(),
+        &default_output(&a.asset, ".trace"),
+    );
+    prepare_output(&exr_path)?;
+    prepare_output(&png_path)?;
+    use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image_with};
+    let cloud = load_cloud(&a.asset)?;
+    let cam = make_camera(&a.camera, Some(&cloud))?;
+    let estimator = match a.mode {
+        TraceMode::Exact => Estimator::Exact,
+        TraceMode::Kbuffer => Estimator::KBuffer {
+            k: a.k.into(),
+            min_transmittance: a.min_transmittance,
+        },
+        TraceMode::Stochastic => Estimator::Stochastic {
+            samples_per_traversal: a.samples_per_traversal,
+        },
+        TraceMode::StochasticPass => Estimator::StochasticPass { k: a.k.into() },
+    };
+    let (depth_mode, random) = (a.depth, a.random);
+    let t0 = std::time::Instant::now();
+    let scene = GaussianScene::new(&cloud);
+    let build = t0.elapsed().as_secs_f64();
+    let settings = TraceSettings {
+        estimator,
+        depth_mode,
+        spp: a.spp,
+        seed: a.seed,
+        background: a.background,
+        random,
+    };
+    let t1 = std::time::Instant::now();
+    let cancel = cancellation()?;
+    let per_pixel = match estimator {
+        Estimator::Exact | Estimator::KBuffer { .. } => 1,
+        _ => settings.spp.max(1),
+    };
+    let bar = global.progress(
+        per_pixel as u64 * cam.width as u64 * cam.height as u64,
+        "rays",
+    );
+    let report = |k| bar.inc(k);
+    let (img, stopped) = trace_image_with(&scene, &cam, &settings, &Control::new(&cancel, &report));
+    bar.finish_and_clear();
+    if stopped {
+        eprintln!("interrupted: each pixel is the mean of the estimates it finished; writing them");
+    }
+    let secs = t1.elapsed().as_secs_f64();
+    let image = RgbImage::from_pixels(cam.width, cam.height, img)?;
+    image.write_exr(&exr_path)?;
+    image.write_png(&png_path, 0.0, ToneMap::Clip)?;
+    let rays = match estimator {
+        Estimator::Exact | Estimator::KBuffer { .. } => 1,
+        _ => settings.spp,
+    } as f64
+        * (cam.width * cam.height) as f64;
+    println!(
+        "traced {} Gaussians ({} traceable; BVH built in {:.0} ms) at {}x{}, {} in {:.2} s: {:.3} M rays/s on {} threads; wrote {} and {}",
+        cloud.len(),
+        scene.gaussians.len(),
+        build * 1e3,
+        cam.width,
+        cam.height,
+        clap::ValueEnum::to_possible_value(&a.mode)
+            .expect("every mode has a name")
+            .get_name(),
+        secs,
+        rays / secs / 1e6,
+        rayon::current_num_threads(),
+        exr_path.display(),
+        png_path.display()
+    );
+    Ok(stopped)
 }
 
 /// Random small Gaussians spread through the camera's view between two depths (a hash-based

@@ -107,6 +107,13 @@ fn read_regular(path: &Path) -> Result<Vec<u8>, IoError> {
     std::fs::read(path).map_err(io)
 }
 
+/// A PLY element of the header: its name, record count and properties (name, type).
+struct PlyElement {
+    name: String,
+    count: usize,
+    properties: Vec<(String, Scalar)>,
+}
+
 /// Reads a 3DGS PLY file (binary, either byte order).
 pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
     let bytes = read_regular(path)?;
@@ -116,67 +123,11 @@ pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
         .ok_or_else(|| fmt_err(path, "no `end_header` line: not a PLY file"))?;
     let header =
         std::str::from_utf8(&bytes[..end]).map_err(|_| fmt_err(path, "PLY header is not text"))?;
-    let mut lines = header.lines();
-    if lines.next().map(str::trim) != Some("ply") {
-        return Err(fmt_err(path, "first line is not `ply`"));
-    }
-    let mut big = false;
-    // Elements: (name, count, properties (name, scalar)).
-    type Element = (String, usize, Vec<(String, Scalar)>);
-    let mut elements: Vec<Element> = Vec::new();
-    for line in lines {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        match words.as_slice() {
-            ["format", "binary_little_endian", _] => big = false,
-            ["format", "binary_big_endian", _] => big = true,
-            ["format", other, ..] => {
-                return Err(fmt_err(
-                    path,
-                    format!(
-                        "PLY format `{other}` is not supported: expected binary_little_endian or binary_big_endian"
-                    ),
-                ));
-            }
-            ["element", name, count] => {
-                let n = count.parse().map_err(|_| {
-                    fmt_err(
-                        path,
-                        format!("element `{name}` count `{count}` is not a number"),
-                    )
-                })?;
-                elements.push((name.to_string(), n, Vec::new()));
-            }
-            ["property", "list", ..] => {
-                let el = elements.last().map(|e| e.0.clone()).unwrap_or_default();
-                if el == "vertex" || elements.iter().all(|e| e.0 != "vertex") {
-                    return Err(fmt_err(
-                        path,
-                        format!(
-                            "list property in element `{el}` before or in the vertices: not a 3DGS PLY"
-                        ),
-                    ));
-                }
-            }
-            ["property", ty, name] => {
-                let s = Scalar::parse(ty).ok_or_else(|| {
-                    fmt_err(path, format!("property `{name}` has unknown type `{ty}`"))
-                })?;
-                match elements.last_mut() {
-                    Some(e) => e.2.push((name.to_string(), s)),
-                    None => {
-                        return Err(fmt_err(
-                            path,
-                            format!("property `{name}` before any element"),
-                        ));
-                    }
-                }
-            }
-            _ => {}
-        }
-    }
+    let (big, elements) = read_ply_header(path, header)?;
     let mut offset = end + 11;
-    for (name, count, props) in &elements {
-        let stride: usize = props.iter().map(|p| p.1.size()).sum();
+    for element in &elements {
+        let (name, count) = (&element.name, element.count);
+        let stride: usize = element.properties.iter().map(|p| p.1.size()).sum();
         // Counts come from the header: checked, so a huge count cannot wrap into a small one.
         let end = count
             .checked_mul(stride)
@@ -196,77 +147,153 @@ pub fn read_ply(path: &Path) -> Result<GaussianCloud<f32>, IoError> {
             offset = end;
             continue;
         }
-        let data = &bytes[offset..end];
-        let find = |n: &str| -> Option<(usize, Scalar)> {
-            let mut off = 0;
-            for (pn, s) in props {
-                if pn == n {
-                    return Some((off, *s));
-                }
-                off += s.size();
-            }
-            None
-        };
-        let need = |n: &str| {
-            find(n).ok_or_else(|| {
-                fmt_err(
-                    path,
-                    format!("vertex property `{n}` is missing: expected a 3DGS PLY"),
-                )
-            })
-        };
-        let n_rest = (0..)
-            .take_while(|i| find(&format!("f_rest_{i}")).is_some())
-            .count();
-        let degree = match n_rest {
-            0 => 0,
-            9 => 1,
-            24 => 2,
-            45 => 3,
-            k => {
-                return Err(fmt_err(
-                    path,
-                    format!("{k} `f_rest_*` properties: expected 0, 9, 24 or 45 (SH degree 0-3)"),
-                ));
-            }
-        };
-        let k = coeffs_for_degree(degree);
-        let pos = [need("x")?, need("y")?, need("z")?];
-        let scale = [need("scale_0")?, need("scale_1")?, need("scale_2")?];
-        let rot = [
-            need("rot_0")?,
-            need("rot_1")?,
-            need("rot_2")?,
-            need("rot_3")?,
-        ];
-        let dc = [need("f_dc_0")?, need("f_dc_1")?, need("f_dc_2")?];
-        let opacity = need("opacity")?;
-        let rest: Vec<(usize, Scalar)> = (0..n_rest)
-            .map(|i| find(&format!("f_rest_{i}")).unwrap())
-            .collect();
-        let mut cloud = GaussianCloud::<f32>::new(ColorModel::Sh(degree));
-        cloud.means.reserve(3 * count);
-        let mut color = vec![0.0f32; 3 * k];
-        for v in 0..*count {
-            let rec = &data[v * stride..(v + 1) * stride];
-            let get = |(o, s): (usize, Scalar)| s.read(&rec[o..], big);
-            for c in 0..3 {
-                color[c] = get(dc[c]);
-                for j in 1..k {
-                    color[3 * j + c] = get(rest[c * (k - 1) + (j - 1)]);
-                }
-            }
-            cloud.push(
-                pos.map(get),
-                scale.map(get),
-                rot.map(get),
-                &color,
-                get(opacity),
-            );
-        }
-        return Ok(cloud);
+        return read_ply_vertices(path, element, &bytes[offset..end], stride, big);
     }
     Err(fmt_err(path, "no `vertex` element"))
+}
+
+/// The header after its `ply` line: whether the data are big-endian, and the elements.
+fn read_ply_header(path: &Path, header: &str) -> Result<(bool, Vec<PlyElement>), IoError> {
+    let mut lines = header.lines();
+    if lines.next().map(str::trim) != Some("ply") {
+        return Err(fmt_err(path, "first line is not `ply`"));
+    }
+    let mut big = false;
+    let mut elements: Vec<PlyElement> = Vec::new();
+    for line in lines {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["format", "binary_little_endian", _] => big = false,
+            ["format", "binary_big_endian", _] => big = true,
+            ["format", other, ..] => {
+                return Err(fmt_err(
+                    path,
+                    format!(
+                        "PLY format `{other}` is not supported: expected binary_little_endian or binary_big_endian"
+                    ),
+                ));
+            }
+            ["element", name, count] => {
+                let count = count.parse().map_err(|_| {
+                    fmt_err(
+                        path,
+                        format!("element `{name}` count `{count}` is not a number"),
+                    )
+                })?;
+                elements.push(PlyElement {
+                    name: name.to_string(),
+                    count,
+                    properties: Vec::new(),
+                });
+            }
+            ["property", "list", ..] => {
+                let el = elements.last().map(|e| e.name.clone()).unwrap_or_default();
+                if el == "vertex" || elements.iter().all(|e| e.name != "vertex") {
+                    return Err(fmt_err(
+                        path,
+                        format!(
+                            "list property in element `{el}` before or in the vertices: not a 3DGS PLY"
+                        ),
+                    ));
+                }
+            }
+            ["property", ty, name] => {
+                let s = Scalar::parse(ty).ok_or_else(|| {
+                    fmt_err(path, format!("property `{name}` has unknown type `{ty}`"))
+                })?;
+                match elements.last_mut() {
+                    Some(e) => e.properties.push((name.to_string(), s)),
+                    None => {
+                        return Err(fmt_err(
+                            path,
+                            format!("property `{name}` before any element"),
+                        ));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok((big, elements))
+}
+
+/// The Gaussians of the `vertex` element, whose records (`stride` bytes each) are `data`.
+fn read_ply_vertices(
+    path: &Path,
+    vertex: &PlyElement,
+    data: &[u8],
+    stride: usize,
+    big: bool,
+) -> Result<GaussianCloud<f32>, IoError> {
+    let (props, count) = (&vertex.properties, vertex.count);
+    let find = |n: &str| -> Option<(usize, Scalar)> {
+        let mut off = 0;
+        for (pn, s) in props {
+            if pn == n {
+                return Some((off, *s));
+            }
+            off += s.size();
+        }
+        None
+    };
+    let need = |n: &str| {
+        find(n).ok_or_else(|| {
+            fmt_err(
+                path,
+                format!("vertex property `{n}` is missing: expected a 3DGS PLY"),
+            )
+        })
+    };
+    let n_rest = (0..)
+        .take_while(|i| find(&format!("f_rest_{i}")).is_some())
+        .count();
+    let degree = match n_rest {
+        0 => 0,
+        9 => 1,
+        24 => 2,
+        45 => 3,
+        k => {
+            return Err(fmt_err(
+                path,
+                format!("{k} `f_rest_*` properties: expected 0, 9, 24 or 45 (SH degree 0-3)"),
+            ));
+        }
+    };
+    let k = coeffs_for_degree(degree);
+    let pos = [need("x")?, need("y")?, need("z")?];
+    let scale = [need("scale_0")?, need("scale_1")?, need("scale_2")?];
+    let rot = [
+        need("rot_0")?,
+        need("rot_1")?,
+        need("rot_2")?,
+        need("rot_3")?,
+    ];
+    let dc = [need("f_dc_0")?, need("f_dc_1")?, need("f_dc_2")?];
+    let opacity = need("opacity")?;
+    let rest: Vec<(usize, Scalar)> = (0..n_rest)
+        .map(|i| find(&format!("f_rest_{i}")).unwrap())
+        .collect();
+    let mut cloud = GaussianCloud::<f32>::new(ColorModel::Sh(degree));
+    cloud.means.reserve(3 * count);
+    let mut color = vec![0.0f32; 3 * k];
+    for v in 0..count {
+        let rec = &data[v * stride..(v + 1) * stride];
+        let get = |(o, s): (usize, Scalar)| s.read(&rec[o..], big);
+        for c in 0..3 {
+            color[c] = get(dc[c]);
+            for j in 1..k {
+                color[3 * j + c] = get(rest[c * (k - 1) + (j - 1)]);
+            }
+        }
+        cloud.push(
+            pos.map(get),
+            scale.map(get),
+            rot.map(get),
+            &color,
+            get(opacity),
+        );
+    }
+    Ok(cloud)
 }
 
 /// Writes the standard 3DGS PLY (binary little endian, 62 floats per Gaussian for degree 3).

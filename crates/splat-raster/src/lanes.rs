@@ -412,6 +412,41 @@ impl Lanes for Portable {
 #[cfg(target_arch = "x86_64")]
 pub use x86::{Avx2, Avx2Mask, Avx2Token, Sse2, Sse2Mask};
 
+/// The instruction set lane code runs with, with the proof that this CPU has it: the one
+/// choice every crate's lane kernels dispatch on (the rasteriser's, the ray tracer's).
+#[derive(Clone, Copy, Debug)]
+pub enum Isa {
+    /// The target's baseline ([`BaselineLanes`]): SSE2 on x86-64, plain arrays elsewhere
+    /// (NEON on aarch64).
+    Baseline,
+    /// [`Avx2`]: 8 lanes with AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    Avx2Fma(Avx2Token),
+}
+
+impl Isa {
+    /// AVX2 with FMA, if this CPU has them.
+    pub fn avx2_fma() -> Option<Isa> {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(token) = Avx2Token::detect() {
+            return Some(Isa::Avx2Fma(token));
+        }
+        None
+    }
+
+    /// The best this CPU runs: AVX2 with FMA where it has them, else the baseline.
+    pub fn detect() -> Isa {
+        Isa::avx2_fma().unwrap_or(Isa::Baseline)
+    }
+}
+
+/// The lanes every processor of the target runs ([`Isa::Baseline`]'s).
+#[cfg(target_arch = "x86_64")]
+pub type BaselineLanes = Sse2;
+/// The lanes every processor of the target runs ([`Isa::Baseline`]'s).
+#[cfg(not(target_arch = "x86_64"))]
+pub type BaselineLanes = Portable;
+
 /// The x86-64 lanes.
 ///
 /// SAFETY (every `unsafe` block in this module, which is why clippy's

@@ -297,7 +297,10 @@ pub fn project<F: Real>(
 }
 
 /// Back-propagates a splat's 2D gradients to Gaussian `g`'s parameters, adding into `grads`
-/// (a cloud-shaped buffer whose slices for `g` are given).
+/// (a cloud-shaped buffer whose slices for `g` are given). The chain, step by step: the
+/// opacity, the screen covariance ([`screen_covariance_backward`]), the projection to the
+/// camera-space mean ([`projection_backward`]), the mean, the scales and rotation
+/// ([`scale_rotation_backward`]), the quaternion, the colour.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 pub fn project_backward<F: Real>(
@@ -313,28 +316,8 @@ pub fn project_backward<F: Real>(
     d_opacity_logit: &mut F,
 ) {
     let zero = F::zero();
-    let two = F::c(2.0);
     let geo = geometry(cloud, g, cam);
-    let Geometry {
-        t,
-        qn,
-        qh,
-        s,
-        r,
-        m,
-        txc,
-        tyc,
-        x_clamped,
-        y_clamped,
-        tm,
-        ts,
-        a0,
-        b0,
-        c0,
-        ..
-    } = geo;
-    let (tx, ty, tz) = (t[0], t[1], t[2]);
-    let f = cam.focal;
+    let (a0, b0, c0) = (geo.a0, geo.b0, geo.c0);
     let k = F::c(low_pass.variance());
     let (a, c) = (a0 + k, c0 + k);
     let det = a * c - b0 * b0;
@@ -349,6 +332,43 @@ pub fn project_backward<F: Real>(
     };
     *d_opacity_logit = *d_opacity_logit + dg.opacity * comp * sg * (F::one() - sg);
 
+    let g2 = screen_covariance_backward(&geo, k, low_pass, dg, sg, comp);
+    let (d_sigma, d_tcam) = projection_backward(&geo, cam, &g2, dg);
+    let dp = mat_t_vec(&cam.w, d_tcam);
+    for i in 0..3 {
+        d_mean[i] = d_mean[i] + dp[i];
+    }
+    let (d_r, ds) = scale_rotation_backward(&geo, &d_sigma);
+    for jx in 0..3 {
+        d_log_scale[jx] = d_log_scale[jx] + ds[jx];
+    }
+    let (qh, qn) = (geo.qh, geo.qn);
+    let dqh = quat_to_mat_backward(qh, &d_r);
+    let proj = dqh[0] * qh[0] + dqh[1] * qh[1] + dqh[2] * qh[2] + dqh[3] * qh[3];
+    for i in 0..4 {
+        d_rotation[i] = d_rotation[i] + (dqh[i] - qh[i] * proj) / qn;
+    }
+
+    color_backward(cloud, g, cam, dg.color, d_mean, d_color);
+}
+
+/// dL/dSigma2, the gradient of the screen covariance before the low-pass filter (variance
+/// `k` added): through the conic K = (Sigma2 + k)^-1, and with Mip through the opacity's
+/// compensation `comp` (`sg`: the opacity logit's sigmoid).
+#[inline]
+fn screen_covariance_backward<F: Real>(
+    geo: &Geometry<F>,
+    k: F,
+    low_pass: LowPass,
+    dg: &SplatGrad<F>,
+    sg: F,
+    comp: F,
+) -> [[F; 2]; 2] {
+    let (zero, two) = (F::zero(), F::c(2.0));
+    let (a0, b0, c0) = (geo.a0, geo.b0, geo.c0);
+    let (a, c) = (a0 + k, c0 + k);
+    let det = a * c - b0 * b0;
+    let det0 = a0 * c0 - b0 * b0;
     // Conic K = Sigma2^-1: dL/dSigma2 = -K G K with G the symmetric gradient (b split in two).
     let kk = [[c / det, -b0 / det], [-b0 / det, a / det]];
     let gk = [
@@ -377,8 +397,24 @@ pub fn project_backward<F: Real>(
         g2[0][1] = g2[0][1] + off;
         g2[1][0] = g2[1][0] + off;
     }
+    g2
+}
 
-    // Sigma2 = T Sigma T^T: dL/dSigma = T^T G2 T, dL/dT = 2 G2 T Sigma.
+/// Through Sigma2 = T Sigma T^T and T = J W (J: the perspective Jacobian at the camera-space
+/// mean, clamped to the guard band): dL/dSigma, and dL/d(camera-space mean) with the screen
+/// position's and depth's gradients added.
+#[inline]
+fn projection_backward<F: Real>(
+    geo: &Geometry<F>,
+    cam: &CameraTerms<F>,
+    g2: &[[F; 2]; 2],
+    dg: &SplatGrad<F>,
+) -> (M3<F>, V3<F>) {
+    let (zero, two) = (F::zero(), F::c(2.0));
+    let (tm, ts) = (&geo.tm, &geo.ts);
+    let (tx, ty, tz) = (geo.t[0], geo.t[1], geo.t[2]);
+    let f = cam.focal;
+    // dL/dSigma = T^T G2 T, dL/dT = 2 G2 T Sigma.
     let mut d_sigma = [[zero; 3]; 3];
     for i in 0..3 {
         for jx in 0..3 {
@@ -406,14 +442,14 @@ pub fn project_backward<F: Real>(
     let tz3 = tz2 * tz;
     let mut d_tcam = [zero; 3];
     d_tcam[2] = d_tcam[2] - (d_j00 + d_j11) * f / tz2;
-    if x_clamped {
-        d_tcam[2] = d_tcam[2] + d_j02 * f * txc / tz3;
+    if geo.x_clamped {
+        d_tcam[2] = d_tcam[2] + d_j02 * f * geo.txc / tz3;
     } else {
         d_tcam[0] = d_tcam[0] - d_j02 * f / tz2;
         d_tcam[2] = d_tcam[2] + d_j02 * two * f * tx / tz3;
     }
-    if y_clamped {
-        d_tcam[2] = d_tcam[2] + d_j12 * f * tyc / tz3;
+    if geo.y_clamped {
+        d_tcam[2] = d_tcam[2] + d_j12 * f * geo.tyc / tz3;
     } else {
         d_tcam[1] = d_tcam[1] - d_j12 * f / tz2;
         d_tcam[2] = d_tcam[2] + d_j12 * two * f * ty / tz3;
@@ -422,12 +458,15 @@ pub fn project_backward<F: Real>(
     d_tcam[0] = d_tcam[0] + dg.xy[0] * f / tz;
     d_tcam[1] = d_tcam[1] + dg.xy[1] * f / tz;
     d_tcam[2] = d_tcam[2] - (dg.xy[0] * f * tx + dg.xy[1] * f * ty) / tz2 + dg.depth;
-    let dp = mat_t_vec(&cam.w, d_tcam);
-    for i in 0..3 {
-        d_mean[i] = d_mean[i] + dp[i];
-    }
+    (d_sigma, d_tcam)
+}
 
-    // Sigma = M M^T, M = R S: dL/dM = 2 dL/dSigma M.
+/// Through Sigma = M M^T, M = R S: dL/dR, and dL/d(log s) (what the scales' gradient adds).
+#[inline]
+fn scale_rotation_backward<F: Real>(geo: &Geometry<F>, d_sigma: &M3<F>) -> (M3<F>, V3<F>) {
+    let (zero, two) = (F::zero(), F::c(2.0));
+    let (m, r, s) = (&geo.m, &geo.r, &geo.s);
+    // dL/dM = 2 dL/dSigma M.
     let d_m = {
         let mut out = [[zero; 3]; 3];
         for i in 0..3 {
@@ -441,21 +480,16 @@ pub fn project_backward<F: Real>(
         out
     };
     let mut d_r = [[zero; 3]; 3];
+    let mut d_log_scale = [zero; 3];
     for jx in 0..3 {
         let mut ds = zero;
         for i in 0..3 {
             ds = ds + d_m[i][jx] * r[i][jx];
             d_r[i][jx] = d_m[i][jx] * s[jx];
         }
-        d_log_scale[jx] = d_log_scale[jx] + ds * s[jx];
+        d_log_scale[jx] = ds * s[jx];
     }
-    let dqh = quat_to_mat_backward(qh, &d_r);
-    let proj = dqh[0] * qh[0] + dqh[1] * qh[1] + dqh[2] * qh[2] + dqh[3] * qh[3];
-    for i in 0..4 {
-        d_rotation[i] = d_rotation[i] + (dqh[i] - qh[i] * proj) / qn;
-    }
-
-    color_backward(cloud, g, cam, dg.color, d_mean, d_color);
+    (d_r, d_log_scale)
 }
 
 /// The colour part of [`project_backward`]: through the clamp at 0, and for SH through the

@@ -19,7 +19,7 @@
 use crate::cloud::GaussianCloud;
 #[cfg(target_arch = "x86_64")]
 use crate::lanes::{Avx2, Avx2Token};
-use crate::lanes::{Lanes, exp};
+use crate::lanes::{Isa, Lanes, exp};
 use crate::project::{ALPHA_MAX, ALPHA_MIN, CameraTerms, LowPass, Splat, T_MIN};
 use crate::project_lanes::{self, GradientBlock};
 use crate::real::SplatGrad;
@@ -96,24 +96,8 @@ impl std::str::FromStr for Kernel {
     }
 }
 
-/// The instruction set of a lane kernel, with the proof that this CPU has it.
-#[derive(Clone, Copy)]
-pub(crate) enum Isa {
-    /// The target's baseline: SSE2 on x86-64, plain code elsewhere (NEON on aarch64).
-    Baseline,
-    #[cfg(target_arch = "x86_64")]
-    Avx2Fma(Avx2Token),
-}
-
+/// The lane kernels' dispatch on the instruction set ([`Isa`], `lanes.rs`).
 impl Isa {
-    fn avx2_fma() -> Option<Isa> {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(token) = Avx2Token::detect() {
-            return Some(Isa::Avx2Fma(token));
-        }
-        None
-    }
-
     /// The instruction set of a resolved lane kernel; None for the scalar one.
     pub(crate) fn of(kernel: Kernel) -> Option<Isa> {
         match kernel.resolve() {

@@ -378,7 +378,7 @@ fn prepare_on(isa: Isa, cloud: &GaussianCloud<f32>, range: Range<usize>, out: &m
         #[cfg(target_arch = "x86_64")]
         // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
         // (`Avx2Token::detect`), which is all `prepare_avx2_fma` requires.
-        Isa::Avx2(token) => unsafe { prepare_avx2_fma(token, cloud, range, out) },
+        Isa::Avx2Fma(token) => unsafe { prepare_avx2_fma(token, cloud, range, out) },
         Isa::Baseline => prepare::<Baseline>((), cloud, range, out),
     }
 }
@@ -491,8 +491,7 @@ fn prepare<L: Lanes>(
         let largest = L::keep(keep, diagonal).reduce_max();
         out.largest_half_diagonal = out.largest_half_diagonal.max(largest);
 
-        // Out of the lanes: a group kept whole is written at once, otherwise its kept
-        // Gaussians one at a time.
+        // Out of the lanes (`write_kept`), less the Gaussians whose colour is not finite.
         let all = (1u32 << lanes) - 1;
         let mut keep = L::bits(keep) & all;
         let colors = &cloud.colors[g0 * stride..(g0 + lanes) * stride];
@@ -514,49 +513,64 @@ fn prepare<L: Lanes>(
                 canonical[k][i].store(&mut lanes_of[8 + 3 * k + i]);
             }
         }
-        let at =
-            |k: usize, i: usize| Vec3::new(lanes_of[k][i], lanes_of[k + 1][i], lanes_of[k + 2][i]);
-        let (mean, half) = (|i| at(0, i), |i| at(3, i));
-        let (k, stride) = (out.kept, out.stride);
-        if keep == all {
-            // Whole: each array's part written in one pass.
-            let part = k..k + lanes;
-            for (i, id) in out.ids[part.clone()].iter_mut().enumerate() {
-                *id = (g0 + i) as u32;
-            }
-            for (i, m) in out.means[part.clone()].iter_mut().enumerate() {
-                *m = mean(i);
-            }
-            for (i, l) in out.lower[part.clone()].iter_mut().enumerate() {
-                *l = mean(i) - half(i);
-            }
-            for (i, u) in out.upper[part.clone()].iter_mut().enumerate() {
-                *u = mean(i) + half(i);
-            }
-            out.opacity[part.clone()].copy_from_slice(&lanes_of[6][..lanes]);
-            out.cutoff[part.clone()].copy_from_slice(&lanes_of[7][..lanes]);
-            for (i, c) in out.canonical[part].iter_mut().enumerate() {
-                *c = [at(8, i), at(11, i), at(14, i)];
-            }
-            out.colors[k * stride..(k + lanes) * stride].copy_from_slice(colors);
-            out.kept += lanes;
-            continue;
+        write_kept(out, &lanes_of, colors, g0, lanes, keep);
+    }
+}
+
+/// Writes the kept Gaussians of one group (`keep`: a bit per lane) from their lanes
+/// (`lanes_of`: mean, half-extent, opacity, cut-off, canonical rows) and `colors` into `out`:
+/// a group kept whole at once, otherwise one at a time.
+#[inline(always)]
+fn write_kept(
+    out: &mut Block,
+    lanes_of: &[[f32; 16]; 17],
+    colors: &[f32],
+    g0: usize,
+    lanes: usize,
+    mut keep: u32,
+) {
+    let all = (1u32 << lanes) - 1;
+    let at = |k: usize, i: usize| Vec3::new(lanes_of[k][i], lanes_of[k + 1][i], lanes_of[k + 2][i]);
+    let (mean, half) = (|i| at(0, i), |i| at(3, i));
+    let (k, stride) = (out.kept, out.stride);
+    if keep == all {
+        // Whole: each array's part written in one pass.
+        let part = k..k + lanes;
+        for (i, id) in out.ids[part.clone()].iter_mut().enumerate() {
+            *id = (g0 + i) as u32;
         }
-        while keep != 0 {
-            let i = keep.trailing_zeros() as usize;
-            keep &= keep - 1;
-            let k = out.kept;
-            out.ids[k] = (g0 + i) as u32;
-            out.means[k] = mean(i);
-            out.lower[k] = mean(i) - half(i);
-            out.upper[k] = mean(i) + half(i);
-            out.opacity[k] = lanes_of[6][i];
-            out.cutoff[k] = lanes_of[7][i];
-            out.canonical[k] = [at(8, i), at(11, i), at(14, i)];
-            out.colors[k * stride..(k + 1) * stride]
-                .copy_from_slice(&colors[i * stride..(i + 1) * stride]);
-            out.kept += 1;
+        for (i, m) in out.means[part.clone()].iter_mut().enumerate() {
+            *m = mean(i);
         }
+        for (i, l) in out.lower[part.clone()].iter_mut().enumerate() {
+            *l = mean(i) - half(i);
+        }
+        for (i, u) in out.upper[part.clone()].iter_mut().enumerate() {
+            *u = mean(i) + half(i);
+        }
+        out.opacity[part.clone()].copy_from_slice(&lanes_of[6][..lanes]);
+        out.cutoff[part.clone()].copy_from_slice(&lanes_of[7][..lanes]);
+        for (i, c) in out.canonical[part].iter_mut().enumerate() {
+            *c = [at(8, i), at(11, i), at(14, i)];
+        }
+        out.colors[k * stride..(k + lanes) * stride].copy_from_slice(colors);
+        out.kept += lanes;
+        return;
+    }
+    while keep != 0 {
+        let i = keep.trailing_zeros() as usize;
+        keep &= keep - 1;
+        let k = out.kept;
+        out.ids[k] = (g0 + i) as u32;
+        out.means[k] = mean(i);
+        out.lower[k] = mean(i) - half(i);
+        out.upper[k] = mean(i) + half(i);
+        out.opacity[k] = lanes_of[6][i];
+        out.cutoff[k] = lanes_of[7][i];
+        out.canonical[k] = [at(8, i), at(11, i), at(14, i)];
+        out.colors[k * stride..(k + 1) * stride]
+            .copy_from_slice(&colors[i * stride..(i + 1) * stride]);
+        out.kept += 1;
     }
 }
 
@@ -646,7 +660,7 @@ mod tests {
         let mut widths = vec![("baseline", Isa::Baseline)];
         #[cfg(target_arch = "x86_64")]
         if let Some(token) = Avx2Token::detect() {
-            widths.push(("avx2", Isa::Avx2(token)));
+            widths.push(("avx2", Isa::Avx2Fma(token)));
         }
         for (name, isa) in widths {
             // Twice into the same arrays: what a first, larger cloud left is overwritten.

@@ -28,10 +28,11 @@
 
 use crate::camera::Camera;
 use crate::cloud::{CloudGradients, GaussianCloud};
+use crate::lanes::Isa;
 use crate::project::*;
 use crate::project_lanes::GradientBlock;
 use crate::real::{Real, SplatGrad};
-use crate::simd::{Isa, Kernel};
+use crate::simd::Kernel;
 use rayon::prelude::*;
 use std::any::Any;
 use std::sync::OnceLock;

@@ -136,7 +136,7 @@ impl FacingRow {
         let mut out = [0.0f32; 8];
         match isa {
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2(token) => self
+            Isa::Avx2Fma(token) => self
                 .alpha::<Avx2>(token, Avx2::splat(token, u))
                 .store(&mut out),
             Isa::Baseline => self

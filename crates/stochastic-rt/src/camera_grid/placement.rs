@@ -145,7 +145,7 @@ impl Screen {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
             // (`Avx2Token::detect`), which is all `place_block_avx2_fma` requires.
-            Isa::Avx2(_) => unsafe {
+            Isa::Avx2Fma(_) => unsafe {
                 self.place_block_avx2_fma(g, depth_of, ranked, placed, facing)
             },
             Isa::Baseline => self.place_block(g, depth_of, ranked, placed, facing),

@@ -211,7 +211,7 @@ impl<'a> Walk<'a> {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: an `Avx2Token` exists only where the processor runs AVX2 and FMA
             // (`Avx2Token::detect`), which is all `estimate_avx2_fma` requires.
-            Isa::Avx2(token) => unsafe { self.estimate_avx2_fma(token, row, y, sample) },
+            Isa::Avx2Fma(token) => unsafe { self.estimate_avx2_fma(token, row, y, sample) },
             Isa::Baseline => self.estimate::<Baseline>((), row, y, sample),
         }
     }

@@ -19,5 +19,7 @@ python -m pip install --quiet --disable-pip-version-check "maturin>=1.9,<2" "num
 if [ "${GSCACHE_REQUIRE_OIDN:-}" = 1 ]; then
     python -m pip install --quiet --disable-pip-version-check "pyoidn==2.5.1.0"
 fi
-maturin develop --quiet
+# Not incremental: the caches would add gigabytes to target/ for a build that is not edited
+# between runs (a clone's whole test command is held to 4 GB: README).
+CARGO_INCREMENTAL=0 maturin develop --quiet
 python -m pytest -q python/tests "$@"

@@ -81,7 +81,10 @@ fn main() {
     }
     network_alone(&cache, &rows, width, config.batch_size as usize);
     if args.iter().any(|a| a == "--burn-encoding") {
+        #[cfg(feature = "burn-oracle")]
         burn_encoding(&cache, &points, config.batch_size as usize);
+        #[cfg(not(feature = "burn-oracle"))]
+        eprintln!("--burn-encoding needs burn: run with `--features burn-oracle`");
         return;
     }
     for round in 0..6 {
@@ -157,6 +160,7 @@ fn network_alone(cache: &NeuralCache, rows: &[f32], grid_width: usize, batch: us
 /// backward is a scatter-add), the corner indices and weights computed in Rust, against the
 /// plain-Rust encoding and backward: forward over every query, and forward plus backward over
 /// one training batch.
+#[cfg(feature = "burn-oracle")]
 fn burn_encoding(cache: &NeuralCache, points: &[Vec3], batch: usize) {
     use burn::module::Param;
     use burn::tensor::{Device, Int, Tensor, TensorData};

@@ -1,6 +1,7 @@
-//! The hand-written network (`nrc_cache::mlp`) against burn, its oracle: the same weights as
-//! burn `Linear` layers, burn's autodiff through the same relative L2 loss, and burn's Adam fed
-//! the same gradient.
+//! The hand-written network (`nrc_cache::mlp`) against burn, the framework oracle (feature
+//! `burn-oracle`, which CI runs; `mlp.rs` holds it to an f64 reference in the default tier):
+//! the same weights as burn `Linear` layers, burn's autodiff through the same relative L2 loss,
+//! and burn's Adam fed the same gradient.
 //!
 //! The shapes are chosen to reach every path of the kernels: 7 inputs (narrower than a register
 //! tile), hidden layers of 20 (one whole 16-column tile and a tail of 4), the 3 outputs (the
@@ -21,13 +22,12 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
 use nrc_cache::Mlp;
 use nrc_cache::mlp::{Adam, BlockWork, Gradient};
-use nrc_cache::random::SplitMix;
 
-const INPUTS: usize = 7;
-const WIDTH: usize = 20;
-const HIDDEN: usize = 2;
-const ROWS: usize = 301;
-const LOSS_EPSILON: f32 = 1e-2;
+mod common;
+use common::{
+    HIDDEN, INPUTS, LOSS_EPSILON, ROWS, WIDTH, assert_close_by_group, data, parameter_groups,
+    random_mlp, random_mlp_of,
+};
 
 #[derive(Module, Debug)]
 struct BurnMlp {
@@ -84,32 +84,6 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().unwrap()
 }
 
-/// A network of the test's shape with every parameter drawn, the biases too (a fresh `Mlp`'s
-/// are zero, which would hide a dropped bias).
-fn random_mlp(seed: u64) -> Mlp {
-    random_mlp_of(WIDTH, HIDDEN, seed)
-}
-
-fn random_mlp_of(width: usize, hidden: usize, seed: u64) -> Mlp {
-    let shape = Mlp::new(INPUTS, width, hidden, seed);
-    let mut rng = SplitMix::new(seed);
-    let params = shape
-        .params()
-        .iter()
-        .map(|w| w + (rng.next_f32() - 0.5) * 0.2)
-        .collect();
-    Mlp::from_parts(shape.dims().to_vec(), params)
-}
-
-fn data(seed: u64) -> (Vec<f32>, Vec<f32>) {
-    let mut rng = SplitMix::new(seed);
-    let inputs = (0..ROWS * INPUTS)
-        .map(|_| rng.next_f32() * 2.0 - 1.0)
-        .collect();
-    let targets = (0..ROWS * 3).map(|_| rng.next_f32() * 3.0).collect();
-    (inputs, targets)
-}
-
 /// burn's loss and gradients (parameters, then inputs) for `mlp` on `inputs` and `targets`.
 fn burn_gradient(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
     let device = Device::flex().autodiff();
@@ -131,37 +105,6 @@ fn burn_gradient(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> (f64, Vec<f32>, 
         params.extend(to_vec(layer.bias.as_ref().unwrap().grad(&grads).unwrap()));
     }
     (loss_value, params, input_grad)
-}
-
-/// Each entry of `got` within `tolerance` of the largest magnitude of its group in `expected`;
-/// groups are consecutive runs of `group_lengths`.
-fn assert_close_by_group(what: &str, got: &[f32], expected: &[f32], group_lengths: &[usize]) {
-    assert_eq!(got.len(), expected.len(), "{what}: lengths");
-    assert_eq!(group_lengths.iter().sum::<usize>(), got.len());
-    let mut start = 0;
-    for (g, &len) in group_lengths.iter().enumerate() {
-        let e = &expected[start..start + len];
-        let scale = e.iter().fold(0.0f32, |m, x| m.max(x.abs()));
-        assert!(
-            scale > 0.0,
-            "{what}: group {g} is all zero: the test would be empty"
-        );
-        for (i, (a, b)) in got[start..start + len].iter().zip(e).enumerate() {
-            assert!(
-                (a - b).abs() <= 2e-5 * scale,
-                "{what}: group {g} entry {i}: {a} against burn's {b} (group scale {scale})"
-            );
-        }
-        start += len;
-    }
-}
-
-/// Each layer's weights, then its biases: the groups of `Mlp::params`.
-fn parameter_groups(mlp: &Mlp) -> Vec<usize> {
-    mlp.dims()
-        .windows(2)
-        .flat_map(|d| [d[0] * d[1], d[1]])
-        .collect()
 }
 
 #[test]

@@ -17,16 +17,16 @@ def repo() -> pathlib.Path:
 
 @pytest.fixture(scope="session")
 def program() -> str:
-    """The `gscache` binary: $GSCACHE_BIN, else built with cargo (a no-op when up to date).
-
-    Built with the test profile, which is what `cargo test` built it with: after the README's
-    `cargo test --workspace` this costs nothing (the dev profile would build the program again).
+    """The `gscache` binary: $GSCACHE_BIN, else the one the README's `cargo test --workspace`
+    builds (a no-op after it; the same command builds it otherwise). Any other cargo command
+    would build the program again: the tests' dev-dependencies change the features of some of
+    its dependencies, and a dev-profile build changes every crate's options.
     """
     given = os.environ.get("GSCACHE_BIN")
     if given:
         return given
     subprocess.run(
-        ["cargo", "build", "--quiet", "--locked", "--profile", "test", "--bin", "gscache"],
+        ["cargo", "test", "--quiet", "--locked", "--workspace", "--no-run"],
         cwd=REPO,
         check=True,
     )

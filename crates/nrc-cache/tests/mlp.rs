@@ -12,11 +12,10 @@
 
 mod common;
 use common::{
-    HIDDEN, INPUTS, LOSS_EPSILON, ROWS, WIDTH, assert_close_by_group, data, parameter_groups,
-    random_mlp, random_mlp_of,
+    ADAM, HIDDEN, INPUTS, LOSS_EPSILON, OracleAnswer, ROWS, WIDTH, assert_adam_matches,
+    assert_network_matches, random_mlp_of,
 };
 use nrc_cache::Mlp;
-use nrc_cache::mlp::{Adam, BlockWork, Gradient};
 
 /// The network's layers in f64: `(fan_in, fan_out, weights fan_in x fan_out, biases)`.
 fn layers(mlp: &Mlp) -> Vec<(usize, usize, Vec<f64>, Vec<f64>)> {
@@ -58,8 +57,8 @@ fn forward_row(layers: &[(usize, usize, Vec<f64>, Vec<f64>)], x: &[f32]) -> Vec<
     pre
 }
 
-/// The loss and its gradient (parameters in `Mlp::params`' layout, then inputs) in f64.
-fn reference_gradient(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> (f64, Vec<f32>, Vec<f32>) {
+/// The loss, its gradient and the outputs in f64.
+fn reference(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> OracleAnswer {
     let layers = layers(mlp);
     let count = (ROWS * 3) as f64;
     let eps = LOSS_EPSILON as f64;
@@ -69,10 +68,12 @@ fn reference_gradient(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> (f64, Vec<f
         .map(|(fan_in, fan_out, ..)| vec![0.0; (fan_in + 1) * fan_out])
         .collect();
     let mut d_inputs = vec![0.0f64; ROWS * INPUTS];
+    let mut outputs = Vec::with_capacity(ROWS * 3);
     for row in 0..ROWS {
         let x = &inputs[row * INPUTS..(row + 1) * INPUTS];
         let pre = forward_row(&layers, x);
         let out = pre.last().expect("an output layer");
+        outputs.extend(out.iter().map(|&v| v as f32));
         // dL/d(output): the denominator is held constant.
         let mut delta: Vec<f64> = (0..3)
             .map(|c| {
@@ -113,88 +114,43 @@ fn reference_gradient(mlp: &Mlp, inputs: &[f32], targets: &[f32]) -> (f64, Vec<f
             }
         }
     }
-    let params = d_params.concat().iter().map(|&v| v as f32).collect();
-    let d_inputs = d_inputs.iter().map(|&v| v as f32).collect();
-    (loss, params, d_inputs)
+    OracleAnswer {
+        loss,
+        params: d_params.concat().iter().map(|&v| v as f32).collect(),
+        inputs: d_inputs.iter().map(|&v| v as f32).collect(),
+        outputs,
+    }
 }
 
 #[test]
 fn forward_loss_and_gradients_match_the_f64_reference() {
     for (width, hidden) in [(WIDTH, HIDDEN), (8, 1), (WIDTH, 0)] {
-        let mlp = random_mlp_of(width, hidden, 11);
-        let (inputs, targets) = data(12);
-        let mut gradient = Gradient::default();
-        let loss = mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
-        let (reference_loss, params, d_inputs) = reference_gradient(&mlp, &inputs, &targets);
-        assert!(
-            (loss - reference_loss).abs() <= 1e-5 * reference_loss.abs(),
-            "loss {loss} against the reference's {reference_loss}"
+        assert_network_matches(
+            "the f64 reference",
+            &random_mlp_of(width, hidden, 11),
+            reference,
         );
-        assert_close_by_group(
-            &format!("parameter gradient of {:?}", mlp.dims()),
-            &gradient.params,
-            &params,
-            &parameter_groups(&mlp),
-        );
-        assert_close_by_group(
-            "input gradient",
-            &gradient.inputs,
-            &d_inputs,
-            &[ROWS * INPUTS],
-        );
-
-        let mut outputs = vec![0.0; ROWS * 3];
-        mlp.forward(&inputs, &mut outputs, &mut BlockWork::default());
-        let layers = layers(&mlp);
-        let expected: Vec<f32> = (0..ROWS)
-            .flat_map(|row| {
-                let pre = forward_row(&layers, &inputs[row * INPUTS..(row + 1) * INPUTS]);
-                pre.last().expect("an output layer").clone()
-            })
-            .map(|v| v as f32)
-            .collect();
-        assert_close_by_group("forward", &outputs, &expected, &[ROWS * 3]);
     }
 }
 
-/// Three Adam steps (the bias corrections differ at each) against the textbook update in f64,
-/// fed the same gradients; the moves are compared (the parameters' size would hide an error in
-/// the move).
+/// Adam against its textbook update in f64, fed the same gradients.
 #[test]
 fn adam_matches_its_definition() {
-    let (beta1, beta2, epsilon, lr) = (0.9f64, 0.99f64, 1e-15f64, 1e-2f64);
-    let mut mlp = random_mlp(13);
-    let n = mlp.params().len();
-    let (mut m, mut v) = (vec![0.0f64; n], vec![0.0f64; n]);
-    let mut adam = Adam::default();
-    let mut gradient = Gradient::default();
-    for step in 0..3 {
-        let (inputs, targets) = data(20 + step);
-        mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
-        let before = mlp.params().to_vec();
-        adam.step(&mut mlp, &gradient.params, lr, beta1, beta2, epsilon);
-        let ours: Vec<f32> = mlp
-            .params()
-            .iter()
-            .zip(&before)
-            .map(|(a, b)| a - b)
-            .collect();
+    let (beta1, beta2, epsilon, lr) = ADAM;
+    let (mut m, mut v) = (Vec::new(), Vec::new());
+    assert_adam_matches(|step, before, gradient| {
+        m.resize(before.len(), 0.0f64);
+        v.resize(before.len(), 0.0f64);
         let t = step as i32 + 1;
-        let theirs: Vec<f32> = (0..n)
+        (0..before.len())
             .map(|i| {
-                let g = gradient.params[i] as f64;
+                let g = gradient[i] as f64;
                 m[i] = beta1 * m[i] + (1.0 - beta1) * g;
                 v[i] = beta2 * v[i] + (1.0 - beta2) * g * g;
                 let m_hat = m[i] / (1.0 - beta1.powi(t));
                 let v_hat = v[i] / (1.0 - beta2.powi(t));
                 (-lr * m_hat / (v_hat.sqrt() + epsilon)) as f32
             })
-            .collect();
-        assert_close_by_group(
-            &format!("Adam step {step}"),
-            &ours,
-            &theirs,
-            &parameter_groups(&mlp),
-        );
-    }
+            .collect()
+    });
 }

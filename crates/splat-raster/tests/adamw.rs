@@ -11,10 +11,10 @@
 //! decay, a missing bias correction, a group's learning rate or decay given to another) move
 //! parameters by 1e-4 or more within the 6 steps.
 
-use rand::rngs::StdRng;
-use rand::{RngExt, SeedableRng};
-use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
-use splat_raster::{ColorModel, GaussianCloud};
+use splat_raster::adamw::AdamW;
+
+mod common;
+use common::{adamw_case, adamw_lr_scale, random_gradient};
 
 /// AdamW on one group in f64: `p <- p (1 - lr wd)`, then the bias-corrected Adam step.
 struct ReferenceAdamW {
@@ -41,31 +41,7 @@ impl ReferenceAdamW {
 
 #[test]
 fn fused_adamw_matches_its_definition() {
-    let mut rng = StdRng::seed_from_u64(7);
-    let n = 257;
-    let mut cloud = GaussianCloud::<f32>::new(ColorModel::Rgb);
-    for _ in 0..n {
-        let r = |rng: &mut StdRng| rng.random_range(-1.0f32..1.0);
-        cloud.push(
-            [r(&mut rng), r(&mut rng), r(&mut rng)],
-            [r(&mut rng), r(&mut rng), r(&mut rng)],
-            [r(&mut rng), r(&mut rng), r(&mut rng), r(&mut rng)],
-            &[r(&mut rng), r(&mut rng), r(&mut rng)],
-            r(&mut rng),
-        );
-    }
-    let g = |lr, weight_decay| GroupSettings { lr, weight_decay };
-    let (b1, b2, eps) = (0.9f32, 0.999f32, 1e-8f32);
-    let config = AdamWConfig {
-        beta1: b1,
-        beta2: b2,
-        epsilon: eps,
-        means: g(1.16e-3, 0.0),
-        log_scales: g(5e-3, 0.01),
-        rotations: g(1e-3, 0.0),
-        colors: g(1.25e-2, 0.05),
-        opacity_logits: g(1.5e-1, 0.01),
-    };
+    let (cloud, config, mut rng) = adamw_case();
     let settings = [
         config.means,
         config.log_scales,
@@ -85,15 +61,14 @@ fn fused_adamw_matches_its_definition() {
             t: 0,
         })
         .collect();
-    let betas = (b1 as f64, b2 as f64, eps as f64);
+    let betas = (
+        config.beta1 as f64,
+        config.beta2 as f64,
+        config.epsilon as f64,
+    );
     for step in 0..6 {
-        let mut grads = params.zeros_like();
-        for group in grads.groups_mut() {
-            for v in group.iter_mut() {
-                *v = rng.random_range(-2.0f32..2.0);
-            }
-        }
-        let lr_scale = 1.0 / (1.0 + (step as f32 + 1.0).ln());
+        let grads = random_gradient(&params, &mut rng);
+        let lr_scale = adamw_lr_scale(step);
         ours.step(&mut params, &grads, lr_scale);
         for (gi, r) in reference.iter_mut().enumerate() {
             let s = settings[gi];

@@ -6,10 +6,10 @@
 use burn::module::{Module, Param};
 use burn::optim::{AdamWConfig as BurnAdamWConfig, GradientsParams};
 use burn::tensor::{Device, Tensor, TensorData};
-use rand::rngs::StdRng;
-use rand::{RngExt, SeedableRng};
-use splat_raster::adamw::{AdamW, AdamWConfig, GroupSettings};
-use splat_raster::{ColorModel, GaussianCloud};
+use splat_raster::adamw::AdamW;
+
+mod common;
+use common::{adamw_case, adamw_lr_scale, random_gradient};
 
 #[derive(Module, Debug)]
 struct Group {
@@ -18,30 +18,7 @@ struct Group {
 
 #[test]
 fn fused_adamw_matches_burn() {
-    let mut rng = StdRng::seed_from_u64(7);
-    let n = 257;
-    let mut cloud = GaussianCloud::<f32>::new(ColorModel::Rgb);
-    for _ in 0..n {
-        let r = |rng: &mut StdRng| rng.random_range(-1.0f32..1.0);
-        cloud.push(
-            [r(&mut rng), r(&mut rng), r(&mut rng)],
-            [r(&mut rng), r(&mut rng), r(&mut rng)],
-            [r(&mut rng), r(&mut rng), r(&mut rng), r(&mut rng)],
-            &[r(&mut rng), r(&mut rng), r(&mut rng)],
-            r(&mut rng),
-        );
-    }
-    let g = |lr, weight_decay| GroupSettings { lr, weight_decay };
-    let config = AdamWConfig {
-        beta1: 0.9,
-        beta2: 0.999,
-        epsilon: 1e-8,
-        means: g(1.16e-3, 0.0),
-        log_scales: g(5e-3, 0.01),
-        rotations: g(1e-3, 0.0),
-        colors: g(1.25e-2, 0.05),
-        opacity_logits: g(1.5e-1, 0.01),
-    };
+    let (cloud, config, mut rng) = adamw_case();
     let settings = [
         config.means,
         config.log_scales,
@@ -74,13 +51,8 @@ fn fused_adamw_matches_burn() {
 
     let steps = 6;
     for step in 0..steps {
-        let mut grads = params.zeros_like();
-        for group in grads.groups_mut() {
-            for v in group.iter_mut() {
-                *v = rng.random_range(-2.0f32..2.0);
-            }
-        }
-        let lr_scale = 1.0 / (1.0 + (step as f32 + 1.0).ln());
+        let grads = random_gradient(&params, &mut rng);
+        let lr_scale = adamw_lr_scale(step);
         ours.step(&mut params, &grads, lr_scale);
         for (gi, (module, optim)) in modules.iter_mut().zip(optims.iter_mut()).enumerate() {
             let gv = grads.groups()[gi].1.to_vec();

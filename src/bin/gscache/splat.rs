@@ -16,7 +16,7 @@ use splat_raster::loss::Loss;
 use splat_raster::stochastic::render_stochastic_with;
 use splat_raster::train::train_step;
 use splat_raster::{Camera, ColorModel, GaussianCloud, LowPass, RasterConfig, render};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use stochastic_rt::{DepthMode, RandomKind};
 use volume_pt::Control;
 
@@ -255,13 +255,8 @@ pub fn run(command: SplatCommand, global: &Global) -> Result<i32> {
 /// Returns whether it was interrupted.
 fn render_splats(a: RenderArgs, global: &Global) -> Result<bool> {
     let mut interrupted = false;
-    let (exr_path, png_path) = crate::common::output_paths(
-        a.output.as_deref(),
-        a.png.as_deref(),
-        &default_output(&a.asset, ""),
-    );
-    prepare_output(&exr_path)?;
-    prepare_output(&png_path)?;
+    let (exr_path, png_path) =
+        prepared_outputs(&a.asset, a.output.as_deref(), a.png.as_deref(), "")?;
     let cloud = load_cloud(&a.asset)?;
     let cam = make_camera(&a.camera, Some(&cloud))?;
     let cfg = RasterConfig {
@@ -319,6 +314,21 @@ fn render_splats(a: RenderArgs, global: &Global) -> Result<bool> {
         png_path.display()
     );
     Ok(interrupted)
+}
+
+/// The EXR and PNG a render of `asset` writes (`-o` and `--png`, else `out/ASSET{suffix}.exr`),
+/// checked before any work.
+fn prepared_outputs(
+    asset: &Path,
+    output: Option<&Path>,
+    png: Option<&Path>,
+    suffix: &str,
+) -> Result<(PathBuf, PathBuf)> {
+    let (exr_path, png_path) =
+        crate::common::output_paths(output, png, &default_output(asset, suffix));
+    prepare_output(&exr_path)?;
+    prepare_output(&png_path)?;
+    Ok((exr_path, png_path))
 }
 
 /// `gscache splat fit`: a cloud fitted to a target image by gradient descent.
@@ -392,13 +402,8 @@ fn fit(a: FitArgs) -> Result<()> {
 /// `gscache splat trace`: stochastic ray tracing of transparent Gaussians (or the exact and
 /// K-buffer baselines). Returns whether it was interrupted.
 fn trace(a: TraceArgs, global: &Global) -> Result<bool> {
-    let (exr_path, png_path) = crate::common::output_paths(
-        a.output.as_deref(),
-        a.png.as_deref(),
-        &default_output(&a.asset, ".trace"),
-    );
-    prepare_output(&exr_path)?;
-    prepare_output(&png_path)?;
+    let (exr_path, png_path) =
+        prepared_outputs(&a.asset, a.output.as_deref(), a.png.as_deref(), ".trace")?;
     use stochastic_rt::{Estimator, GaussianScene, TraceSettings, trace_image_with};
     let cloud = load_cloud(&a.asset)?;
     let cam = make_camera(&a.camera, Some(&cloud))?;
@@ -494,7 +499,7 @@ fn random_in_view(cam: &Camera, n: usize, near: f32, far: f32) -> GaussianCloud<
 
 /// `out/<asset stem><suffix>.exr`: each asset (and the ray tracer) gets its own default name,
 /// so renders of two assets do not overwrite each other.
-fn default_output(asset: &std::path::Path, suffix: &str) -> PathBuf {
+fn default_output(asset: &Path, suffix: &str) -> PathBuf {
     let stem = asset
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())

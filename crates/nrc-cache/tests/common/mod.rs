@@ -9,6 +9,7 @@
 #![allow(dead_code)] // each test binary uses its part
 
 use nrc_cache::Mlp;
+use nrc_cache::mlp::{Adam, BlockWork, Gradient};
 use nrc_cache::random::SplitMix;
 
 pub const INPUTS: usize = 7;
@@ -72,4 +73,78 @@ pub fn parameter_groups(mlp: &Mlp) -> Vec<usize> {
         .windows(2)
         .flat_map(|d| [d[0] * d[1], d[1]])
         .collect()
+}
+
+/// What an oracle says of a network on the test's data: the loss, its gradient (parameters in
+/// `Mlp::params`' layout, then inputs) and the forward pass's outputs.
+pub struct OracleAnswer {
+    pub loss: f64,
+    pub params: Vec<f32>,
+    pub inputs: Vec<f32>,
+    pub outputs: Vec<f32>,
+}
+
+/// The network's loss, gradients and forward pass on `data(12)` against `oracle`'s.
+pub fn assert_network_matches(
+    name: &str,
+    mlp: &Mlp,
+    oracle: impl Fn(&Mlp, &[f32], &[f32]) -> OracleAnswer,
+) {
+    let (inputs, targets) = data(12);
+    let mut gradient = Gradient::default();
+    let loss = mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
+    let expected = oracle(mlp, &inputs, &targets);
+    assert!(
+        (loss - expected.loss).abs() <= 1e-5 * expected.loss.abs(),
+        "loss {loss} against {name}'s {}",
+        expected.loss
+    );
+    assert_close_by_group(
+        &format!("parameter gradient of {:?}", mlp.dims()),
+        &gradient.params,
+        &expected.params,
+        &parameter_groups(mlp),
+    );
+    assert_close_by_group(
+        "input gradient",
+        &gradient.inputs,
+        &expected.inputs,
+        &[ROWS * INPUTS],
+    );
+    let mut outputs = vec![0.0; ROWS * 3];
+    mlp.forward(&inputs, &mut outputs, &mut BlockWork::default());
+    assert_close_by_group("forward", &outputs, &expected.outputs, &[ROWS * 3]);
+}
+
+/// Adam's settings in the optimiser tests: `(beta1, beta2, epsilon, lr)`.
+pub const ADAM: (f64, f64, f64, f64) = (0.9, 0.99, 1e-15, 1e-2);
+
+/// Three Adam steps (the bias corrections differ at each) on the gradients of `data(20 +
+/// step)`, each move compared with the one `oracle` makes from the same gradient (`step`, the
+/// parameters before, the gradient); the moves are compared, not the parameters, whose size
+/// would hide an error in the move.
+pub fn assert_adam_matches(mut oracle: impl FnMut(usize, &[f32], &[f32]) -> Vec<f32>) {
+    let (beta1, beta2, epsilon, lr) = ADAM;
+    let mut mlp = random_mlp(13);
+    let mut adam = Adam::default();
+    let mut gradient = Gradient::default();
+    for step in 0..3 {
+        let (inputs, targets) = data(20 + step as u64);
+        mlp.loss_and_gradient(&inputs, &targets, LOSS_EPSILON, &mut gradient);
+        let before = mlp.params().to_vec();
+        adam.step(&mut mlp, &gradient.params, lr, beta1, beta2, epsilon);
+        let ours: Vec<f32> = mlp
+            .params()
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| a - b)
+            .collect();
+        let theirs = oracle(step, &before, &gradient.params);
+        assert_close_by_group(
+            &format!("Adam step {step}"),
+            &ours,
+            &theirs,
+            &parameter_groups(&mlp),
+        );
+    }
 }

@@ -97,6 +97,7 @@ fn settings_written_as_flags_read_back_the_same() {
         resolution_divisor: 2,
         rt_samples: 3,
         c: 0.25,
+        c_deep: 1.75,
         threshold: 0.75,
         early: false,
         natural: false,

@@ -98,6 +98,7 @@ impl NrcFrame {
 pub fn termination(config: &NrcConfig) -> TerminationConfig {
     TerminationConfig {
         coefficient: config.c,
+        deep_coefficient: config.c,
         threshold: config.threshold,
         early: true,
         natural: false,

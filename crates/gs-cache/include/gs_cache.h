@@ -102,6 +102,8 @@ typedef struct GsCacheConfig {
   uint32_t rt_samples;
   // Algorithm 1's coefficient C.
   float c;
+  // Algorithm 1's C from path length 2 on (0: `c` at every level).
+  float c_deep;
   // Algorithm 1's threshold.
   float threshold;
   bool early;
@@ -206,8 +208,10 @@ const char *gs_cache_last_error(void);
 // The default settings (the GSCache paper's: 3 levels, 300k points, C = 0.5, the paper's rates).
 struct GsCacheConfig gs_cache_default_config(void);
 
-// Algorithm 1's probability of going on at a vertex whose path has the albedo product
-// `albedo_product` (3 floats), under `config`'s termination settings.
+// Algorithm 1's probability of going on at a first-level vertex (path length 1) whose path has
+// the albedo product `albedo_product` (3 floats), under `config`'s termination settings (the
+// path functions apply `c_deep` at the deeper levels themselves). A config with an unknown
+// enum value gives 1.
 //
 // # Safety
 // `config` must point to a `GsCacheConfig` and `albedo_product` to 3 floats, or be NULL

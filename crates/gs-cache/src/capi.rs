@@ -13,7 +13,7 @@
 //! number of threads while it is not being called).
 
 use crate::cache::GsCache;
-use crate::config::{CacheConfig, Decay, Lookup, Optimizer, TerminationConfig};
+use crate::config::{CacheConfig, Decay, Lookup, Optimizer};
 use crate::targets::TrainingTargets;
 use crate::termination;
 use glam::Vec3;
@@ -101,6 +101,8 @@ pub struct GsCacheConfig {
     pub rt_samples: u32,
     /// Algorithm 1's coefficient C.
     pub c: f32,
+    /// Algorithm 1's C from path length 2 on (0: `c` at every level).
+    pub c_deep: f32,
     /// Algorithm 1's threshold.
     pub threshold: f32,
     pub early: bool,
@@ -289,6 +291,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             resolution_divisor: c.resolution_divisor,
             rt_samples: c.rt_samples,
             c: c.c,
+            c_deep: c.c_deep,
             threshold: c.threshold,
             early: c.early,
             natural: c.natural,
@@ -341,6 +344,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         resolution_divisor: d.resolution_divisor,
         rt_samples: d.rt_samples,
         c: d.c,
+        c_deep: d.c_deep,
         threshold: d.threshold,
         early: d.early,
         natural: d.natural,
@@ -378,8 +382,10 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
     }
 }
 
-/// Algorithm 1's probability of going on at a vertex whose path has the albedo product
-/// `albedo_product` (3 floats), under `config`'s termination settings.
+/// Algorithm 1's probability of going on at a first-level vertex (path length 1) whose path has
+/// the albedo product `albedo_product` (3 floats), under `config`'s termination settings (the
+/// path functions apply `c_deep` at the deeper levels themselves). A config with an unknown
+/// enum value gives 1.
 ///
 /// # Safety
 /// `config` must point to a `GsCacheConfig` and `albedo_product` to 3 floats, or be NULL
@@ -395,15 +401,10 @@ pub unsafe extern "C" fn gs_cache_continue_probability(
     // SAFETY: both pointers are non-NULL and, by the caller's contract, point to a config and
     // to 3 readable floats.
     let (config, rgb) = unsafe { (&*config, std::slice::from_raw_parts(albedo_product, 3)) };
-    let t = TerminationConfig {
-        coefficient: config.c,
-        threshold: config.threshold,
-        early: config.early && !config.unbiased,
-        natural: config.natural && !config.unbiased,
-        survivor_weights: config.survivor_weights && !config.unbiased,
-        stopper_weights: config.stopper_weights && !config.unbiased,
-        unbiased: config.unbiased,
-        min_continuation: config.min_continuation,
+    // The library's own settings from the struct (a struct it refuses gives 1: never stop),
+    // so the termination rule is read in one place.
+    let Ok(t) = CacheConfig::try_from(config).map(|c| c.termination()) else {
+        return 1.0;
     };
     termination::continue_probability(&t, Vec3::new(rgb[0], rgb[1], rgb[2]))
 }

@@ -19,8 +19,10 @@ pub struct LearningRates {
 /// of a [`CacheConfig`], built by [`CacheConfig::termination`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TerminationConfig {
-    /// Algorithm 1's coefficient C.
+    /// Algorithm 1's coefficient C at the first level.
     pub coefficient: f32,
+    /// Algorithm 1's coefficient C from the second level on.
+    pub deep_coefficient: f32,
     /// Algorithm 1's threshold.
     pub threshold: f32,
     /// Early termination (Algorithm 1) on or off.
@@ -97,6 +99,12 @@ pub struct CacheConfig {
     /// clamp(C luminance(albedo product), 0, 1); 0 stops every path at its first vertex.
     #[cfg_attr(feature = "clap", arg(long = "cache-c", default_value_t = DEFAULT.c))]
     pub c: f32,
+    /// Algorithm 1's C from path length 2 on (the deeper levels), where it differs from `c`;
+    /// 0 uses `c` at every level. The deeper levels' bias compounds (each level trains on
+    /// paths that stopped into the next), so stopping into them less often can pay where the
+    /// first level's stops still do (docs/results/cache_error.md).
+    #[cfg_attr(feature = "clap", arg(long = "cache-c-deep", default_value_t = DEFAULT.c_deep))]
+    pub c_deep: f32,
     /// Algorithm 1's threshold: paths whose continuation probability is at or above it always
     /// go on.
     #[cfg_attr(feature = "clap", arg(long = "cache-threshold", default_value_t = DEFAULT.threshold))]
@@ -237,6 +245,7 @@ const DEFAULT: CacheConfig = CacheConfig {
     resolution_divisor: 4,
     rt_samples: 8,
     c: 0.5,
+    c_deep: 0.0,
     threshold: 0.9,
     early: true,
     natural: true,
@@ -384,6 +393,12 @@ impl CacheConfig {
                 self.min_continuation
             ));
         }
+        if !(self.c_deep >= 0.0 && self.c_deep.is_finite()) {
+            return bad(format!(
+                "c_deep = {}: expected a finite value >= 0 (0: `c` at every level)",
+                self.c_deep
+            ));
+        }
         if !(self.continuation_scale >= 0.0 && self.continuation_scale.is_finite()) {
             return bad(format!(
                 "continuation_scale = {}: expected a finite value >= 0 (0: chosen by the rule)",
@@ -421,6 +436,11 @@ impl CacheConfig {
     pub fn termination(&self) -> TerminationConfig {
         TerminationConfig {
             coefficient: self.c,
+            deep_coefficient: if self.c_deep > 0.0 {
+                self.c_deep
+            } else {
+                self.c
+            },
             threshold: self.threshold,
             early: self.early && !self.unbiased,
             natural: self.natural && !self.unbiased,

@@ -89,7 +89,9 @@
 //! (`stopper_weights`, derived at [`CachedPath::samples`]); measured on hydrogen it takes the
 //! first level's bias in the dense core from -1.1% to -0.3%, while the deeper levels keep a
 //! dark bias it does not remove (docs/results/cache_error.md). Off by default until measured at
-//! equal time.
+//! equal time. The deeper levels' bias compounds (each trains on paths that stopped into the
+//! next), so their stops can be made rarer on their own: `c_deep` is Algorithm 1's `C` from path
+//! length 2 on.
 //!
 //! # The unbiased estimator (`unbiased = true`)
 //!

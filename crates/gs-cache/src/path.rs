@@ -13,7 +13,7 @@
 use crate::cache::CacheFrame;
 use crate::config::{MAX_LEVELS, TerminationConfig};
 use crate::control::{self, PathStatistics, TailSample};
-use crate::termination::{continue_probability, luminance};
+use crate::termination::{continue_probability_at, luminance};
 use glam::Vec3;
 
 /// The relative training weight, with `stopper_weights`, of a sample from a path that always
@@ -250,7 +250,7 @@ impl<'a> CachedPath<'a> {
         {
             return 1.0;
         }
-        continue_probability(&self.termination, self.albedo_product)
+        continue_probability_at(&self.termination, self.length - 1, self.albedo_product)
     }
 
     /// The path stops into the cache at the current vertex: returns `x`, the cached value of
@@ -314,7 +314,7 @@ impl<'a> CachedPath<'a> {
     pub fn samples(&self) -> impl Iterator<Item = (usize, Vec3, f32)> + '_ {
         (0..self.active()).filter(|&m| self.sampled[m]).map(|m| {
             let w = if self.termination.stopper_weights {
-                let q = continue_probability(&self.termination, self.albedo_at[m]);
+                let q = continue_probability_at(&self.termination, m, self.albedo_at[m]);
                 let w = luminance(self.throughput_at[m]).max(0.0);
                 if q > 0.0 && q < 1.0 {
                     (1.0 - q) * w / q
@@ -322,7 +322,7 @@ impl<'a> CachedPath<'a> {
                     ALWAYS_ON_WEIGHT * w
                 }
             } else if self.termination.survivor_weights {
-                let q = continue_probability(&self.termination, self.albedo_at[m]);
+                let q = continue_probability_at(&self.termination, m, self.albedo_at[m]);
                 if q > 0.0 && q < 1.0 { 1.0 / q } else { 1.0 }
             } else {
                 1.0

@@ -22,6 +22,23 @@ pub fn continue_probability(config: &TerminationConfig, albedo_product: Vec3) ->
     if tr >= config.threshold { 1.0 } else { tr }
 }
 
+/// [`continue_probability`] at `level` (0: path length 1), with the level's coefficient: the
+/// first level's `coefficient`, the deeper levels' `deep_coefficient`.
+pub fn continue_probability_at(
+    config: &TerminationConfig,
+    level: usize,
+    albedo_product: Vec3,
+) -> f32 {
+    if level == 0 || config.deep_coefficient == config.coefficient {
+        return continue_probability(config, albedo_product);
+    }
+    let deeper = TerminationConfig {
+        coefficient: config.deep_coefficient,
+        ..*config
+    };
+    continue_probability(&deeper, albedo_product)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -40,5 +57,25 @@ mod tests {
         assert_eq!(continue_probability(&c, Vec3::splat(f32::NAN)), 0.0);
         let off = TerminationConfig { early: false, ..c };
         assert_eq!(continue_probability(&off, Vec3::ZERO), 1.0);
+    }
+
+    #[test]
+    fn the_deeper_levels_take_their_own_coefficient() {
+        let c = crate::CacheConfig {
+            c_deep: 1.5,
+            ..Default::default()
+        }
+        .termination();
+        let albedo = Vec3::splat(0.4);
+        // Level 0: C = 0.5 gives 0.2; levels 1 and 2: C = 1.5 gives 0.6.
+        assert!((continue_probability_at(&c, 0, albedo) - 0.2).abs() < 1e-6);
+        assert!((continue_probability_at(&c, 1, albedo) - 0.6).abs() < 1e-6);
+        assert!((continue_probability_at(&c, 2, albedo) - 0.6).abs() < 1e-6);
+        // Unset, every level takes `c`.
+        let same = crate::CacheConfig::default().termination();
+        assert_eq!(
+            continue_probability_at(&same, 2, albedo),
+            continue_probability(&same, albedo)
+        );
     }
 }

@@ -154,6 +154,8 @@ fn tiny_experiment_writes_everything_and_reuses_its_reference() {
         path.iter()
             .all(|f| f.method == "nee" && f.rel_mse.is_some_and(|e| e.is_finite() && e > 0.0))
     );
+    // Without a time budget a frame is one pass.
+    assert!(first.flythroughs.iter().all(|f| f.passes == 1));
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     assert_eq!(json["summary"].as_array().unwrap().len(), 6);
@@ -812,4 +814,70 @@ fn experiments_write_under_out_unless_told_to_write_elsewhere() {
         );
     }
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A fly-through with a time budget per frame: a 48x27 frame (about a millisecond a pass, a few
+/// more with a cache's training) holds several passes in 0.25 s, and each frame is still
+/// measured against its own view's reference.
+#[test]
+fn a_frame_budget_fills_each_frame_with_passes() {
+    let dir = scratch("budget");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml");
+    let file = dir.join("budget.toml");
+    std::fs::write(
+        &file,
+        format!(
+            r#"
+scene = "{}"
+width = 48
+height = 27
+output = "out"
+[reference]
+spp = 16
+dir = "{}"
+[budgets]
+spp = [1]
+[[method]]
+name = "nee"
+integrator = "nee"
+[[method]]
+name = "cache"
+integrator = "nee"
+cache = {{ points = 2000, warmup = 2 }}
+[[flythrough]]
+name = "budgeted"
+frames = 3
+error_every = 1
+reference_spp = 16
+orbit_degrees = 10.0
+frame_seconds = 0.25
+"#,
+            scene.display(),
+            dir.join("refs").display()
+        ),
+    )
+    .unwrap();
+    let r = experiments::run_experiment(&file, None, &|_: &str| {}).unwrap();
+    assert_eq!(r.flythroughs.len(), 6, "3 frames of 2 methods");
+    for f in &r.flythroughs {
+        assert!(f.passes > 1, "{f:?}");
+        assert!(f.rel_mse.is_some_and(|e| e.is_finite() && e > 0.0), "{f:?}");
+    }
+    let csv = std::fs::read_to_string(dir.join("out/flythrough.csv")).unwrap();
+    assert!(
+        csv.starts_with("flythrough,method,frame,warmup,passes,"),
+        "{csv}"
+    );
+    // A budget must be a positive finite number of seconds.
+    let text = std::fs::read_to_string(&file)
+        .unwrap()
+        .replace("frame_seconds = 0.25", "frame_seconds = 0.0");
+    std::fs::write(&file, text).unwrap();
+    let e = experiments::run_experiment(&file, None, &|_: &str| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("frame_seconds = 0: expected a finite budget > 0"),
+        "{e}"
+    );
 }

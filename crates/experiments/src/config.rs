@@ -150,6 +150,12 @@ pub struct FlythroughDesc {
     pub reference_spp: u32,
     #[serde(default, rename = "event")]
     pub events: Vec<EventDesc>,
+    /// Each frame's time budget in seconds, as a user moving through the data has one: passes
+    /// of one sample per pixel (tracing, and a cache's lookup and training, all charged) are
+    /// added to the frame while the next fits (at least one). None: one pass a frame. Not
+    /// written when unset, so older fly-throughs keep their identities.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_seconds: Option<f64>,
 }
 
 fn default_error_every() -> u32 {
@@ -348,6 +354,14 @@ fn check_flythrough(fly: &FlythroughDesc, methods: &[MethodSpec]) -> Result<()> 
     }
     for m in &fly.methods {
         find_method(methods, m, &format!("flythrough `{}`", fly.name))?;
+    }
+    if let Some(s) = fly.frame_seconds
+        && !(s > 0.0 && s.is_finite())
+    {
+        refuse!(
+            "flythrough `{}`: frame_seconds = {s}: expected a finite budget > 0",
+            fly.name
+        );
     }
     if !fly.orbit_degrees.is_finite() {
         refuse!(

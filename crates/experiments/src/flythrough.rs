@@ -1,8 +1,11 @@
-//! Fly-throughs: F frames (after W warm-up frames) of 1 spp each along an orbit, a key-framed
-//! path or with a still camera, with scene edits at given frames. Every frame's time is recorded (tracing, splatting,
-//! training); every `error_every` frames, and on the frames around an edit, the frame's own
-//! image is compared with a reference of that view and scene state. With a still camera and an
-//! edit this is the adaptation curve: how many frames the cache takes to learn the new scene.
+//! Fly-throughs: F frames (after W warm-up frames) along an orbit, a key-framed path or with a
+//! still camera, with scene edits at given frames. A frame is one pass of 1 spp, or with
+//! `frame_seconds` as many passes as its time budget holds (a cache's lookup and training
+//! charged to it, as a user in motion pays them). Every frame's time is recorded (tracing,
+//! splatting, training); every `error_every` frames, and on the frames around an edit, the
+//! frame's own image is compared with a reference of that view and scene state. With a still
+//! camera and an edit this is the adaptation curve: how many frames the cache takes to learn
+//! the new scene.
 
 use super::config::{EventDesc, FlythroughDesc, MethodSpec};
 use super::measure::method_session;
@@ -22,6 +25,9 @@ pub struct FrameRecord {
     pub method: String,
     pub frame: u32,
     pub warmup: bool,
+    /// Passes of 1 spp the frame holds (1 without a time budget).
+    #[serde(default = "one_pass")]
+    pub passes: u32,
     pub trace_ms: f64,
     pub splat_ms: f64,
     pub train_ms: f64,
@@ -31,6 +37,10 @@ pub struct FrameRecord {
     pub rel_mse: Option<f64>,
     /// Per cache level: MSE against the frame's samples before the step.
     pub level_mse: Vec<Option<f64>>,
+}
+
+fn one_pass() -> u32 {
+    1
 }
 
 /// The session edit `event` makes to `scene`, and a description of it for the reference key
@@ -80,9 +90,13 @@ pub fn fly(
     let total = fly.warmup + fly.frames;
     let mut out = Vec::new();
     for method in methods {
-        // Each frame is an image of its own: an interactive view in motion.
-        let mut session =
-            method_session(scene, method, seed)?.with_accumulation(Accumulation::PerFrame);
+        // Each frame is an image of its own: an interactive view in motion. With a budget, a
+        // frame's passes are averaged (the image is emptied at each frame).
+        let accumulation = match fly.frame_seconds {
+            Some(_) => Accumulation::Progressive,
+            None => Accumulation::PerFrame,
+        };
+        let mut session = method_session(scene, method, seed)?.with_accumulation(accumulation);
         let mut state = String::new();
         let edit_frames: Vec<u32> = fly.events.iter().map(|e| e.frame).collect();
         for f in 0..total {
@@ -99,13 +113,13 @@ pub fn fly(
                     .within(|| format!("flythrough `{}`", fly.name))?
             };
             session.edit(Edit::Camera(cam))?;
-            let r = session.next_frame(&Control::none())?;
-            let (mut trace, splat, train) = (r.trace_seconds, r.lookup_seconds, r.train_seconds);
-            let total_s = r.seconds;
+            let pass = frame_passes(&mut session, fly.frame_seconds)?;
+            let (mut trace, splat, train) = (pass.trace, pass.splat, pass.train);
+            let total_s = pass.seconds;
             if !method.has_cache() {
                 trace = total_s;
             }
-            let level_mse = r.loss;
+            let level_mse = pass.level_mse;
             // Evaluated: every `error_every` frames, the last, and the few frames right after
             // an edit (where the curve moves fastest).
             let near_edit = edit_frames.iter().any(|&e| f >= e && f < e + 4);
@@ -139,6 +153,7 @@ pub fn fly(
                 method: method.name.clone(),
                 frame: f,
                 warmup: f < fly.warmup,
+                passes: pass.passes,
                 trace_ms: trace * 1e3,
                 splat_ms: splat * 1e3,
                 train_ms: train * 1e3,
@@ -150,4 +165,48 @@ pub fn fly(
         progress(&format!("flythrough `{}`: {} done", fly.name, method.name));
     }
     Ok(out)
+}
+
+/// What one fly-through frame's passes took.
+struct FramePasses {
+    passes: u32,
+    trace: f64,
+    splat: f64,
+    train: f64,
+    seconds: f64,
+    /// The last pass's per-level training loss.
+    level_mse: Vec<Option<f64>>,
+}
+
+/// Renders one frame: one pass, or with `budget` passes into an emptied image while the next
+/// (taken to cost what the passes so far cost on average, by the wall clock) fits in it. Its
+/// `seconds` are the passes' own (the frame reports'), as a frame without a budget records.
+fn frame_passes(session: &mut render_session::Session, budget: Option<f64>) -> Result<FramePasses> {
+    if budget.is_some() {
+        session.clear_image();
+    }
+    let start = std::time::Instant::now();
+    let mut out = FramePasses {
+        passes: 0,
+        trace: 0.0,
+        splat: 0.0,
+        train: 0.0,
+        seconds: 0.0,
+        level_mse: Vec::new(),
+    };
+    loop {
+        let r = session.next_frame(&Control::none())?;
+        out.passes += 1;
+        out.trace += r.trace_seconds;
+        out.splat += r.lookup_seconds;
+        out.train += r.train_seconds;
+        out.seconds += r.seconds;
+        out.level_mse = r.loss;
+        let spent = start.elapsed().as_secs_f64();
+        let next = spent / f64::from(out.passes);
+        match budget {
+            Some(b) if spent + next <= b => {}
+            _ => return Ok(out),
+        }
+    }
 }

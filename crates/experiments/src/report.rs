@@ -49,7 +49,7 @@ pub fn write_reports(out: &Path, r: &Results, figures: &[Figure]) -> Result<()> 
     write(&out.join("summary.csv"), &csv)?;
     if !r.flythroughs.is_empty() {
         let mut csv = String::from(
-            "flythrough,method,frame,warmup,trace_ms,splat_ms,train_ms,total_ms,rel_mse,level_mse\n",
+            "flythrough,method,frame,warmup,passes,trace_ms,splat_ms,train_ms,total_ms,rel_mse,level_mse\n",
         );
         for f in &r.flythroughs {
             let levels: Vec<String> = f
@@ -59,11 +59,12 @@ pub fn write_reports(out: &Path, r: &Results, figures: &[Figure]) -> Result<()> 
                 .collect();
             writeln!(
                 csv,
-                "{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{}",
+                "{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{}",
                 csv_text(&f.flythrough),
                 csv_text(&f.method),
                 f.frame,
                 f.warmup,
+                f.passes,
                 f.trace_ms,
                 f.splat_ms,
                 f.train_ms,

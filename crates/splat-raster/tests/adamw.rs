@@ -14,7 +14,7 @@
 use splat_raster::adamw::AdamW;
 
 mod common;
-use common::{adamw_case, adamw_lr_scale, random_gradient};
+use common::{adamw_case, adamw_groups, adamw_lr_scale, random_gradient};
 
 /// AdamW on one group in f64: `p <- p (1 - lr wd)`, then the bias-corrected Adam step.
 struct ReferenceAdamW {
@@ -42,13 +42,7 @@ impl ReferenceAdamW {
 #[test]
 fn fused_adamw_matches_its_definition() {
     let (cloud, config, mut rng) = adamw_case();
-    let settings = [
-        config.means,
-        config.log_scales,
-        config.rotations,
-        config.colors,
-        config.opacity_logits,
-    ];
+    let settings = adamw_groups(&config);
     let mut ours = AdamW::new(config, &cloud);
     let mut params = cloud.clone();
     let mut reference: Vec<ReferenceAdamW> = cloud

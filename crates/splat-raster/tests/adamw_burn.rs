@@ -9,7 +9,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use splat_raster::adamw::AdamW;
 
 mod common;
-use common::{adamw_case, adamw_lr_scale, random_gradient};
+use common::{adamw_case, adamw_groups, adamw_lr_scale, random_gradient};
 
 #[derive(Module, Debug)]
 struct Group {
@@ -19,13 +19,7 @@ struct Group {
 #[test]
 fn fused_adamw_matches_burn() {
     let (cloud, config, mut rng) = adamw_case();
-    let settings = [
-        config.means,
-        config.log_scales,
-        config.rotations,
-        config.colors,
-        config.opacity_logits,
-    ];
+    let settings = adamw_groups(&config);
     let mut ours = AdamW::new(config, &cloud);
     let mut params = cloud.clone();
 

@@ -79,6 +79,20 @@ pub fn adamw_case() -> (GaussianCloud<f32>, splat_raster::adamw::AdamWConfig, St
     (cloud, config, rng)
 }
 
+/// The settings of `config`'s groups, in the cloud's group order (means, log-scales,
+/// rotations, colours, opacity logits).
+pub fn adamw_groups(
+    config: &splat_raster::adamw::AdamWConfig,
+) -> [splat_raster::adamw::GroupSettings; 5] {
+    [
+        config.means,
+        config.log_scales,
+        config.rotations,
+        config.colors,
+        config.opacity_logits,
+    ]
+}
+
 /// A gradient of `params`' shape with every element drawn from [-2, 2).
 pub fn random_gradient(params: &GaussianCloud<f32>, rng: &mut StdRng) -> GaussianCloud<f32> {
     let mut grads = params.zeros_like();

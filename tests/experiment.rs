@@ -851,6 +851,7 @@ error_every = 1
 reference_spp = 16
 orbit_degrees = 10.0
 frame_seconds = 0.25
+clip_frames = 2
 "#,
             scene.display(),
             dir.join("refs").display()
@@ -862,12 +863,36 @@ frame_seconds = 0.25
     for f in &r.flythroughs {
         assert!(f.passes > 1, "{f:?}");
         assert!(f.rel_mse.is_some_and(|e| e.is_finite() && e > 0.0), "{f:?}");
+        // Every frame is scored (error_every = 1): flicker from the second frame on, and the
+        // closing clip's JOD on the last only, below 10 (a few spp are visibly noisy) and above
+        // the scale's floor.
+        assert_eq!(f.flicker.is_some(), f.frame > 0, "{f:?}");
+        assert_eq!(f.jod.is_some(), f.frame == 2, "{f:?}");
+        assert!(f.jod.is_none_or(|j| j > 0.0 && j < 9.9), "{f:?}");
+        assert_eq!(f.denoise_ms, 0.0, "no twins without `denoise = true`");
     }
     let csv = std::fs::read_to_string(dir.join("out/flythrough.csv")).unwrap();
     assert!(
         csv.starts_with("flythrough,method,frame,warmup,passes,"),
         "{csv}"
     );
+    assert!(
+        csv.lines().next().unwrap().ends_with(",flip,flicker,jod"),
+        "{csv}"
+    );
+    let report = std::fs::read_to_string(dir.join("out/report.md")).unwrap();
+    assert!(report.contains("| flicker | JOD |"), "{report}");
+    // A clip longer than the measured frames is refused, naming the field.
+    let text = std::fs::read_to_string(&file).unwrap();
+    std::fs::write(&file, text.replace("clip_frames = 2", "clip_frames = 4")).unwrap();
+    let e = experiments::run_experiment(&file, None, &|_: &str| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("clip_frames = 4: expected at most the 3 measured frames"),
+        "{e}"
+    );
+    std::fs::write(&file, text).unwrap();
     // A budget must be a positive finite number of seconds.
     let text = std::fs::read_to_string(&file)
         .unwrap()
@@ -880,4 +905,81 @@ frame_seconds = 0.25
         e.contains("frame_seconds = 0: expected a finite budget > 0"),
         "{e}"
     );
+}
+
+/// A fly-through's denoised twins: every frame denoised with the denoiser's time charged to the
+/// frame (the passes fill what it leaves of the budget), scored like the raw frames, and steadier
+/// than them: the filter removes the frame-to-frame noise that flicker counts twice. The budget
+/// holds a few passes, and the references' 1024 spp keep their own noise (which flicker counts
+/// too) well below the raw frames'.
+#[test]
+#[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
+fn a_flythroughs_twins_are_denoised_every_frame_within_its_budget() {
+    let dir = scratch("fly_twins");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenes/default.toml");
+    let file = dir.join("twins.toml");
+    std::fs::write(
+        &file,
+        format!(
+            r#"
+scene = "{}"
+width = 64
+height = 36
+output = "out"
+denoise = true
+denoise_guides = ["albedo"]
+[reference]
+spp = 16
+dir = "{}"
+[budgets]
+spp = [1]
+[[method]]
+name = "nee"
+integrator = "nee"
+[[flythrough]]
+name = "budgeted, denoised"
+frames = 4
+warmup = 1
+reference_spp = 1024
+orbit_degrees = 10.0
+frame_seconds = 0.03
+clip_frames = 3
+denoise_quality = "fast"
+"#,
+            scene.display(),
+            dir.join("refs").display()
+        ),
+    )
+    .unwrap();
+    let r = experiments::run_experiment(&file, None, &|_: &str| {}).unwrap();
+    let of = |m: &str| -> Vec<&experiments::flythrough::FrameRecord> {
+        r.flythroughs.iter().filter(|f| f.method == m).collect()
+    };
+    let (raw, twin) = (of("nee"), of("nee + OIDN (albedo)"));
+    assert_eq!((raw.len(), twin.len()), (5, 5), "{:?}", r.flythroughs);
+    for f in &twin {
+        assert!(f.denoise_ms > 0.0, "{f:?}");
+        assert!(f.total_ms >= f.denoise_ms + f.trace_ms - 1e-9, "{f:?}");
+    }
+    // Frames 0 (error_every) and 2..=4 (the clip) are scored; flicker on 3 and 4.
+    let scored: Vec<u32> = twin
+        .iter()
+        .filter(|f| f.rel_mse.is_some())
+        .map(|f| f.frame)
+        .collect();
+    assert_eq!(scored, [0, 2, 3, 4]);
+    let flicker = |fr: &[&experiments::flythrough::FrameRecord]| -> f64 {
+        fr.iter().filter_map(|f| f.flicker).sum::<f64>()
+    };
+    assert!(
+        flicker(&twin) < 0.5 * flicker(&raw),
+        "denoised {} against raw {}",
+        flicker(&twin),
+        flicker(&raw)
+    );
+    // The clip's JOD is the twin's own (at 64x36 on a Full HD display the filter's blur and the
+    // noise it removes weigh about alike, so no order is asserted).
+    let jod = |fr: &[&experiments::flythrough::FrameRecord]| fr[4].jod.unwrap();
+    assert!(jod(&twin) != jod(&raw) && (0.0..10.0).contains(&jod(&twin)));
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -156,6 +156,27 @@ pub struct FlythroughDesc {
     /// written when unset, so older fly-throughs keep their identities.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame_seconds: Option<f64>,
+    /// The closing clip: this many last frames are all scored, for flicker (each frame's change
+    /// against the references') and the clip's ColorVideoVDP JOD. 0 (the default, not written)
+    /// scores none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub clip_frames: u32,
+    /// The denoised twins' quality on this fly-through, where it differs from the experiment's
+    /// `denoise_quality` (a fast filter at a short frame budget, a high one at a longer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoise_quality: Option<denoise::Quality>,
+}
+
+impl FlythroughDesc {
+    /// The frame rate the closing clip is shown at: what the frame budget gives, or 30 frames
+    /// a second without one.
+    pub fn clip_fps(&self) -> f64 {
+        self.frame_seconds.map_or(30.0, |t| 1.0 / t)
+    }
+}
+
+fn is_zero(v: &u32) -> bool {
+    *v == 0
 }
 
 fn default_error_every() -> u32 {
@@ -256,6 +277,13 @@ fn build(path: &Path, f: ExperimentFile) -> Result<Experiment> {
     };
     for fly in &f.flythroughs {
         check_flythrough(fly, &methods)?;
+        if fly.denoise_quality.is_some() && !f.denoise {
+            refuse!(
+                "flythrough `{}`: denoise_quality without denoised twins: set `denoise = true` \
+                 at the top of the file, or remove it",
+                fly.name
+            );
+        }
     }
     let mut flythroughs = f.flythroughs.clone();
     for fly in &mut flythroughs {
@@ -361,6 +389,23 @@ fn check_flythrough(fly: &FlythroughDesc, methods: &[MethodSpec]) -> Result<()> 
         refuse!(
             "flythrough `{}`: frame_seconds = {s}: expected a finite budget > 0",
             fly.name
+        );
+    }
+    if fly.clip_frames > fly.frames {
+        refuse!(
+            "flythrough `{}`: clip_frames = {}: expected at most the {} measured frames",
+            fly.name,
+            fly.clip_frames,
+            fly.frames
+        );
+    }
+    if fly.clip_frames > 0 && fly.clip_fps() > 16384.0 {
+        refuse!(
+            "flythrough `{}`: a clip shown at {:.0} frames a second (frame_seconds = {:?}): \
+             ColorVideoVDP takes at most 16384",
+            fly.name,
+            fly.clip_fps(),
+            fly.frame_seconds
         );
     }
     if !fly.orbit_degrees.is_finite() {

@@ -51,7 +51,7 @@ impl Denoisers {
     }
 
     /// Denoises `image` with `guides` from `features`; returns the image and the seconds taken.
-    fn run(
+    pub(crate) fn run(
         &mut self,
         image: &RgbImage,
         features: Option<&hdr_image::FeatureImages>,

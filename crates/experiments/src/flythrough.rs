@@ -6,14 +6,23 @@
 //! frame's own image is compared with a reference of that view and scene state. With a still
 //! camera and an edit this is the adaptation curve: how many frames the cache takes to learn
 //! the new scene.
+//!
+//! With the experiment's denoised twins, each method flies again per guides, every frame
+//! denoised and the denoiser's time charged to it (a time budget renders in what the denoiser
+//! leaves). The closing `clip_frames` frames are all scored: their flicker (each frame's change
+//! against the references' change) and the clip's ColorVideoVDP JOD, shown at the frame rate
+//! the budget gives, say whether a method's motion is steady as well as close.
 
-use super::config::{EventDesc, FlythroughDesc, MethodSpec};
+use super::config::{DenoiseSpec, EventDesc, FlythroughDesc, MethodSpec};
+use super::denoised::Denoisers;
 use super::measure::method_session;
 use super::reference::reference;
 use crate::camera_path::{keyframed, orbit};
-use crate::error::{Result, Within, refuse};
+use crate::error::{Error, Result, Within, refuse};
+use denoise::Guides;
 use glam::Vec3;
-use image_metrics::rel_mse;
+use hdr_image::{RgbImage, tone_map};
+use image_metrics::{flicker, flip, rel_mse, video_jod};
 use render_session::{Accumulation, Control, Edit};
 use std::path::Path;
 use volume_pt::{Scene, load_scene};
@@ -31,10 +40,22 @@ pub struct FrameRecord {
     pub trace_ms: f64,
     pub splat_ms: f64,
     pub train_ms: f64,
+    /// The denoiser's time on this frame (a denoised twin's), part of `total_ms`.
+    #[serde(default)]
+    pub denoise_ms: f64,
     /// Wall-clock time of the whole frame.
     pub total_ms: f64,
-    /// relMSE of this frame's 1-spp image, on evaluated frames.
+    /// relMSE of this frame's image, on scored frames.
     pub rel_mse: Option<f64>,
+    /// FLIP of this frame's tone-mapped image, on scored frames (with the `flip` feature).
+    #[serde(default)]
+    pub flip: Option<f64>,
+    /// Flicker (image-metrics' definition) from the frame before, when both are scored.
+    #[serde(default)]
+    pub flicker: Option<f64>,
+    /// On the last frame: ColorVideoVDP's JOD of the closing clip (`clip_frames` frames).
+    #[serde(default)]
+    pub jod: Option<f64>,
     /// Per cache level: MSE against the frame's samples before the step.
     pub level_mse: Vec<Option<f64>>,
 }
@@ -75,96 +96,199 @@ pub fn event_edit(scene: &Scene, event: &EventDesc) -> Result<(Edit, String)> {
     refuse!("event at frame {} changes nothing", event.frame)
 }
 
-/// Flies `fly` with each method (one seed), returning every frame's record.
+/// What every flight of one fly-through shares: the scene, where references are kept, the seed
+/// and the experiment's denoised twins.
+pub struct FlightSetup<'a> {
+    pub scene: &'a Scene,
+    pub scene_file: &'a Path,
+    pub seed: u64,
+    pub reference_dir: &'a Path,
+    /// With denoised twins, each method flies once more per guides, every frame denoised.
+    pub denoise: Option<&'a DenoiseSpec>,
+}
+
+/// Flies `fly` with each method (one seed), and with each method's denoised twins, returning
+/// every frame's record.
 pub fn fly(
-    scene: &Scene,
-    scene_file: &Path,
+    setup: &FlightSetup<'_>,
     fly: &FlythroughDesc,
     methods: &[&MethodSpec],
-    seed: u64,
-    reference_dir: &Path,
+    denoisers: &mut Denoisers,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<FrameRecord>> {
+    let denoise = setup.denoise.map(|spec| DenoiseSpec {
+        quality: fly.denoise_quality.unwrap_or(spec.quality),
+        ..spec.clone()
+    });
+    let mut out = Vec::new();
+    for method in methods {
+        out.extend(flight(setup, fly, method, None, denoisers, progress)?);
+        if let Some(spec) = &denoise {
+            for &guides in &spec.guides {
+                let twin = Some((spec, guides));
+                out.extend(flight(setup, fly, method, twin, denoisers, progress)?);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The frames of `fly` scored against references: every `error_every`, the last, the few
+/// right after an edit (where an adaptation curve moves fastest) and the closing clip.
+fn scored(fly: &FlythroughDesc, frame: u32) -> bool {
+    let total = fly.warmup + fly.frames;
+    let near_edit = fly
+        .events
+        .iter()
+        .any(|e| frame >= e.frame && frame < e.frame + 4);
+    frame.is_multiple_of(fly.error_every)
+        || frame + 1 == total
+        || near_edit
+        || frame + fly.clip_frames >= total
+}
+
+/// A scored frame's images, kept for the next frame's flicker and the clip's JOD.
+struct Scored {
+    frame: u32,
+    image: Vec<Vec3>,
+    reference: Vec<Vec3>,
+}
+
+/// One method (or its twin denoised with the given guides) along `fly`. A twin's frame renders
+/// in the frame's budget less the denoiser's measured cost (at least one pass), then is
+/// denoised; the denoiser's time is the frame's too.
+fn flight(
+    setup: &FlightSetup<'_>,
+    fly: &FlythroughDesc,
+    method: &MethodSpec,
+    twin: Option<(&DenoiseSpec, Guides)>,
+    denoisers: &mut Denoisers,
+    progress: &dyn Fn(&str),
+) -> Result<Vec<FrameRecord>> {
+    let scene = setup.scene;
+    let (w, h) = (scene.camera.width, scene.camera.height);
     let (lo, hi) = scene.media.medium.bounds();
     let centre = 0.5 * (lo + hi);
     let total = fly.warmup + fly.frames;
+    let name = match twin {
+        Some((_, guides)) => method.denoised_twin(guides).name,
+        None => method.name.clone(),
+    };
+    let denoise_cost = match twin {
+        Some((spec, guides)) => denoisers.cost(w, h, guides, spec)?,
+        None => 0.0,
+    };
+    let render_budget = fly.frame_seconds.map(|t| (t - denoise_cost).max(0.0));
+    // Each frame is an image of its own: an interactive view in motion. With a budget, a
+    // frame's passes are averaged (the image is emptied at each frame).
+    let accumulation = match fly.frame_seconds {
+        Some(_) => Accumulation::Progressive,
+        None => Accumulation::PerFrame,
+    };
+    let wants_features = matches!(twin, Some((_, g)) if g != Guides::None);
+    let mut session = method_session(scene, method, setup.seed)?
+        .with_accumulation(accumulation)
+        .with_features(wants_features);
+    let mut state = String::new();
     let mut out = Vec::new();
-    for method in methods {
-        // Each frame is an image of its own: an interactive view in motion. With a budget, a
-        // frame's passes are averaged (the image is emptied at each frame).
-        let accumulation = match fly.frame_seconds {
-            Some(_) => Accumulation::Progressive,
-            None => Accumulation::PerFrame,
+    let mut last_scored: Option<Scored> = None;
+    let mut clip: Vec<(Vec<u8>, Vec<u8>)> = Vec::new();
+    let ldr = |img: &[Vec3]| tone_map(img, scene.output.exposure, scene.output.tonemap);
+    for f in 0..total {
+        for e in fly.events.iter().filter(|e| e.frame == f) {
+            let (edit, what) =
+                event_edit(session.scene(), e).within(|| format!("flythrough `{}`", fly.name))?;
+            session.edit(edit)?;
+            state.push_str(&format!("{f}:{what};"));
+        }
+        let cam = if fly.keys.is_empty() {
+            orbit(&scene.camera, centre, fly.orbit_degrees, f, total)
+        } else {
+            keyframed(&scene.camera, &fly.keys, f)
+                .within(|| format!("flythrough `{}`", fly.name))?
         };
-        let mut session = method_session(scene, method, seed)?.with_accumulation(accumulation);
-        let mut state = String::new();
-        let edit_frames: Vec<u32> = fly.events.iter().map(|e| e.frame).collect();
-        for f in 0..total {
-            for e in fly.events.iter().filter(|e| e.frame == f) {
-                let (edit, what) = event_edit(session.scene(), e)
-                    .within(|| format!("flythrough `{}`", fly.name))?;
-                session.edit(edit)?;
-                state.push_str(&format!("{f}:{what};"));
+        session.edit(Edit::Camera(cam))?;
+        let pass = frame_passes(&mut session, render_budget)?;
+        let (image, denoise_seconds) = match twin {
+            Some((spec, guides)) => {
+                let noisy = RgbImage::from_pixels(w, h, session.mean())?;
+                let features = session.feature_images();
+                let (d, s) = denoisers.run(&noisy, features.as_ref(), guides, spec)?;
+                (d.into_pixels(), s)
             }
-            let cam = if fly.keys.is_empty() {
-                orbit(&scene.camera, centre, fly.orbit_degrees, f, total)
+            None => (session.mean(), 0.0),
+        };
+        let mut record = FrameRecord {
+            flythrough: fly.name.clone(),
+            method: name.clone(),
+            frame: f,
+            warmup: f < fly.warmup,
+            passes: pass.passes,
+            trace_ms: if method.has_cache() {
+                pass.trace
             } else {
-                keyframed(&scene.camera, &fly.keys, f)
-                    .within(|| format!("flythrough `{}`", fly.name))?
-            };
-            session.edit(Edit::Camera(cam))?;
-            let pass = frame_passes(&mut session, fly.frame_seconds)?;
-            let (mut trace, splat, train) = (pass.trace, pass.splat, pass.train);
-            let total_s = pass.seconds;
-            if !method.has_cache() {
-                trace = total_s;
+                pass.seconds
+            } * 1e3,
+            splat_ms: pass.splat * 1e3,
+            train_ms: pass.train * 1e3,
+            denoise_ms: denoise_seconds * 1e3,
+            total_ms: (pass.seconds + denoise_seconds) * 1e3,
+            rel_mse: None,
+            flip: None,
+            flicker: None,
+            jod: None,
+            level_mse: pass.level_mse,
+        };
+        if scored(fly, f) {
+            // The reference is the scene as edited, rendered with the scene file's own
+            // settings (not the method's), so every method shares it.
+            let mut edited = session.scene().clone();
+            edited.settings = scene.settings;
+            let r = reference(
+                setup.reference_dir,
+                setup.scene_file,
+                &state,
+                &edited,
+                &cam,
+                fly.reference_spp,
+                None,
+            )?;
+            if !r.reused {
+                progress(&format!(
+                    "flythrough `{}`: reference of frame {f} ({} spp, {:.1} s)",
+                    fly.name, r.spp, r.seconds
+                ));
             }
-            let level_mse = pass.level_mse;
-            // Evaluated: every `error_every` frames, the last, and the few frames right after
-            // an edit (where the curve moves fastest).
-            let near_edit = edit_frames.iter().any(|&e| f >= e && f < e + 4);
-            let evaluate = f % fly.error_every == 0 || f + 1 == total || near_edit;
-            let rel = if evaluate {
-                // The reference is the scene as edited, rendered with the scene file's own
-                // settings (not the method's), so every method shares it.
-                let mut edited = session.scene().clone();
-                edited.settings = scene.settings;
-                let r = reference(
-                    reference_dir,
-                    scene_file,
-                    &state,
-                    &edited,
-                    &cam,
-                    fly.reference_spp,
-                    None,
-                )?;
-                if !r.reused {
-                    progress(&format!(
-                        "flythrough `{}`: reference of frame {f} ({} spp, {:.1} s)",
-                        fly.name, r.spp, r.seconds
-                    ));
-                }
-                Some(rel_mse(&session.mean(), &r.image))
-            } else {
-                None
-            };
-            out.push(FrameRecord {
-                flythrough: fly.name.clone(),
-                method: method.name.clone(),
+            let (tm, tm_ref) = (ldr(&image), ldr(&r.image));
+            record.rel_mse = Some(rel_mse(&image, &r.image));
+            record.flip = flip(&tm, &tm_ref, w, h);
+            if let Some(prev) = last_scored.as_ref().filter(|p| p.frame + 1 == f) {
+                record.flicker = Some(flicker(&prev.image, &image, &prev.reference, &r.image));
+            }
+            if f + fly.clip_frames >= total {
+                clip.push((tm, tm_ref));
+            }
+            last_scored = Some(Scored {
                 frame: f,
-                warmup: f < fly.warmup,
-                passes: pass.passes,
-                trace_ms: trace * 1e3,
-                splat_ms: splat * 1e3,
-                train_ms: train * 1e3,
-                total_ms: total_s * 1e3,
-                rel_mse: rel,
-                level_mse,
+                image,
+                reference: r.image,
             });
         }
-        progress(&format!("flythrough `{}`: {} done", fly.name, method.name));
+        if f + 1 == total && !clip.is_empty() {
+            record.jod = Some(clip_jod(&clip, w, h, fly.clip_fps())?);
+        }
+        out.push(record);
     }
+    progress(&format!("flythrough `{}`: {name} done", fly.name));
     Ok(out)
+}
+
+/// ColorVideoVDP's JOD of a clip of (frame, reference) pairs, tone-mapped.
+fn clip_jod(clip: &[(Vec<u8>, Vec<u8>)], width: u32, height: u32, fps: f64) -> Result<f64> {
+    let test: Vec<&[u8]> = clip.iter().map(|c| c.0.as_slice()).collect();
+    let reference: Vec<&[u8]> = clip.iter().map(|c| c.1.as_slice()).collect();
+    video_jod(&test, &reference, width, height, fps)
+        .map_err(|e| Error::Invalid(format!("ColorVideoVDP refused the clip: {e}")))
 }
 
 /// What one fly-through frame's passes took.

@@ -49,7 +49,7 @@ pub fn write_reports(out: &Path, r: &Results, figures: &[Figure]) -> Result<()> 
     write(&out.join("summary.csv"), &csv)?;
     if !r.flythroughs.is_empty() {
         let mut csv = String::from(
-            "flythrough,method,frame,warmup,passes,trace_ms,splat_ms,train_ms,total_ms,rel_mse,level_mse\n",
+            "flythrough,method,frame,warmup,passes,trace_ms,splat_ms,train_ms,total_ms,rel_mse,level_mse,denoise_ms,flip,flicker,jod\n",
         );
         for f in &r.flythroughs {
             let levels: Vec<String> = f
@@ -57,9 +57,10 @@ pub fn write_reports(out: &Path, r: &Results, figures: &[Figure]) -> Result<()> 
                 .iter()
                 .map(|m| m.map_or(String::new(), |v| format!("{v:.6e}")))
                 .collect();
+            let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6e}"));
             writeln!(
                 csv,
-                "{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{}",
+                "{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{:.3},{},{},{}",
                 csv_text(&f.flythrough),
                 csv_text(&f.method),
                 f.frame,
@@ -69,8 +70,12 @@ pub fn write_reports(out: &Path, r: &Results, figures: &[Figure]) -> Result<()> 
                 f.splat_ms,
                 f.train_ms,
                 f.total_ms,
-                f.rel_mse.map_or(String::new(), |v| format!("{v:.6e}")),
-                levels.join(";")
+                opt(f.rel_mse),
+                levels.join(";"),
+                f.denoise_ms,
+                opt(f.flip),
+                opt(f.flicker),
+                f.jod.map_or(String::new(), |v| format!("{v:.4}")),
             )?;
         }
         write(&out.join("flythrough.csv"), &csv)?;
@@ -242,7 +247,13 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
     }
     if !r.flythroughs.is_empty() {
         let _ = writeln!(md, "\n## Fly-throughs (seed {})\n", r.seeds[0]);
-        md.push_str("| flythrough | method | frames | mean ms per frame | trace | splat | train | mean relMSE of evaluated frames |\n|---|---|---|---|---|---|---|---|\n");
+        md.push_str(
+            "Means over the measured frames (after the warm-up); the errors over the scored ones. \
+             Flicker: each scored frame's change from the frame before against the references' \
+             change (relMSE-weighted); JOD: ColorVideoVDP over the closing clip (10: no visible \
+             difference).\n\n",
+        );
+        md.push_str("| flythrough | method | frames | passes | ms per frame | trace | splat | train | denoise | relMSE | FLIP | flicker | JOD |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
         let mut keys: Vec<(&str, &str)> = r
             .flythroughs
             .iter()
@@ -259,20 +270,29 @@ fn markdown(r: &Results, figures: &[Figure]) -> String {
             let mean = |v: &dyn Fn(&&super::flythrough::FrameRecord) -> f64| {
                 fr.iter().map(v).sum::<f64>() / n
             };
-            let errs: Vec<f64> = fr.iter().filter_map(|f| f.rel_mse).collect();
+            let scored_mean = |v: &dyn Fn(&&super::flythrough::FrameRecord) -> Option<f64>,
+                               show: &dyn Fn(f64) -> String| {
+                let vals: Vec<f64> = fr.iter().filter_map(v).collect();
+                if vals.is_empty() {
+                    "-".to_string()
+                } else {
+                    show(vals.iter().sum::<f64>() / vals.len() as f64)
+                }
+            };
             let _ = writeln!(
                 md,
-                "| {fly} | {m} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
+                "| {fly} | {m} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} | {} | {} |",
                 fr.len(),
+                mean(&|f| f64::from(f.passes)),
                 mean(&|f| f.total_ms),
                 mean(&|f| f.trace_ms),
                 mean(&|f| f.splat_ms),
                 mean(&|f| f.train_ms),
-                if errs.is_empty() {
-                    "-".into()
-                } else {
-                    sci(errs.iter().sum::<f64>() / errs.len() as f64)
-                }
+                mean(&|f| f.denoise_ms),
+                scored_mean(&|f| f.rel_mse, &sci),
+                scored_mean(&|f| f.flip, &|v| format!("{v:.4}")),
+                scored_mean(&|f| f.flicker, &sci),
+                scored_mean(&|f| f.jod, &|v| format!("{v:.3}")),
             );
         }
         for (fly, frame, what) in &r.flythrough_events {

@@ -14,7 +14,7 @@
 
 use super::config::{Experiment, MethodSpec};
 use super::denoised::Denoisers;
-use super::flythrough::{FrameRecord, fly};
+use super::flythrough::{FlightSetup, FrameRecord, fly};
 use super::measure::run_method;
 use super::records::{Budget, CacheRecord, Snapshot};
 use crate::error::{Error, Result, refuse};
@@ -109,15 +109,14 @@ pub fn measure_unit(
                 .iter()
                 .filter(|m| fl.methods.is_empty() || fl.methods.contains(&m.name))
                 .collect();
-            UnitResult::Fly(fly(
+            let setup = FlightSetup {
                 scene,
-                &exp.scene,
-                fl,
-                &methods,
-                exp.seeds[0],
-                &exp.reference.dir,
-                progress,
-            )?)
+                scene_file: &exp.scene,
+                seed: exp.seeds[0],
+                reference_dir: &exp.reference.dir,
+                denoise: exp.denoise.as_ref(),
+            };
+            UnitResult::Fly(fly(&setup, fl, &methods, denoisers, progress)?)
         }
     })
 }
@@ -382,10 +381,23 @@ pub fn check_unit(spec: &UnitSpec<'_>, r: &UnitResult, pixels: usize) -> Result<
                 for ms in [f.trace_ms, f.splat_ms, f.train_ms, f.total_ms] {
                     seconds(&format!("{at} took"), ms / 1e3)?;
                 }
-                if let Some(e) = f.rel_mse
-                    && !(e >= 0.0 && e.is_finite())
+                seconds(&format!("{at}'s denoiser took"), f.denoise_ms / 1e3)?;
+                let measures = [
+                    ("relMSE", f.rel_mse),
+                    ("FLIP", f.flip),
+                    ("flicker", f.flicker),
+                ];
+                for (what, v) in measures {
+                    if let Some(e) = v
+                        && !(e >= 0.0 && e.is_finite())
+                    {
+                        return Err(format!("{at}: {what} {e}: expected a finite value >= 0"));
+                    }
+                }
+                if let Some(j) = f.jod
+                    && !j.is_finite()
                 {
-                    return Err(format!("{at}: relMSE {e}: expected a finite value >= 0"));
+                    return Err(format!("{at}: JOD {j}: expected a finite value"));
                 }
                 for l in &f.level_mse {
                     loss(l)?;

@@ -22,6 +22,18 @@
 //!   L = 255), averaged over the window positions inside the image. Higher is better; 1 is
 //!   equal. relMSE and PSNR see every error alike; FLIP and SSIM see structure, which is where
 //!   a cache's error (blur, bias in patches) and a denoiser's differ from noise.
+//!
+//! And two of motion, for frames of a moving view each with a reference of its own:
+//!
+//! - Flicker ([`flicker`]): relMSE of a frame's change from the frame before against the
+//!   references' change, `(dx - dr)^2 / (r^2 + eps)` with `dx = x_t - x_{t-1}`, trimmed as relMSE.
+//!   Independent noise counts twice (`Var(dx) = 2 Var(x)`); an error that stays put from frame
+//!   to frame (a bias that moves with the data) counts not at all, so it tells steady from
+//!   shimmering where relMSE cannot.
+//! - ColorVideoVDP ([`video_jod`]): Mantiuk et al. (2024)'s perceptual video metric through the
+//!   `colorvideovdp` crate (a port validated against the authors' PyTorch code), in JOD: 10 is
+//!   no visible difference, one JOD less is what 75% of observers would pick against. It sees
+//!   noise, blur and flicker at the frame rate the clip is shown.
 
 #![forbid(unsafe_code)]
 
@@ -48,7 +60,37 @@ pub fn rel_mse_map(image: &[Vec3], reference: &[Vec3]) -> Vec<f64> {
 
 /// relMSE with the top [`REL_MSE_TRIM`] of pixels dropped.
 pub fn rel_mse(image: &[Vec3], reference: &[Vec3]) -> f64 {
-    let mut m = rel_mse_map(image, reference);
+    trimmed_mean(rel_mse_map(image, reference))
+}
+
+/// Flicker: relMSE of the change from `previous` to `current` against the change from
+/// `previous_reference` to `current_reference`, relative to the current reference (module docs).
+pub fn flicker(
+    previous: &[Vec3],
+    current: &[Vec3],
+    previous_reference: &[Vec3],
+    current_reference: &[Vec3],
+) -> f64 {
+    let n = current.len();
+    assert!(
+        previous.len() == n && previous_reference.len() == n && current_reference.len() == n,
+        "images differ in size"
+    );
+    // (x1 - x0) - (r1 - r0) = x1 - (x0 - r0 + r1): relMSE of x1 against that image, with r1's
+    // weight.
+    let map = (0..n)
+        .map(|i| {
+            let (x1, r1) = (current[i].as_dvec3(), current_reference[i].as_dvec3());
+            let d = (x1 - previous[i].as_dvec3()) - (r1 - previous_reference[i].as_dvec3());
+            let e = d * d / (r1 * r1 + glam::DVec3::splat(REL_MSE_EPSILON));
+            (e.x + e.y + e.z) / 3.0
+        })
+        .collect();
+    trimmed_mean(map)
+}
+
+/// The mean of `m` without its top [`REL_MSE_TRIM`].
+fn trimmed_mean(mut m: Vec<f64>) -> f64 {
     if m.is_empty() {
         return 0.0;
     }
@@ -205,6 +247,38 @@ pub fn flip(image: &[u8], reference: &[u8], width: u32, height: u32) -> Option<f
     }
 }
 
+/// The display ColorVideoVDP assumes: a 24-inch Full HD monitor of 200 cd/m², seen from 0.6 m
+/// in office light (the reference implementation's `standard_fhd`). A clip is shown at its own
+/// pixel size on it, as a viewer's window would be.
+pub const VIDEO_DISPLAY: &str = "standard_fhd";
+
+/// ColorVideoVDP's quality of `test` against `reference`, in JOD: clips of tone-mapped 8-bit
+/// sRGB frames (`width x height x 3` bytes each), shown at `fps` on [`VIDEO_DISPLAY`]. One frame
+/// is an image. Errors: clips of different lengths or sizes, an empty clip, frames under 4x4 or
+/// a frame rate outside (0, 16384].
+pub fn video_jod(
+    test: &[&[u8]],
+    reference: &[&[u8]],
+    width: u32,
+    height: u32,
+    fps: f64,
+) -> Result<f64, colorvideovdp::Error> {
+    use colorvideovdp::{Color, Cvvdp, DisplayModel, Image, Options};
+    let frames = |clip: &[&[u8]]| -> Result<Vec<Image>, colorvideovdp::Error> {
+        clip.iter()
+            .map(|f| {
+                let data = f.iter().map(|&b| f32::from(b) / 255.0).collect();
+                Image::new(width as usize, height as usize, 3, data)
+            })
+            .collect()
+    };
+    let (t, r) = (frames(test)?, frames(reference)?);
+    let metric = Cvvdp::new(DisplayModel::from_name(VIDEO_DISPLAY)?, Options::default())?;
+    // A one-frame clip takes the metric's image path.
+    let p = metric.predict_video(&t, &r, fps as f32, Color::Srgb)?;
+    Ok(f64::from(p.jod))
+}
+
 /// Per-pixel sums over seeds of one method at one budget: the bias estimates of the module docs.
 #[derive(Debug, Clone)]
 pub struct SeedSpread {
@@ -316,6 +390,46 @@ mod tests {
         let b = u.estimate(&r).unwrap();
         assert!((b.rel_bias_sq - (0.0 - 0.5 / 2.0) / 1.01).abs() < 1e-12);
         assert!(b.brightness.abs() < 1e-12);
+    }
+
+    #[test]
+    fn flicker_hand_computed_and_blind_to_a_steady_error() {
+        // One pixel: the references go 1 -> 2; the frames 1.5 -> 2.5 (the same +0.5 error both
+        // times) flicker not at all; 1 -> 3 changes by 2 where the references change by 1:
+        // (2 - 1)^2 / (2^2 + 0.01) per channel.
+        let (r0, r1) = ([Vec3::ONE], [Vec3::splat(2.0)]);
+        assert_eq!(
+            flicker(&[Vec3::splat(1.5)], &[Vec3::splat(2.5)], &r0, &r1),
+            0.0
+        );
+        let f = flicker(&[Vec3::ONE], &[Vec3::splat(3.0)], &r0, &r1);
+        assert!((f - 1.0 / 4.01).abs() < 1e-12, "{f}");
+        // A steady error still counts in relMSE: the two measures see different things.
+        assert!(rel_mse(&[Vec3::splat(2.5)], &r1) > 0.06);
+    }
+
+    #[test]
+    fn video_jod_is_ten_for_equal_clips_and_falls_with_noise_and_flicker() {
+        let (w, h) = (32u32, 24u32);
+        let n = (w * h * 3) as usize;
+        let grey: Vec<u8> = (0..n).map(|i| 100 + (i % 7) as u8).collect();
+        let clip = [grey.as_slice(); 4];
+        let same = video_jod(&clip, &clip, w, h, 10.0).unwrap();
+        assert!((same - 10.0).abs() < 1e-3, "{same}");
+        // Noise of +-20 levels on every other pixel, and the same noise on alternate frames
+        // only (flicker): both visible, each well under 10.
+        let noisy: Vec<u8> = grey
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| if (i / 3) % 2 == 0 { v + 20 } else { v - 20 })
+            .collect();
+        let still = video_jod(&[noisy.as_slice(); 4], &clip, w, h, 10.0).unwrap();
+        let flickering = [&noisy[..], &grey, &noisy, &grey];
+        let flick = video_jod(&flickering, &clip, w, h, 10.0).unwrap();
+        assert!(still < 9.5 && flick < 9.5, "{still} {flick}");
+        // Wrong shapes are errors, not panics.
+        assert!(video_jod(&clip[..2], &clip, w, h, 10.0).is_err());
+        assert!(video_jod(&clip, &clip, w, h, 0.0).is_err());
     }
 
     #[cfg(feature = "flip")]

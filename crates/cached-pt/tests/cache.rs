@@ -440,7 +440,7 @@ fn still_frames_without_a_step_reuse_the_drawn_levels() {
             ..Default::default()
         },
     );
-    let moved = render_session::orbit::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
+    let moved = render_session::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
     let render_with = |cache: &mut GsCache, camera, f| {
         one_frame(&s, camera, s.settings.seed, f, cache);
         cache.report().lookup_reused
@@ -570,7 +570,7 @@ fn a_still_view_is_handed_back_to_plain_path_tracing() {
     );
     // Six warm-up frames, the last from another view (as the experiments' orbit ends), then the
     // image: frames 0-3 of it read and train the cache, frame 4 on are handed off.
-    let aside = render_session::orbit::orbit(&s.camera, Vec3::ZERO, 3.0, 0, 2);
+    let aside = render_session::orbit(&s.camera, Vec3::ZERO, 3.0, 0, 2);
     for f in 0..6 {
         let camera = if f == 5 { &aside } else { &s.camera };
         let (_, handed_off) = frame(&mut cache, camera, 100 + f);
@@ -593,7 +593,7 @@ fn a_still_view_is_handed_back_to_plain_path_tracing() {
         assert!(image == plain_frame, "frame {f} is plain path tracing");
     }
     assert!(colours(&cache) == trained, "no training once handed off");
-    let moved = render_session::orbit::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
+    let moved = render_session::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);
     let (_, handed_off) = frame(&mut cache, &moved, 7);
     assert!(!handed_off, "a camera move takes the cache back");
     assert!(colours(&cache) != trained, "and it trains again");

@@ -3,8 +3,8 @@
 //!
 //! Time counts the denoiser once per image: at a budget of `T` seconds the twin denoises the
 //! progressive render's image at `T - c` seconds, where `c` is the denoiser's cost at this image
-//! size measured before the run (the median of three calls after a first that builds the
-//! filter), and its time is the render's plus the denoiser's actual time on that image. Where
+//! size measured before the run (the median of five calls after three that build and warm
+//! the filter), and its time is the render's plus the denoiser's actual time on that image. Where
 //! `c >= T` the image is one frame and the twin is over its budget (its time says by how much):
 //! the denoiser does not fit. Spp budgets denoise the image at that spp.
 
@@ -99,12 +99,17 @@ impl Denoisers {
             vec![1.0; n],
             vec![1.0; n],
         )?;
-        self.run(&image, Some(&features), guides, spec)?;
-        let mut times: Vec<f64> = (0..3)
+        // The first calls build the filter and warm its memory (the first few after the build
+        // ran up to twice the steady time at high quality); the median of the next five is
+        // the cost.
+        for _ in 0..3 {
+            self.run(&image, Some(&features), guides, spec)?;
+        }
+        let mut times: Vec<f64> = (0..5)
             .map(|_| self.run(&image, Some(&features), guides, spec).map(|r| r.1))
             .collect::<Result<_>>()?;
         times.sort_by(f64::total_cmp);
-        let c = times[1];
+        let c = times[2];
         self.costs.insert(key, c);
         Ok(c)
     }

@@ -23,7 +23,7 @@ use denoise::Guides;
 use glam::Vec3;
 use hdr_image::{RgbImage, tone_map};
 use image_metrics::{flicker, flip, rel_mse, video_jod};
-use render_session::{Accumulation, Control, Edit};
+use render_session::{Accumulation, Control, Edit, ImageBudget};
 use std::path::Path;
 use volume_pt::{Scene, load_scene};
 
@@ -174,11 +174,15 @@ fn flight(
         Some((_, guides)) => method.denoised_twin(guides).name,
         None => method.name.clone(),
     };
-    let denoise_cost = match twin {
+    // What the denoiser will take of the next frame: its cost measured before the run, then
+    // the mean of its actual times on this flight's frames after the first (which may rebuild
+    // the filter), as an interactive application's governor would track it. The cost measured
+    // on a flat image ran up to twice the actual time at OIDN's high quality.
+    let mut denoise_estimate = match twin {
         Some((spec, guides)) => denoisers.cost(w, h, guides, spec)?,
         None => 0.0,
     };
-    let render_budget = fly.frame_seconds.map(|t| (t - denoise_cost).max(0.0));
+    let (mut denoise_sum, mut denoise_count) = (0.0, 0u32);
     // Each frame is an image of its own: an interactive view in motion. With a budget, a
     // frame's passes are averaged (the image is emptied at each frame).
     let accumulation = match fly.frame_seconds {
@@ -208,7 +212,12 @@ fn flight(
                 .within(|| format!("flythrough `{}`", fly.name))?
         };
         session.edit(Edit::Camera(cam))?;
-        let pass = frame_passes(&mut session, render_budget)?;
+        let budget = match fly.frame_seconds {
+            Some(t) => ImageBudget::Seconds((t - denoise_estimate).max(0.0)),
+            None => ImageBudget::Passes(1),
+        };
+        let image_report = session.render_image(budget, &Control::none())?;
+        let pass = &image_report.report;
         let (image, denoise_seconds) = match twin {
             Some((spec, guides)) => {
                 let noisy = RgbImage::from_pixels(w, h, session.mean())?;
@@ -218,26 +227,31 @@ fn flight(
             }
             None => (session.mean(), 0.0),
         };
+        if twin.is_some() && f > 0 {
+            denoise_sum += denoise_seconds;
+            denoise_count += 1;
+            denoise_estimate = denoise_sum / f64::from(denoise_count);
+        }
         let mut record = FrameRecord {
             flythrough: fly.name.clone(),
             method: name.clone(),
             frame: f,
             warmup: f < fly.warmup,
-            passes: pass.passes,
+            passes: image_report.passes,
             trace_ms: if method.has_cache() {
-                pass.trace
+                pass.trace_seconds
             } else {
                 pass.seconds
             } * 1e3,
-            splat_ms: pass.splat * 1e3,
-            train_ms: pass.train * 1e3,
+            splat_ms: pass.lookup_seconds * 1e3,
+            train_ms: pass.train_seconds * 1e3,
             denoise_ms: denoise_seconds * 1e3,
             total_ms: (pass.seconds + denoise_seconds) * 1e3,
             rel_mse: None,
             flip: None,
             flicker: None,
             jod: None,
-            level_mse: pass.level_mse,
+            level_mse: pass.loss.clone(),
         };
         if scored(fly, f) {
             // The reference is the scene as edited, rendered with the scene file's own
@@ -289,48 +303,4 @@ fn clip_jod(clip: &[(Vec<u8>, Vec<u8>)], width: u32, height: u32, fps: f64) -> R
     let reference: Vec<&[u8]> = clip.iter().map(|c| c.1.as_slice()).collect();
     video_jod(&test, &reference, width, height, fps)
         .map_err(|e| Error::Invalid(format!("ColorVideoVDP refused the clip: {e}")))
-}
-
-/// What one fly-through frame's passes took.
-struct FramePasses {
-    passes: u32,
-    trace: f64,
-    splat: f64,
-    train: f64,
-    seconds: f64,
-    /// The last pass's per-level training loss.
-    level_mse: Vec<Option<f64>>,
-}
-
-/// Renders one frame: one pass, or with `budget` passes into an emptied image while the next
-/// (taken to cost what the passes so far cost on average, by the wall clock) fits in it. Its
-/// `seconds` are the passes' own (the frame reports'), as a frame without a budget records.
-fn frame_passes(session: &mut render_session::Session, budget: Option<f64>) -> Result<FramePasses> {
-    if budget.is_some() {
-        session.clear_image();
-    }
-    let start = std::time::Instant::now();
-    let mut out = FramePasses {
-        passes: 0,
-        trace: 0.0,
-        splat: 0.0,
-        train: 0.0,
-        seconds: 0.0,
-        level_mse: Vec::new(),
-    };
-    loop {
-        let r = session.next_frame(&Control::none())?;
-        out.passes += 1;
-        out.trace += r.trace_seconds;
-        out.splat += r.lookup_seconds;
-        out.train += r.train_seconds;
-        out.seconds += r.seconds;
-        out.level_mse = r.loss;
-        let spent = start.elapsed().as_secs_f64();
-        let next = spent / f64::from(out.passes);
-        match budget {
-            Some(b) if spent + next <= b => {}
-            _ => return Ok(out),
-        }
-    }
 }

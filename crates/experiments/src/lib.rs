@@ -19,12 +19,12 @@
 //! - [`units`]: the same work split into units that shards measure and a merge assembles
 //!   (volume-pt's `shard` splits one render's samples; this splits an experiment's units).
 //! - [`figures`] and [`report`]: the plots, CSV, JSON and Markdown.
-//! - [`camera_path`]: the camera paths of fly-throughs (an orbit, or key frames).
+//! - [`camera_path`]: the camera paths of fly-throughs (an orbit, or key frames): render-session's.
 //! - [`plot`]: charts and image grids (SVG, PNG) for reports.
 
 #![forbid(unsafe_code)]
 
-pub mod camera_path;
+pub use render_session::camera_path;
 pub mod command;
 pub mod config;
 pub mod csv;

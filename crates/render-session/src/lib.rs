@@ -13,24 +13,24 @@
 //!   neural cache behind feature `nrc`): one type above volume-pt's seam.
 //! - [`edit`]: [`Edit`], and what each invalidates ([`Invalidated`]).
 //! - [`report`]: [`FrameReport`], the time of each part of a frame.
-//! - [`orbit`](mod@orbit): the warm-up's camera path.
+//! - [`camera_path`]: camera paths: the warm-up's orbit, a movie's turntable, key frames.
 //!
 //! Cancellation and progress go through [`Control`] (from render-base).
 
 #![forbid(unsafe_code)]
 
 pub mod cache;
+pub mod camera_path;
 pub mod edit;
 pub mod error;
-pub mod orbit;
 pub mod report;
 pub mod sampling;
 pub mod session;
 
 pub use cache::{Cache, CacheChoice};
+pub use camera_path::orbit;
 pub use edit::{CacheEffect, Edit, Invalidated};
 pub use error::{Result, SessionError};
-pub use orbit::orbit;
 pub use render_base::Control;
 pub use report::FrameReport;
-pub use session::{Accumulation, Session};
+pub use session::{Accumulation, ImageBudget, ImageReport, Session};

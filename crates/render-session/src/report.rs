@@ -47,6 +47,26 @@ pub struct FrameReport {
 }
 
 impl FrameReport {
+    /// Adds the next pass of the same image to this report: times and counts add up; the
+    /// losses, verdicts and handoff are the last pass's.
+    pub fn absorb(&mut self, next: FrameReport) {
+        self.samples += next.samples;
+        self.trace_seconds += next.trace_seconds;
+        self.lookup_seconds += next.lookup_seconds;
+        self.targets_seconds += next.targets_seconds;
+        self.train_seconds += next.train_seconds;
+        self.train_step_seconds += next.train_step_seconds;
+        self.film_seconds += next.film_seconds;
+        self.seconds += next.seconds;
+        self.nonfinite_samples += next.nonfinite_samples;
+        self.dropped_training_samples += next.dropped_training_samples;
+        self.loss = next.loss;
+        self.stale_fraction = next.stale_fraction;
+        self.handed_off = next.handed_off;
+        self.accumulated |= next.accumulated;
+        self.cancelled |= next.cancelled;
+    }
+
     /// The frame's wall time outside its named parts (the session's own bookkeeping): what a
     /// per-frame table must show so its parts add up to the frame (issue 31).
     pub fn other_seconds(&self) -> f64 {

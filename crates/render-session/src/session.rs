@@ -1,9 +1,9 @@
 //! [`Session`]: a scene, a camera, a cache and an accumulating image; the one frame loop.
 
 use crate::cache::{Cache, CacheChoice};
+use crate::camera_path::orbit;
 use crate::edit::{CacheEffect, Edit, Invalidated};
 use crate::error::{Result, SessionError};
-use crate::orbit::orbit;
 use crate::report::FrameReport;
 use crate::sampling::{check_frames, frame_samples};
 use glam::Vec3;
@@ -24,6 +24,28 @@ pub enum Accumulation {
     /// Each frame is an image of its own (a fly-through, an interactive view in motion); the
     /// Gaussian cache never hands off.
     PerFrame,
+}
+
+/// How many passes (frames of the session's spp) make one image of [`Session::render_image`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ImageBudget {
+    /// Exactly this many (at least one).
+    Passes(u32),
+    /// While the next pass, taken to cost the mean of the passes so far by the wall clock,
+    /// fits in this many seconds; at least one. An interactive frame's budget.
+    Seconds(f64),
+}
+
+/// What one image of [`Session::render_image`] took.
+#[derive(Debug, Clone)]
+pub struct ImageReport {
+    /// Passes rendered into the image.
+    pub passes: u32,
+    /// The first pass's frame index (the sampling rule's `k`): with `passes`, which samples the
+    /// image holds.
+    pub first_frame: u32,
+    /// The passes' reports summed ([`FrameReport::absorb`]).
+    pub report: FrameReport,
 }
 
 /// One render session: see the crate docs.
@@ -172,6 +194,73 @@ impl Session {
             seconds: start.elapsed().as_secs_f64(),
             ..report
         })
+    }
+
+    /// Renders one image of its own: empties the image, then renders passes into it as `budget`
+    /// says, each a frame of [`Session::next_frame`] (reading and training the cache). A
+    /// fly-through's or movie's frame: with [`Accumulation::Progressive`] the passes average
+    /// (and the Gaussian cache's handoff counts them, as in a still); with
+    /// [`Accumulation::PerFrame`] each pass would replace the last, so only one is allowed.
+    /// A cancelled pass ends the image.
+    pub fn render_image(&mut self, budget: ImageBudget, control: &Control) -> Result<ImageReport> {
+        let most = match budget {
+            ImageBudget::Passes(0) => {
+                return Err(SessionError::Invalid(
+                    "an image of 0 passes: expected at least 1".into(),
+                ));
+            }
+            ImageBudget::Passes(n) => n,
+            ImageBudget::Seconds(t) if !(t >= 0.0 && t.is_finite()) => {
+                return Err(SessionError::Invalid(format!(
+                    "an image budget of {t} seconds: expected a finite time >= 0"
+                )));
+            }
+            ImageBudget::Seconds(_) => u32::MAX,
+        };
+        if self.accumulation == Accumulation::PerFrame && most > 1 {
+            return Err(SessionError::Invalid(
+                "an image of several passes in a session that makes each frame an image of its \
+                 own (Accumulation::PerFrame): use Accumulation::Progressive"
+                    .into(),
+            ));
+        }
+        self.clear_image();
+        let first_frame = self.next_frame;
+        let start = Instant::now();
+        let mut report = self.next_frame(control)?;
+        let mut passes = 1;
+        while passes < most && !report.cancelled && !control.cancelled() {
+            if let ImageBudget::Seconds(t) = budget {
+                let spent = start.elapsed().as_secs_f64();
+                if spent + spent / f64::from(passes) > t {
+                    break;
+                }
+            }
+            report.absorb(self.next_frame(control)?);
+            passes += 1;
+        }
+        Ok(ImageReport {
+            passes,
+            first_frame,
+            report,
+        })
+    }
+
+    /// Moves the sampling rule's frame index on by `frames` without rendering them: the frames
+    /// of a resumed movie that were made before, for a session whose frames do not depend on
+    /// the frames before (no cache; a cache must see them again to be the same). Checked: the
+    /// index cannot wrap.
+    pub fn skip_frames(&mut self, frames: u32) -> Result<()> {
+        if !self.cache.is_none() {
+            return Err(SessionError::Invalid(
+                "skipping frames of a session with a cache: its state depends on every frame \
+                 before, so they must be rendered again"
+                    .into(),
+            ));
+        }
+        check_frames(self.next_frame, frames, self.scene.settings.spp)?;
+        self.next_frame += frames;
+        Ok(())
     }
 
     /// Renders `frames` frames that train the cache without entering the image, the camera

@@ -194,3 +194,56 @@ fn a_light_edit_is_checked_like_a_scene_file() {
     let err = session.edit(Edit::Lights(lights)).unwrap_err().to_string();
     assert!(err.contains("direction"), "{err}");
 }
+
+/// An image of passes is its own: it starts empty, holds exactly its passes (the samples of
+/// frames `first .. first + passes`, so a second image of 2 passes after a first of 3 is the
+/// render of samples 3..5 alone), and skipping frames of a session without a cache lands on
+/// the same samples as rendering them.
+#[test]
+fn an_image_of_passes_holds_its_own_frames_and_skipping_lands_on_the_same_samples() {
+    use render_session::ImageBudget;
+    let scene = small_scene();
+    let mut session = Session::new(scene.clone(), CacheChoice::None).unwrap();
+    let first = session
+        .render_image(ImageBudget::Passes(3), &Control::none())
+        .unwrap();
+    assert_eq!((first.passes, first.first_frame), (3, 0));
+    assert_eq!(first.report.samples, 3 * 2 * 40 * 24);
+    let second = session
+        .render_image(ImageBudget::Passes(2), &Control::none())
+        .unwrap();
+    assert_eq!((second.passes, second.first_frame), (2, 3));
+    assert_eq!(session.frames_in_image(), 2);
+    let mut skipping = Session::new(scene.clone(), CacheChoice::None).unwrap();
+    skipping.skip_frames(3).unwrap();
+    for _ in 0..2 {
+        skipping.next_frame(&Control::none()).unwrap();
+    }
+    assert_eq!(bits(&session.mean()), bits(&skipping.mean()));
+    // Not the first image's samples again.
+    let mut from_start = Session::new(scene.clone(), CacheChoice::None).unwrap();
+    from_start
+        .render_image(ImageBudget::Passes(2), &Control::none())
+        .unwrap();
+    assert_ne!(bits(&session.mean()), bits(&from_start.mean()));
+    // A time budget renders at least one pass; a zero budget exactly one.
+    let timed = session
+        .render_image(ImageBudget::Seconds(0.0), &Control::none())
+        .unwrap();
+    assert_eq!(timed.passes, 1);
+    // What cannot be: no passes, a NaN budget, several passes where each frame replaces the
+    // last, skipping a cache's frames.
+    for bad in [ImageBudget::Passes(0), ImageBudget::Seconds(f64::NAN)] {
+        assert!(session.render_image(bad, &Control::none()).is_err());
+    }
+    let mut per_frame = Session::new(scene.clone(), CacheChoice::None)
+        .unwrap()
+        .with_accumulation(Accumulation::PerFrame);
+    let e = per_frame
+        .render_image(ImageBudget::Passes(2), &Control::none())
+        .unwrap_err();
+    assert!(e.to_string().contains("Accumulation::Progressive"), "{e}");
+    let mut cached = Session::new(scene, small_cache()).unwrap();
+    let e = cached.skip_frames(1).unwrap_err();
+    assert!(e.to_string().contains("must be rendered again"), "{e}");
+}

@@ -345,6 +345,9 @@ pub struct OutputDesc {
 pub struct Scene {
     pub media: SceneMedia,
     pub camera: Camera,
+    /// The scene's up: its camera table's `up`, normalised (the camera keeps only the image's
+    /// up, which tilts with the view). Turntables turn about it.
+    pub up: Vec3,
     pub settings: RenderSettings,
     pub output: OutputDesc,
     /// What the readers reported but the renderer does not use, and warnings (prefixed
@@ -689,6 +692,7 @@ pub fn build_scene_with_volume(
             },
         },
         camera,
+        up: vec3(c.up).normalize_or(Vec3::Y),
         settings: RenderSettings {
             spp: r.spp,
             seed: r.seed,

@@ -2,6 +2,7 @@
 //!
 //! - `render`: path-trace a volume scene, optionally with the radiance cache, or one shard of it;
 //! - `merge`: join a sharded render's partial films into its image;
+//! - `movie`: frames along a camera path into a folder and a video (the movie crate);
 //! - `view`: the render session in a browser (the viewer crate), for exploring a volume;
 //! - `splat render | fit | trace`: Gaussian clouds with the rasteriser or the ray tracer;
 //! - `experiment`: methods at budgets against a reference, fly-throughs, ablations, a report;
@@ -31,10 +32,12 @@ macro_rules! eprintln {
 }
 
 mod bench;
+mod cache_flags;
 mod common;
 mod denoising;
 mod experiment;
 mod merge;
+mod movie;
 mod render;
 mod splat;
 mod view;
@@ -67,39 +70,46 @@ enum Command {
     Experiment(experiment::ExperimentArgs),
     /// Measure the renderers' speed (Markdown tables).
     Bench(bench::BenchArgs),
+    /// Make a movie: a turntable or key-framed path, any method, numbered EXR and PNG frames
+    /// and a video; resumable.
+    Movie(Box<movie::MovieArgs>),
     /// Explore a scene in the browser: orbit, edit the transfer function and the lights, switch
     /// methods, with the image refining live (prints a URL with a token; Ctrl-C stops it).
     View(view::ViewArgs),
 }
 
-/// The command line, with `render`'s many cache settings grouped under their own headings and
+/// The command line, with `render`'s and `movie`'s many cache settings grouped under their own headings and
 /// left out of the short help (`-h`: what a first render needs; `--help`: everything).
 fn command() -> clap::Command {
-    Cli::command().mut_subcommand("render", |render| {
-        render
-            .mut_args(|a| {
-                let long = a.get_long().unwrap_or_default().to_string();
-                let heading = if long.starts_with("cache-") {
-                    "Gaussian cache settings (--cache-KEY; the keys of an experiment's cache table)"
-                } else if long.starts_with("nrc-") {
-                    "Neural cache settings (--nrc-KEY; the keys of an experiment's nrc table)"
-                } else if long.starts_with("denoise") || long == "features" {
-                    "Feature buffers and denoising"
-                } else {
-                    return a;
-                };
-                let a = a.help_heading(heading);
-                if long.starts_with("cache-") || long.starts_with("nrc-") {
-                    a.hide_short_help(true)
-                } else {
-                    a
-                }
-            })
-            .after_help(
-                "The Gaussian and neural caches' settings (--cache-KEY, --nrc-KEY) are listed by \
-                 --help.",
-            )
+    Cli::command()
+        .mut_subcommand("render", group_cache_settings)
+        .mut_subcommand("movie", group_cache_settings)
+}
+
+/// A subcommand's cache and denoiser flags under their own headings, the caches' settings
+/// left out of the short help.
+fn group_cache_settings(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|a| {
+        let long = a.get_long().unwrap_or_default().to_string();
+        let heading = if long.starts_with("cache-") {
+            "Gaussian cache settings (--cache-KEY; the keys of an experiment's cache table)"
+        } else if long.starts_with("nrc-") {
+            "Neural cache settings (--nrc-KEY; the keys of an experiment's nrc table)"
+        } else if long.starts_with("denoise") || long == "features" {
+            "Feature buffers and denoising"
+        } else {
+            return a;
+        };
+        let a = a.help_heading(heading);
+        if long.starts_with("cache-") || long.starts_with("nrc-") {
+            a.hide_short_help(true)
+        } else {
+            a
+        }
     })
+    .after_help(
+        "The Gaussian and neural caches' settings (--cache-KEY, --nrc-KEY) are listed by --help.",
+    )
 }
 
 fn main() {
@@ -110,6 +120,7 @@ fn main() {
         Command::Splat(c) => splat::run(c, &cli.global),
         Command::Experiment(a) => experiment::run(a, &cli.global),
         Command::Bench(a) => bench::run(a),
+        Command::Movie(a) => movie::run(*a, &cli.global),
         Command::View(a) => view::run(a, &cli.global),
     });
     match result {

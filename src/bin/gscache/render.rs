@@ -1,14 +1,13 @@
 //! `gscache render SCENE.toml`: path-trace a volume scene to EXR and PNG, optionally reading
 //! and training the GSCache radiance cache.
 
+use crate::cache_flags::CacheFlags;
 use crate::common::{
     Global, INTERRUPTED, cancellation, finite_f32, prepare_folder, prepare_output,
 };
 use crate::denoising::{DenoiseArgs, write_denoised, write_image};
 use anyhow::{Context, Result, bail};
-use gs_cache::CacheConfig;
 use hdr_image::ToneMap;
-use nrc_cache::NrcConfig;
 use render_session::{Cache, CacheChoice, Control, FrameReport, Session};
 use std::path::PathBuf;
 use volume_pt::scene::scene_render_key;
@@ -67,25 +66,11 @@ fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
     Shard::parse(s).map_err(|e| e.to_string())
 }
 
-/// The GSCache radiance cache (Bauer et al., 2025): read where paths stop, trained between
-/// frames. Its settings are `--cache-KEY`, the keys of an experiment file's `cache` table.
+/// A cached render's frames, warm-up and files; the cache itself is [`CacheFlags`].
 #[derive(clap::Args, Debug)]
 pub struct CacheRun {
-    /// Read and train the radiance cache.
-    #[arg(long, conflicts_with = "nrc")]
-    cache: bool,
-    /// Read and train the neural radiance cache (Müller et al., 2021: a hash grid and an MLP)
-    /// instead: the baseline the GSCache paper compares with.
-    #[arg(long)]
-    nrc: bool,
-    /// The Gaussian cache's settings: `--cache-KEY VALUE`, the keys of an experiment file's
-    /// `cache` table.
     #[command(flatten)]
-    settings: CacheConfig,
-    /// The neural cache's settings: `--nrc-KEY VALUE`, the keys of an experiment file's `nrc`
-    /// table.
-    #[command(flatten)]
-    nrc_settings: NrcConfig,
+    flags: CacheFlags,
     /// Frames of `--spp` samples each, trained between them; the image is their mean.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     frames: u32,
@@ -173,7 +158,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
         Session::new(scene, choice)?.with_features(args.features || args.denoise.needs_features());
     describe_cache(&session, args.cache.load_cache.is_some());
     if let (Some(dir), Cache::Gaussian(c)) = (&args.cache.load_cache, session.cache())
-        && c.levels().len() != args.cache.settings.levels
+        && c.levels().len() != args.cache.flags.settings.levels
     {
         // The saved folder's manifest fixes the levels; a differing --cache-levels (or its
         // default) is said, not silently overridden.
@@ -181,7 +166,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
             "note: {} holds {} levels (its manifest): the loaded cache has those, not the {} of --cache-levels",
             dir.display(),
             c.levels().len(),
-            args.cache.settings.levels
+            args.cache.flags.settings.levels
         );
     }
     // Frame counts from the user are checked before any work: they cannot wrap.
@@ -302,19 +287,28 @@ fn load_scene_for_render(args: &RenderArgs, global: &Global) -> Result<Scene> {
             None => {}
         }
     }
-    let mut scene = opened.scene;
+    finish_scene(
+        opened.scene,
+        &args.overrides,
+        args.features || args.denoise.needs_features(),
+    )
+}
+
+/// A loaded scene made ready to render: its notes printed, the command line's overrides
+/// applied, its image's memory (with feature buffers if `features`) checked.
+pub fn finish_scene(
+    mut scene: Scene,
+    overrides: &volume_pt::SceneOverrides,
+    features: bool,
+) -> Result<Scene> {
     for n in &scene.notes {
         let (kind, text) = n
             .strip_prefix("warning: ")
             .map_or(("note", n.as_str()), |w| ("warning", w));
         eprintln!("{kind}: {}: {text}", scene.volume_path.display());
     }
-    args.overrides.apply(&mut scene)?;
-    check_image_memory(
-        scene.camera.width,
-        scene.camera.height,
-        args.features || args.denoise.needs_features(),
-    )?;
+    overrides.apply(&mut scene)?;
+    check_image_memory(scene.camera.width, scene.camera.height, features)?;
     Ok(scene)
 }
 
@@ -553,17 +547,7 @@ fn check_image_memory(width: u32, height: u32, features: bool) -> Result<()> {
 impl CacheRun {
     /// The cache these flags ask for.
     fn choice(&self) -> Result<CacheChoice> {
-        Ok(if self.nrc {
-            self.nrc_settings.validate()?;
-            CacheChoice::Neural(self.nrc_settings)
-        } else if self.cache {
-            CacheChoice::Gaussian {
-                config: self.settings,
-                load: self.load_cache.clone(),
-            }
-        } else {
-            CacheChoice::None
-        })
+        self.flags.choice(self.load_cache.clone())
     }
 }
 

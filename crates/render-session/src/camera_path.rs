@@ -1,11 +1,59 @@
-//! Camera paths shared by the benchmarks and the experiment runner: an orbit about the volume,
-//! or a key-framed path through chosen views.
+//! Camera paths: the warm-up's and fly-throughs' orbit that ends at the camera, a movie's
+//! turntable about the scene's up, and key-framed paths through chosen views. Shared by the
+//! session's warm-up, the experiment runner, the benches and `gscache movie`.
 
-use glam::Vec3;
+use glam::{Quat, Vec3};
+use render_base::Camera;
 use serde::{Deserialize, Serialize};
-use splat_raster::Camera;
 
-pub use render_session::orbit::{image_up, orbit};
+/// The camera's "up" as seen in its image (image rows grow down, along the rotation's +Y).
+pub fn image_up(camera: &Camera) -> Vec3 {
+    -(camera.rotation * Vec3::Y).normalize()
+}
+
+/// Frame `f` of `total` on an orbit of `degrees` about `centre` (about the image's up axis),
+/// ending at `camera` on frame `total - 1`: frame 0 is `degrees` before it.
+pub fn orbit(camera: &Camera, centre: Vec3, degrees: f32, f: u32, total: u32) -> Camera {
+    let t = if total > 1 {
+        1.0 - f as f32 / (total - 1) as f32
+    } else {
+        0.0
+    };
+    turned(camera, centre, image_up(camera), degrees * t)
+}
+
+/// Frame `f` of a turntable: `camera` turned by `degrees * f / frames` about `axis` through
+/// `centre`, starting at the camera. A whole turn (360) loops: the frame after the last is the
+/// first. `axis` is the scene's up (its camera table's `up`), so the volume turns as it stands,
+/// not about the image's tilted up. A zero or non-finite axis leaves the camera where it is.
+pub fn turntable(
+    camera: &Camera,
+    centre: Vec3,
+    axis: Vec3,
+    degrees: f32,
+    f: u32,
+    frames: u32,
+) -> Camera {
+    let t = if frames > 0 {
+        f as f32 / frames as f32
+    } else {
+        0.0
+    };
+    turned(camera, centre, axis, degrees * t)
+}
+
+/// `camera` rotated by `degrees` about `axis` through `centre` (right-handed).
+fn turned(camera: &Camera, centre: Vec3, axis: Vec3, degrees: f32) -> Camera {
+    let Some(axis) = axis.try_normalize() else {
+        return *camera;
+    };
+    let q = Quat::from_axis_angle(axis, degrees.to_radians());
+    Camera {
+        position: centre + q * (camera.position - centre),
+        rotation: (q * camera.rotation).normalize(),
+        ..*camera
+    }
+}
 
 /// A view the path passes through at a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
@@ -135,6 +183,29 @@ mod tests {
         assert!((start.position.length() - 10.0).abs() < 1e-4);
         // A quarter turn about +Y from +Z lands on +X.
         assert!(start.position.distance(Vec3::new(10.0, 0.0, 0.0)) < 1e-4);
+    }
+
+    #[test]
+    fn a_turntable_starts_at_the_camera_turns_about_the_given_axis_and_loops() {
+        // A camera tilted down at the volume: its image up is not the world's +Y.
+        let cam =
+            Camera::look_at(Vec3::new(0.0, 6.0, 8.0), Vec3::ZERO, Vec3::Y, 40.0, 32, 18).unwrap();
+        assert!(image_up(&cam).dot(Vec3::Y) < 0.9);
+        let at = |f| turntable(&cam, Vec3::ZERO, Vec3::Y, 360.0, f, 8);
+        assert!(at(0).position.distance(cam.position) < 1e-5);
+        for f in 0..=8 {
+            // About the world's +Y the height and the distance from the axis stay.
+            let p = at(f).position;
+            assert!((p.y - 6.0).abs() < 1e-4, "frame {f}: {p}");
+            assert!((p.x.hypot(p.z) - 8.0).abs() < 1e-4, "frame {f}: {p}");
+        }
+        // A quarter of the way round a whole turn: +Z to +X.
+        assert!(at(2).position.distance(Vec3::new(8.0, 6.0, 0.0)) < 1e-4);
+        // The frame after the last is the first again.
+        assert!(at(8).position.distance(cam.position) < 1e-4);
+        // It keeps looking at the centre.
+        let forward = at(3).rotation * Vec3::Z;
+        assert!(forward.dot(-at(3).position.normalize()) > 1.0 - 1e-5);
     }
 
     #[test]

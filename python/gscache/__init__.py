@@ -14,7 +14,9 @@ The renderer of the ``gscache`` program, from Python:
 - ``Cloud``, ``splat_render``, ``splat_trace``: 3D Gaussian clouds;
 - ``read_exr``, ``write_exr``, ``write_png``;
 - ``denoise(image, albedo=..., normal=...)``: Intel Open Image Denoise (``pip install pyoidn``),
-  guided by the feature buffers ``render(..., features=True)`` returns.
+  guided by the feature buffers ``render(..., features=True)`` returns;
+- ``movie(scene, folder, frames=...)``: ``gscache movie``, numbered frames and a video
+  (``gscache.distributed.movie`` splits it across Dask workers).
 
 Errors the renderer refuses are ``GscacheError``, with the message the program prints.
 """
@@ -56,6 +58,7 @@ __all__ = [
     "Volume",
     "__version__",
     "denoise",
+    "movie",
     "read_exr",
     "render",
     "render_partial",
@@ -507,3 +510,96 @@ def view(
         path = scene._path
         text = getattr(scene, "toml", None) or pathlib.Path(path).read_text()
     return Viewer(_gscache._view(scene._inner, text, path, port, bind, output, max_clients))
+
+
+def _movie_spec(
+    frames: int,
+    fps: float,
+    turntable_degrees: float,
+    keys: Optional[Sequence[Mapping[str, Any]]],
+    spp: Optional[int],
+    frame_seconds: Optional[float],
+    warmup: int,
+    denoise: Any,
+    reference_spp: Optional[int],
+    scene_spp: int,
+) -> str:
+    """The movie's settings as the movie crate's ``MovieSpec`` JSON."""
+    if spp is not None and frame_seconds is not None:
+        raise ValueError("spp and frame_seconds: give one budget per frame, not both")
+    if keys is not None:
+        path = {"kind": "keys", "keys": [dict(k) for k in keys]}
+    else:
+        path = {"kind": "turntable", "degrees": float(turntable_degrees)}
+    if frame_seconds is not None:
+        budget = {"seconds": float(frame_seconds)}
+    else:
+        budget = {"spp": int(spp if spp is not None else scene_spp)}
+    if denoise is True:
+        denoise = {}
+    if denoise:
+        denoise = {"quality": "high", "guides": "none", "prefilter": True, **dict(denoise)}
+    else:
+        denoise = None
+    return json.dumps({
+        "frames": int(frames), "fps": float(fps), "path": path, "budget": budget,
+        "warmup": int(warmup), "denoise": denoise, "reference_spp": reference_spp,
+    })
+
+
+def movie(
+    scene: Scene,
+    folder: str,
+    frames: int = 120,
+    *,
+    fps: float = 30.0,
+    turntable_degrees: float = 360.0,
+    keys: Optional[Sequence[Mapping[str, Any]]] = None,
+    spp: Optional[int] = None,
+    frame_seconds: Optional[float] = None,
+    warmup: int = 0,
+    cache: Any = None,
+    denoise: Any = None,
+    reference_spp: Optional[int] = None,
+    video: Optional[str] = "mp4",
+    resume: bool = False,
+    return_frames: bool = False,
+    threads: Optional[int] = None,
+    progress: Optional[Progress] = None,
+) -> Any:
+    """``gscache movie`` from Python: ``frames`` frames along a turntable of
+    ``turntable_degrees`` about the scene's up (or ``keys``: dicts of ``frame``, ``eye``,
+    ``target``), each of ``spp`` samples (default the scene's) or ``frame_seconds``, into
+    ``folder`` as ``frame_NNNNNN.exr`` / ``.png``, ``frames.csv`` and ``movie.mp4`` (``video``:
+    ``"mp4"``, ``"webm"`` or None; needs ffmpeg). ``cache``: True or a dict of an experiment
+    file's ``cache`` keys for the Gaussian cache (``warmup`` frames along the path's start train
+    it first); ``denoise``: True or a dict of ``quality``, ``guides``, ``prefilter``;
+    ``reference_spp``: each frame's NEE reference, for the error, flicker and JOD in the
+    summary. ``resume`` goes on with the movie in the folder, bit for bit. Returns the folder,
+    or ``(folder, frames)`` with ``return_frames`` (float32, (frames, height, width, 3): the
+    frames as shown, denoised if denoising). Ctrl-C raises ``Interrupted`` with the frames
+    finished (kept in the folder)."""
+    spec = _movie_spec(frames, fps, turntable_degrees, keys, spp, frame_seconds, warmup,
+                       denoise, reference_spp, scene.spp)
+    cache_json = _config_json({} if cache is True else cache) if cache else None
+    done, interrupted, summary = _gscache._movie(
+        scene._inner, str(folder), spec, cache_json, resume, None, threads, progress
+    )
+    if interrupted:
+        stop = Interrupted(None, 0)
+        stop.args = (f"movie interrupted: {done} frames are in {folder}; resume=True goes on",)
+        stop.frames = done
+        raise stop
+    if video is not None:
+        _gscache._encode_movie(scene._inner, str(folder), spec, video, cache_json)
+    if not return_frames:
+        return str(folder)
+    return str(folder), movie_frames(folder, frames, denoised=bool(denoise))
+
+
+def movie_frames(folder: str, frames: int, *, denoised: bool = False) -> np.ndarray:
+    """A movie folder's frames as one float32 array (frames, height, width, 3): the denoised
+    ones with ``denoised``."""
+    suffix = ".denoised.exr" if denoised else ".exr"
+    root = pathlib.Path(folder)
+    return np.stack([read_exr(str(root / f"frame_{f:06d}{suffix}")) for f in range(frames)])

@@ -6,6 +6,13 @@ function of the scene and settings, so any worker may run it; its result is a ``
 (exact fixed-point sums), and partials merge, in any order or tree, into the image one process
 would render, bit for bit. Nothing here schedules: Dask does.
 
+A movie is split into parts, ranges of its frames, each a task that writes its frames into a
+folder of its own under the movie's (a folder every worker can reach); the client then moves
+them into the movie in order. Without a cache the frames are one process's, bit for bit (each
+frame's samples are fixed by its place in the movie); with a cache each part after the first
+trains on the ``overlap`` frames before it, so its first frames differ from one process's (the
+seam; docs/python.md states what was measured).
+
 Scenes hold their volume and do not travel between processes. A shard task builds its scene on
 the worker from a *recipe*: a scene file's path, or a function of no arguments that returns a
 ``Scene`` (it is pickled with cloudpickle, so a closure over a small array or a file name is
@@ -18,7 +25,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-from . import Partial, Scene, render, render_partial
+from . import Partial, Scene, _config_json, _gscache, _movie_spec, render, render_partial
 
 Recipe = Union[str, Callable[[], Any]]
 
@@ -167,3 +174,72 @@ def run_experiment_sharded(
     if output is not None:
         cmd += ["--output", output]
     return {"shards": outs, "stdout": _run_program(cmd)}
+
+
+def _movie_part(recipe: Recipe, folder: str, spec: str, cache_json: Optional[str],
+                part: tuple, threads: Optional[int]) -> str:
+    scene = _scene(recipe)
+    _, interrupted, _ = _gscache._movie(
+        scene._inner, folder, spec, cache_json, True, part, threads, None
+    )
+    if interrupted:
+        raise RuntimeError(f"the movie's part {part} in {folder} was interrupted")
+    return folder
+
+
+def movie(
+    client: Any,
+    recipe: Recipe,
+    folder: str,
+    frames: int = 120,
+    *,
+    parts: Optional[int] = None,
+    overlap: int = 8,
+    fps: float = 30.0,
+    turntable_degrees: float = 360.0,
+    keys: Optional[Sequence[Mapping[str, Any]]] = None,
+    spp: Optional[int] = None,
+    warmup: int = 0,
+    cache: Any = None,
+    denoise: Any = None,
+    reference_spp: Optional[int] = None,
+    video: Optional[str] = "mp4",
+    threads: Optional[int] = None,
+) -> str:
+    """``gscache.movie`` split across ``client``'s workers: ``parts`` ranges of frames (default:
+    one per worker), each a task writing into ``folder/parts/``, then merged into ``folder`` in
+    order on the client (``folder`` must be shared with the workers) and encoded (``video``).
+    A sample budget per frame (``spp``) is needed: a time budget's frames depend on every frame
+    before. Without a cache the frames equal one process's bit for bit. With a cache, each part
+    after the first trains on the ``overlap`` frames before it (rendered again, not written)
+    after the scene's ``warmup``; the other options are ``gscache.movie``'s. Returns the
+    folder."""
+    import os
+
+    scene = _scene(recipe)
+    spec = _movie_spec(frames, fps, turntable_degrees, keys, spp, None, warmup, denoise,
+                       reference_spp, scene.spp)
+    cache_json = _config_json({} if cache is True else cache) if cache else None
+    if parts is None:
+        parts = max(1, len(client.scheduler_info().get("workers", {})))
+    parts = max(1, min(int(parts), int(frames)))
+    bounds = [round(i * frames / parts) for i in range(parts + 1)]
+    os.makedirs(os.path.join(folder, "parts"), exist_ok=True)
+    folders = []
+    futures = []
+    for first, last in zip(bounds[:-1], bounds[1:]):
+        part_folder = os.path.join(folder, "parts", f"{first:06d}-{last:06d}")
+        folders.append(part_folder)
+        futures.append(client.submit(
+            _movie_part, recipe, part_folder, spec, cache_json, (first, last, overlap), threads,
+            pure=False,
+        ))
+    client.gather(futures)
+    _gscache._merge_movie(scene._inner, folder, spec, folders, cache_json)
+    try:
+        os.rmdir(os.path.join(folder, "parts"))
+    except OSError:
+        pass
+    if video is not None:
+        _gscache._encode_movie(scene._inner, folder, spec, video, cache_json)
+    return folder

@@ -11,6 +11,7 @@
 //! - [`clouds`]: `Cloud`, `splat_render`, `splat_trace`.
 //! - [`images`]: EXR and PNG reading and writing.
 //! - [`denoise`]: `Denoiser`, Intel Open Image Denoise loaded at run time.
+//! - [`movie`]: `movie` (whole, or one part of it), the parts' merge and the video.
 //!
 //! Every error is a `GscacheError` carrying the message the program prints.
 
@@ -22,6 +23,7 @@ mod cache;
 mod clouds;
 mod denoise;
 mod images;
+mod movie;
 mod render;
 mod run;
 mod view;
@@ -58,6 +60,9 @@ fn _gscache(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(view::_view, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_image, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_partial, m)?)?;
+    m.add_function(wrap_pyfunction!(movie::movie, m)?)?;
+    m.add_function(wrap_pyfunction!(movie::merge_movie, m)?)?;
+    m.add_function(wrap_pyfunction!(movie::encode_movie, m)?)?;
     m.add_function(wrap_pyfunction!(clouds::splat_render, m)?)?;
     m.add_function(wrap_pyfunction!(clouds::splat_trace, m)?)?;
     m.add_function(wrap_pyfunction!(images::read_exr, m)?)?;

@@ -14,7 +14,8 @@
 //!
 //! Read it in this order:
 //! - [`spec`]: [`MovieSpec`]: frames, rate, path, budget, warm-up, denoising, references.
-//! - [`folder`]: the movie's folder: its manifest, frame files and table, what a resume finds.
+//! - [`folder`]: the movie's folder: its manifest, frame files and table, what a resume finds;
+//!   a movie's parts (frame ranges made by several processes) and their merge.
 //! - [`render`]: [`render_movie`], the one loop: warm-up, resume, frames, references.
 //! - [`quality`]: references per frame, each frame's error and flicker, the movie's JOD.
 //! - [`video`]: encoding the frames with ffmpeg.
@@ -29,7 +30,7 @@ pub mod spec;
 pub mod video;
 
 pub use error::{MovieError, Result};
-pub use folder::{FrameRecord, MovieFolder};
+pub use folder::{FrameRecord, MovieFolder, Part, merge_parts};
 pub use render::{MovieSummary, Progress, render_movie};
 pub use spec::{DenoiseSpec, FrameBudget, MoviePath, MovieSpec};
 pub use video::{VideoFormat, encode_video, ffmpeg_from_env};

@@ -62,13 +62,18 @@ fn reference_path(folder: &MovieFolder, f: u32) -> PathBuf {
     folder.reference_dir().join(format!("frame_{f:06}.exr"))
 }
 
-/// The movie's JOD over its frames `0..frames`, shown at `fps`: the mean over clips of
+/// The movie's JOD over its frames `frames`, shown at `fps`: the mean over clips of
 /// [`JOD_CLIP_FRAMES`], each frame tone-mapped as the PNGs are, against its reference.
-pub fn movie_jod(folder: &MovieFolder, scene: &Scene, frames: u32, fps: f64) -> Result<f64> {
+pub fn movie_jod(
+    folder: &MovieFolder,
+    scene: &Scene,
+    frames: std::ops::Range<u32>,
+    fps: f64,
+) -> Result<f64> {
     let ldr = |img: &[Vec3]| tone_map(img, scene.output.exposure, scene.output.tonemap);
     let (w, h) = (scene.camera.width, scene.camera.height);
     let mut scores = Vec::new();
-    let all: Vec<u32> = (0..frames).collect();
+    let all: Vec<u32> = frames.collect();
     for clip in all.chunks(JOD_CLIP_FRAMES) {
         let mut test = Vec::with_capacity(clip.len());
         let mut refs = Vec::with_capacity(clip.len());

@@ -27,8 +27,8 @@ pub enum Progress<'a> {
     },
 }
 
-/// What [`render_movie`] made.
-#[derive(Debug, Clone)]
+/// What [`render_movie`] made (written as `summary.json` when the movie is complete).
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct MovieSummary {
     /// Frames in the folder (all of them unless interrupted).
     pub frames_done: u32,
@@ -43,10 +43,10 @@ pub struct MovieSummary {
     pub mean_flicker: Option<f64>,
 }
 
-/// Makes the movie `spec` of `scene` with the cache `choice` into `folder`, from the first
-/// frame it lacks. Each frame is written (EXR and PNG; the denoised pair with `denoiser`)
+/// Makes the movie `spec` of `scene` with the cache `choice` into `folder` (the whole movie, or
+/// the part the folder holds), from the first frame it lacks. Each frame is written (EXR and PNG; the denoised pair with `denoiser`)
 /// before the table records it; a cancelled frame is not written. `denoiser` must be given
-/// exactly when the spec denoises.
+/// exactly when the spec denoises. `control` cancels, and counts the frames made.
 pub fn render_movie(
     scene: &Scene,
     choice: CacheChoice,
@@ -80,17 +80,51 @@ pub fn render_movie(
         ))
     })?)?;
     let interrupted = |folder: &MovieFolder, made: u32| summary(folder, made, true, None);
+    let range = folder.frames(spec);
 
-    for i in 0..spec.warmup {
-        if control.cancelled() {
-            return Ok(interrupted(folder, 0));
+    if range.start == 0 {
+        for i in 0..spec.warmup {
+            if control.cancelled() {
+                return Ok(interrupted(folder, 0));
+            }
+            session.edit(Edit::Camera(spec.camera(scene, i % spec.frames)?))?;
+            session.render_image(ImageBudget::Passes(1), &control.silent())?;
+            progress(Progress::WarmUp {
+                done: i + 1,
+                total: spec.warmup,
+            });
         }
-        session.edit(Edit::Camera(spec.camera(scene, i % spec.frames)?))?;
-        session.render_image(ImageBudget::Passes(1), control)?;
-        progress(Progress::WarmUp {
-            done: i + 1,
-            total: spec.warmup,
-        });
+    } else {
+        // A part after the first: its frames take the samples one process would give them
+        // (after the warm-up and every frame before), so without a cache they are that
+        // process's frames, bit for bit. A cache trains on the `overlap` frames before the
+        // part instead of all of them: the part's frames are close to one process's, not the
+        // same (the seam).
+        let FrameBudget::Spp(spp) = spec.budget else {
+            return Err(MovieError::Invalid(
+                "a movie in parts needs a sample budget per frame: with a time budget a frame's \
+                 samples depend on how many passes every frame before it took"
+                    .into(),
+            ));
+        };
+        let overlap = if has_cache {
+            folder.part().map_or(0, |p| p.overlap).min(range.start)
+        } else {
+            0
+        };
+        let before = range.start - overlap;
+        session.skip_frames(spec.warmup + before * spp)?;
+        for f in before..range.start {
+            if control.cancelled() {
+                return Ok(interrupted(folder, 0));
+            }
+            session.edit(Edit::Camera(spec.camera(scene, f)?))?;
+            session.render_image(ImageBudget::Passes(spp), &control.silent())?;
+            progress(Progress::WarmUp {
+                done: f - before + 1,
+                total: overlap,
+            });
+        }
     }
     let done: Vec<FrameRecord> = folder.done().to_vec();
     for r in &done {
@@ -112,9 +146,9 @@ pub fn render_movie(
                 return Ok(interrupted(folder, 0));
             }
             session.edit(Edit::Camera(spec.camera(scene, r.frame)?))?;
-            session.render_image(ImageBudget::Passes(r.passes), control)?;
+            session.render_image(ImageBudget::Passes(r.passes), &control.silent())?;
             progress(Progress::Replay {
-                done: r.frame + 1,
+                done: r.frame - range.start + 1,
                 total: done.len() as u32,
             });
         } else {
@@ -123,12 +157,13 @@ pub fn render_movie(
     }
 
     let start = std::time::Instant::now();
-    let first = done.len() as u32;
+    let first = folder.next_frame();
     let mut made = 0u32;
     // The denoiser's share of a time budget: the mean of its times so far.
     let (mut denoise_sum, mut denoise_count) = (0.0f64, 0u32);
-    let mut previous: Option<(RgbImage, RgbImage)> = match (first, spec.reference_spp) {
-        (1.., Some(spp)) => {
+    let mut previous: Option<(RgbImage, RgbImage)> = match (first > range.start, spec.reference_spp)
+    {
+        (true, Some(spp)) => {
             let f = first - 1;
             let shown = RgbImage::read_exr(&folder.shown_exr(f))?;
             let cam = spec.camera(scene, f)?;
@@ -136,7 +171,7 @@ pub fn render_movie(
         }
         _ => None,
     };
-    for f in first..spec.frames {
+    for f in first..range.end {
         if control.cancelled() {
             return Ok(interrupted(folder, made));
         }
@@ -153,7 +188,8 @@ pub fn render_movie(
                 ImageBudget::Seconds((t - denoise).max(0.0))
             }
         };
-        let image_report = session.render_image(budget, control)?;
+        // Progress is counted in frames (below), not in the passes' samples.
+        let image_report = session.render_image(budget, &control.silent())?;
         if image_report.report.cancelled || control.cancelled() {
             return Ok(interrupted(folder, made));
         }
@@ -218,19 +254,22 @@ pub fn render_movie(
         }
         folder.record(record)?;
         made += 1;
+        control.progress(1);
         let per_frame = start.elapsed().as_secs_f64() / f64::from(made);
         let record = folder.done().last().expect("just recorded");
         progress(Progress::Frame {
             record,
             frames: spec.frames,
-            seconds_left: per_frame * f64::from(spec.frames - f - 1),
+            seconds_left: per_frame * f64::from(range.end - f - 1),
         });
     }
     let jod = match spec.reference_spp {
-        Some(_) => Some(movie_jod(folder, scene, spec.frames, spec.fps)?),
+        Some(_) => Some(movie_jod(folder, scene, range, spec.fps)?),
         None => None,
     };
-    Ok(summary(folder, made, false, jod))
+    let done = summary(folder, made, false, jod);
+    folder.write_summary(&done)?;
+    Ok(done)
 }
 
 fn summary(folder: &MovieFolder, made: u32, interrupted: bool, jod: Option<f64>) -> MovieSummary {

@@ -230,3 +230,67 @@ fn the_frames_become_a_video_and_a_missing_encoder_is_said() {
     assert!(stray.is_empty(), "{stray:?}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A movie made in parts (frame ranges, as Dask workers make it) and merged is one process's
+/// movie, bit for bit, without a cache; parts that leave a gap, or are not finished, are
+/// refused by the merge, and a time budget cannot be split.
+#[test]
+fn parts_merge_into_one_processes_movie() {
+    use movie::{Part, merge_parts};
+    let s = spec(6, 2, 0);
+    let whole = scratch("parts-whole");
+    make(&whole, &s, CacheChoice::None, false, None);
+    let root = scratch("parts");
+    let part = |first, last| Part {
+        first,
+        last,
+        overlap: 0,
+    };
+    let make_part = |p: Part| -> PathBuf {
+        let dir = root.join("parts").join(format!("{}-{}", p.first, p.last));
+        let mut folder = MovieFolder::open_part(&dir, "test", &s, Some(p), false).unwrap();
+        let cancel = AtomicBool::new(false);
+        render_movie(
+            &scene(),
+            CacheChoice::None,
+            &s,
+            &mut folder,
+            None,
+            &Control::new(&cancel, &|_| {}),
+            &mut |_| {},
+        )
+        .unwrap();
+        dir
+    };
+    let (a, b) = (make_part(part(3, 6)), make_part(part(0, 3)));
+    // Not covering every frame: refused, nothing merged.
+    let gap = merge_parts(&root.join("gap"), "test", &s, std::slice::from_ref(&a)).unwrap_err();
+    assert!(gap.to_string().contains("leave frames 0 to 3 out"), "{gap}");
+    merge_parts(&root, "test", &s, &[a, b]).unwrap();
+    for f in 0..6 {
+        assert!(
+            frame_bytes(&whole, f) == frame_bytes(&root, f),
+            "frame {f} of the merged parts differs from one process's"
+        );
+    }
+    assert!(!root.join("parts/0-3").exists() && !root.join("parts/3-6").exists());
+    // A time budget's part after the first is refused: its samples depend on the frames before.
+    let mut timed = spec(4, 1, 0);
+    timed.budget = FrameBudget::Seconds(0.05);
+    let dir = scratch("parts-timed");
+    let mut folder = MovieFolder::open_part(&dir, "test", &timed, Some(part(2, 4)), false).unwrap();
+    let e = render_movie(
+        &scene(),
+        CacheChoice::None,
+        &timed,
+        &mut folder,
+        None,
+        &Control::none(),
+        &mut |_| {},
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("needs a sample budget"), "{e}");
+    for d in [whole, root, dir] {
+        std::fs::remove_dir_all(d).ok();
+    }
+}

@@ -246,20 +246,19 @@ impl Session {
         })
     }
 
-    /// Moves the sampling rule's frame index on by `frames` without rendering them: the frames
-    /// of a resumed movie that were made before, for a session whose frames do not depend on
-    /// the frames before (no cache; a cache must see them again to be the same). Checked: the
-    /// index cannot wrap.
+    /// Moves the sampling rule's frame index on by `frames` without rendering them, so the
+    /// next frame takes the samples it would take after them: a resumed movie's earlier frames
+    /// without a cache, or a movie's part that starts where another process's ends. A cache
+    /// learns nothing from frames skipped (a resume with a cache renders them again). Checked:
+    /// the index cannot wrap.
     pub fn skip_frames(&mut self, frames: u32) -> Result<()> {
-        if !self.cache.is_none() {
-            return Err(SessionError::Invalid(
-                "skipping frames of a session with a cache: its state depends on every frame \
-                 before, so they must be rendered again"
-                    .into(),
-            ));
-        }
         check_frames(self.next_frame, frames, self.scene.settings.spp)?;
-        self.next_frame += frames;
+        self.next_frame = self.next_frame.checked_add(frames).ok_or_else(|| {
+            SessionError::Invalid(format!(
+                "{frames} frames after frame {} reach frame 2^32: use fewer frames",
+                self.next_frame
+            ))
+        })?;
         Ok(())
     }
 
@@ -332,14 +331,12 @@ impl Session {
                         cache,
                     });
                 }
-                let resized = (camera.width, camera.height)
-                    != (self.scene.camera.width, self.scene.camera.height);
+                // A new size keeps the cache: the Gaussians and the neural cache's grid live
+                // in the volume's space, and the Gaussian cache draws its levels, fits its
+                // per-pixel state and bins its targets at each frame's size. So a view can
+                // preview small while it moves and refine at full size with one cache that
+                // keeps learning (issue 52).
                 self.scene.camera = camera;
-                if resized && !self.cache.is_none() {
-                    // The Gaussian cache's resolution follows the image's.
-                    self.rebuild_cache()?;
-                    cache = CacheEffect::Rebuilt;
-                }
             }
             Edit::TransferFunction(tf) => {
                 self.scene.media.medium.set_transfer_function(tf);

@@ -397,6 +397,8 @@ async fn client(mut socket: WebSocket, app: Arc<App>, _place: ClientPlace) {
     let mut frames = app.frames.clone();
     let mut events = app.events.subscribe();
     app.command(Command::Hello { client: id });
+    // Whether this page's last message was a drag's camera (its next is then not a first step).
+    let mut was_dragging = false;
     loop {
         tokio::select! {
             incoming = socket.recv() => {
@@ -414,14 +416,17 @@ async fn client(mut socket: WebSocket, app: Arc<App>, _place: ClientPlace) {
                     }
                     Some(Ok(Message::Text(text))) => match parse(text.as_str()) {
                         Ok(message) => {
-                            // The frame under way is cancelled so the edit shows sooner, but not
-                            // for a drag's stream of cameras: each small frame is let finish.
+                            // The frame under way is cancelled so the edit shows sooner, and so
+                            // is it at a drag's first step (a full-size frame under way would
+                            // hold the drag back for its whole time), but not for the rest of
+                            // a drag's stream of cameras: each small frame is let finish.
                             let dragging =
                                 matches!(message, ClientMessage::Camera { moving: true, .. });
                             app.command(Command::Message { client: id, message });
-                            if !dragging {
+                            if !(dragging && was_dragging) {
                                 app.cancel.store(true, Ordering::SeqCst);
                             }
+                            was_dragging = dragging;
                             None
                         }
                         Err(e) => Some(error_json(&e)),

@@ -4,9 +4,12 @@
 //! whose readers see only the latest: a slow or vanished client never holds rendering back.
 //!
 //! The still view accumulates (the session's progressive image) up to the scene's samples per
-//! pixel, then the thread waits for the next edit. While the user drags the camera with plain
-//! path tracing the view renders at half the size or less ([`preview_divisor`]), then refines
-//! at full size; with a cache it keeps its size (a new size would rebuild the cache).
+//! pixel, then the thread waits for the next edit. While the user drags the camera, and for the
+//! first frame after an edit, the view renders smaller, with any method (the cache is kept
+//! across sizes and goes on training from the small frames: where the frame budget is about one
+//! sample, the Gaussian cache is the better preview, docs/results/cache_error.md), at the size
+//! [`PreviewGovernor`] picks from the frames' measured time to hold a target rate; then it
+//! refines at full size. The split view previews too, both halves at the same size.
 
 use crate::protocol::{
     Change, LightSettings, Method, SceneFacts, TransferSettings, check, hello, transfer_settings_of,
@@ -91,6 +94,8 @@ pub struct Worker {
     /// Frames per second, smoothed.
     fps: f64,
     last_frame: Option<Instant>,
+    /// Picks the preview's size.
+    governor: PreviewGovernor,
 }
 
 impl Worker {
@@ -131,6 +136,7 @@ impl Worker {
             mover: None,
             fps: 0.0,
             last_frame: None,
+            governor: PreviewGovernor::default(),
         })
     }
 
@@ -250,6 +256,14 @@ impl Worker {
                 Ok(report) if report.cancelled => {}
                 Ok(report) => {
                     self.seconds[1] += report.seconds;
+                    let size = self.session.camera();
+                    if (size.width, size.height) != (self.camera.width, self.camera.height) {
+                        // A preview frame: the governor learns what a pixel costs (twice with
+                        // the split view, whose halves render at equal time between frames).
+                        let pixels = f64::from(size.width) * f64::from(size.height);
+                        let sides = if self.split.is_some() { 2.0 } else { 1.0 };
+                        self.governor.observe(report.seconds * sides, pixels);
+                    }
                     if let Some(frame) = self.publishable(&report) {
                         frames.send_replace(Some(Arc::new(frame)));
                     }
@@ -421,13 +435,12 @@ impl Worker {
         Ok(())
     }
 
-    /// Puts the camera into the session: smaller while moving and for the first frame after an
-    /// edit, with plain path tracing.
+    /// Puts the camera into the session (and the split view's): smaller while moving and for
+    /// the first frame after an edit, with any method.
     fn set_camera(&mut self) -> Result<(), String> {
-        // The split view compares at equal time and size: never smaller there.
-        let small = (self.moving || self.preview) && self.method == Method::Nee;
-        let camera = if small && self.split.is_none() {
-            let d = preview_divisor(self.camera.width, self.camera.height);
+        let small = self.moving || self.preview;
+        let camera = if small {
+            let d = self.governor.divisor(self.camera.width, self.camera.height);
             self.camera
                 .with_size(
                     (self.camera.width / d).max(1),
@@ -522,15 +535,49 @@ impl Worker {
     }
 }
 
-/// Pixels a frame may have while the camera moves: about 25 ms of plain path tracing at 1 spp
-/// on 2 cores, so a drag shows 15 frames a second or more at any view size.
-const PREVIEW_PIXELS: f64 = 120_000.0;
+/// Picks the size a moving view renders at: the largest whose frame, at the seconds a pixel
+/// has cost in the last preview frames, fits [`PreviewGovernor::FRAME_SECONDS`]. So a drag
+/// holds its rate whatever the method (a cached frame costs lookup and training besides the
+/// tracing), the scene or the machine, and a still view's first frame after an edit comes as
+/// fast.
+#[derive(Debug, Clone)]
+pub struct PreviewGovernor {
+    /// Seconds a preview pixel took, smoothed over the last frames.
+    seconds_per_pixel: f64,
+}
 
-/// The factor a moving view is shrunk by: at least 2, more for views above
-/// `PREVIEW_PIXELS` x 4.
-pub fn preview_divisor(width: u32, height: u32) -> u32 {
-    let pixels = width as f64 * height as f64;
-    ((pixels / PREVIEW_PIXELS).sqrt().ceil() as u32).max(2)
+impl Default for PreviewGovernor {
+    fn default() -> Self {
+        // Until a frame is measured: about 25 ms for 120 000 pixels, plain path tracing at one
+        // sample on 2 cores (the fixed preview of issue 47).
+        Self {
+            seconds_per_pixel: 0.025 / 120_000.0,
+        }
+    }
+}
+
+impl PreviewGovernor {
+    /// A preview frame's render time: 15 frames a second leave about a third of each frame's
+    /// 67 ms for the JPEG, the socket and the page.
+    pub const FRAME_SECONDS: f64 = 0.045;
+
+    /// Adds a preview frame of `pixels` that took `seconds` to the estimate (a moving mean
+    /// that follows a change of method or scene within a few frames). Ignores what cannot be
+    /// a measurement (zero, NaN).
+    pub fn observe(&mut self, seconds: f64, pixels: f64) {
+        let per_pixel = seconds / pixels;
+        if per_pixel > 0.0 && per_pixel.is_finite() {
+            self.seconds_per_pixel = 0.7 * self.seconds_per_pixel + 0.3 * per_pixel;
+        }
+    }
+
+    /// The factor a `width x height` view is shrunk by while it moves: at least 2 (a drag is
+    /// never at full size: its frames come and go), at most 16.
+    pub fn divisor(&self, width: u32, height: u32) -> u32 {
+        let frame = f64::from(width) * f64::from(height) * self.seconds_per_pixel;
+        let d = (frame / Self::FRAME_SECONDS).sqrt().ceil();
+        (d as u32).clamp(2, 16)
+    }
 }
 
 /// The left half of `left` beside the right half of `right` (images of one size), with a dark
@@ -573,4 +620,34 @@ pub fn encode(image: &RgbImage, scene: &Scene) -> Vec<u8> {
     )
     .expect("an RGB8 buffer of the image's size encodes");
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::PreviewGovernor;
+
+    #[test]
+    fn the_governor_sizes_the_preview_from_what_frames_cost() {
+        let mut g = PreviewGovernor::default();
+        // Unmeasured: the fixed preview of before (25 ms for 120 000 pixels): 1280x720 is
+        // 7.7x that many pixels, so a third of the width (9 times fewer pixels) fits 45 ms.
+        assert_eq!(g.divisor(1280, 720), 3);
+        // Frames that cost a microsecond a pixel (a cache on a slow machine): 1280x720 would
+        // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5, once the moving
+        // mean has followed.
+        for _ in 0..40 {
+            g.observe(1e-6 * 10_000.0, 10_000.0);
+        }
+        assert_eq!(g.divisor(1280, 720), 5);
+        // Never below 2 while moving, never above 16; nothing learnt from non-measurements.
+        assert_eq!(g.divisor(64, 36), 2);
+        for _ in 0..40 {
+            g.observe(1.0, 1.0);
+        }
+        assert_eq!(g.divisor(1280, 720), 16);
+        let before = g.divisor(1280, 720);
+        g.observe(f64::NAN, 100.0);
+        g.observe(0.01, 0.0);
+        assert_eq!(g.divisor(1280, 720), before);
+    }
 }

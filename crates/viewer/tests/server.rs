@@ -810,3 +810,64 @@ async fn two_viewers_saving_into_one_folder_never_share_a_name() {
         v.stop();
     }
 }
+
+/// Issue 52, item 1: with the Gaussian cache chosen, a drag renders small (it kept the full
+/// size and dragged at 1.6 fps at 1280x720), looking up and training the cache at that size,
+/// and the still view then refines at full size reading the cache.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_drag_with_the_cache_previews_small_and_keeps_training() {
+    let out = scratch("cache-drag");
+    let v = serve_default(&out, (256, 144), 64, ServeOptions::default()).unwrap();
+    let t = token(&v);
+    let mut socket = connect(&v, &t).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| !s.stats.is_empty()).await;
+    socket
+        .send(Message::Text(
+            r#"{"type":"method","method":"cache"}"#.into(),
+        ))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats
+            .last()
+            .is_some_and(|m| m["method"] == "cache" && m["moving"] == false && m["width"] == 256)
+    })
+    .await;
+    for i in 0..6 {
+        let eye = format!("[{},10,40]", 90 - 5 * i);
+        let text = format!(
+            r#"{{"type":"camera","eye":{eye},"target":[0,0,0],"up":[0,1,0],"moving":true}}"#
+        );
+        socket.send(Message::Text(text.into())).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(30)).await;
+    }
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.last().is_some_and(|m| m["moving"] == true)
+    })
+    .await;
+    let moving = seen.stats.last().unwrap().clone();
+    let w = moving["width"].as_u64().unwrap();
+    assert!(
+        (16..=128).contains(&w),
+        "a drag at {w} pixels wide: {moving}"
+    );
+    assert!(moving["lookup_ms"].as_f64() > Some(0.0), "{moving}");
+    assert!(moving["train_ms"].as_f64() > Some(0.0), "{moving}");
+    socket
+        .send(Message::Text(
+            r#"{"type":"camera","eye":[60,10,40],"target":[0,0,0],"up":[0,1,0],"moving":false}"#
+                .into(),
+        ))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.last().is_some_and(|m| {
+            m["moving"] == false && m["width"] == 256 && m["spp"].as_u64() >= Some(2)
+        })
+    })
+    .await;
+    let still = seen.stats.last().unwrap();
+    assert!(still["lookup_ms"].as_f64() > Some(0.0), "{still}");
+    v.stop();
+}

@@ -48,3 +48,14 @@ def small_default_scene(repo: pathlib.Path, folder: pathlib.Path, width: int, he
     path = folder / f"default_{width}x{height}.toml"
     path.write_text(text)
     return path
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A Dask LocalCluster of 2 single-threaded worker processes (the tests that use it are
+    skipped where `distributed` is not installed)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster, distributed.Client(cluster) as c:
+        yield c

@@ -44,14 +44,6 @@ def test_python_movie_equals_the_programs(repo, program, tmp_path):
     assert np.array_equal(bits(cached), bits(frames_of(tmp_path / "clic", 3)))
 
 
-@pytest.fixture(scope="module")
-def client():
-    distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-    ) as cluster, distributed.Client(cluster) as c:
-        yield c
-
 
 def test_dask_movie_equals_one_process_and_states_its_seam(repo, tmp_path, client):
     from gscache import distributed as gd

@@ -58,14 +58,6 @@ def test_program_and_package_shards_merge_together(repo, program, tmp_path):
     assert np.array_equal(bits(gscache.read_exr(str(out))), bits(merged.image()))
 
 
-@pytest.fixture(scope="module")
-def client():
-    distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-    ) as cluster, distributed.Client(cluster) as c:
-        yield c
-
 
 def test_dask_sharded_render_and_sweep_equal_one_process(repo, tmp_path, client):
     from gscache import distributed as gd

@@ -162,3 +162,54 @@ def test_view_from_python(repo, tmp_path):
     finally:
         v.stop()
     assert not (tmp_path / "out").exists(), "nothing is written before a Save"
+
+
+def test_reload_keeps_the_state_and_an_intensity_edit_keeps_the_light(viewer, browser, tmp_path):
+    """Issue 49, items 1 and 5: a reloaded page shows the split view the server still renders
+    (its box was unticked), and an edit of a light's intensity leaves its place as the scene
+    file has it, bit for bit, in the saved scene (rebuilt from sliders in whole degrees it
+    moved [70, 80, 60] to [69.81, 80.20, 59.96])."""
+    import tomllib
+
+    d = browser
+    d.get(viewer)
+    settled(d)
+    d.find_element("id", "split").click()
+    wait(lambda: "split: left NEE" in d.find_element("id", "stats").text, "the split view")
+    k = d.find_element("css selector", "#lights input[data-k=k]")
+    d.execute_script("arguments[0].value = 2;"
+                     "arguments[0].dispatchEvent(new Event('input', {bubbles: true}));", k)
+    d.find_element("id", "save").click()
+    said = wait(lambda: (t := d.find_element("id", "error").text).startswith("saved:") and t,
+                "the save")
+    scene_file = next(f for f in said[len("saved:"):].split(",") if f.strip().endswith(".toml"))
+    saved = tomllib.loads(open(scene_file.strip()).read())
+    assert saved["light"][0]["center"] == [70.0, 80.0, 60.0], saved["light"][0]
+    assert saved["light"][0]["radiance"] == [1000.0, 920.0, 840.0], saved["light"][0]
+    d.refresh()
+    wait(lambda: "spp" in d.find_element("id", "stats").text, "the reloaded page's first frame")
+    assert d.find_element("id", "split").is_selected(), "the reloaded page unticked the split view"
+
+
+def test_a_bad_field_is_named_set_back_and_does_not_block_the_next_edit(viewer, browser):
+    """Issue 49, item 2: a window's low end above its high end is refused alone, and the field
+    shows the value in force again, so the next edit (the density) applies; a field that is
+    not a number is named, not sent."""
+    d = browser
+    d.get(viewer)
+    first = settled(d)
+    low = d.find_element("id", "window-lo")
+    in_force = low.get_attribute("value")
+    d.execute_script("arguments[0].value = 1000;"
+                     "arguments[0].dispatchEvent(new Event('change'));", low)
+    wait(lambda: "window" in d.find_element("id", "error").text, "the window's error")
+    wait(lambda: low.get_attribute("value") == in_force, "the field set back")
+    density = d.find_element("id", "density")
+    d.execute_script("arguments[0].value = 'abc';"
+                     "arguments[0].dispatchEvent(new Event('change'));", density)
+    wait(lambda: "density scale: expected a number" in d.find_element("id", "error").text,
+         "the named error")
+    d.execute_script("arguments[0].value = 3 * arguments[0].value;"
+                     "arguments[0].dispatchEvent(new Event('change'));", density)
+    wait(lambda: differ(settled(d), first) > 3, "the density edit to change the image")
+    assert "window" not in d.find_element("id", "error").text

@@ -88,6 +88,7 @@
     if (m.type === "hello") start(m);
     else if (m.type === "stats") stats(m);
     else if (m.type === "error") showError(m.message, false);
+    else if (m.type === "state") restore(m);
     else if (m.type === "saved") showError("saved: " + m.files.join(", "), true);
     else if (m.type === "levels") {
       const box = $("levels");
@@ -139,21 +140,33 @@
     state.up = m.camera.up;
     setFromEye(m.camera.eye, m.camera.target);
     state.home = { target: state.target.slice(), distance: state.distance, azimuth: state.azimuth, elevation: state.elevation };
-    Object.assign(transfer, m.transfer);
     const method = $("method");
     method.innerHTML = "";
-    for (const name of m.methods) method.add(new Option(name, name, false, name === m.method));
+    for (const name of m.methods) method.add(new Option(name, name));
     const maps = $("colormap");
     maps.innerHTML = "";
-    for (const name of m.colormaps) maps.add(new Option(name, name, false, name === transfer.colormap));
+    for (const name of m.colormaps) maps.add(new Option(name, name));
+    $("denoise").disabled = !m.denoiser;
+    restore(m);
+  }
+
+  // The view's state as the server has it (the greeting, or after a refused edit): every
+  // field shows the value in force, so a bad value is not sent again with the next edit.
+  function restore(m) {
+    Object.assign(transfer, m.transfer);
+    transfer.window = m.transfer.window.slice();
+    $("method").value = m.method;
+    $("colormap").value = transfer.colormap;
     // Shown as typed: the server's f32 values at 6 significant digits.
     const shown = (v) => +Number(v).toPrecision(6);
     $("window-lo").value = shown(transfer.window[0]);
     $("window-hi").value = shown(transfer.window[1]);
     $("density").value = shown(transfer.density_scale);
-    $("denoise").disabled = !m.denoiser;
     $("environment").value = m.environment;
     $("show-lights").checked = m.show_lights;
+    // The server's state, not the page's defaults: a reload or a reconnect shows what is on.
+    $("denoise").checked = !!m.denoise;
+    $("split").checked = !!m.split;
     lights.length = 0;
     const box = $("lights");
     box.innerHTML = "";
@@ -169,12 +182,22 @@
         <label>azimuth <input type="range" min="-180" max="180" step="1" value="${(az * 180 / Math.PI).toFixed(0)}" data-k="az"></label>
         <label>elevation <input type="range" min="-89" max="89" step="1" value="${(el * 180 / Math.PI).toFixed(0)}" data-k="el"></label>
         <label>intensity <input type="number" step="any" min="0" value="${l.intensity}" data-k="k"></label>`;
-      div.addEventListener("input", () => {
+      div.addEventListener("input", (event) => {
         const get = (k) => div.querySelector(`[data-k=${k}]`);
-        const a = get("az").value * Math.PI / 180, e = get("el").value * Math.PI / 180;
-        const c = Math.cos(e);
-        light.direction = add(add(mul(e1, c * Math.cos(a)), mul(e2, c * Math.sin(a))), mul(up, Math.sin(e)));
-        light.intensity = parseFloat(get("k").value);
+        // An edit changes only what it names: the intensity keeps the direction as the server
+        // has it (the sliders hold whole degrees, and rebuilding from them moved the light).
+        if (event.target.dataset.k !== "k") {
+          const a = get("az").value * Math.PI / 180, e = get("el").value * Math.PI / 180;
+          const c = Math.cos(e);
+          light.direction = add(add(mul(e1, c * Math.cos(a)), mul(e2, c * Math.sin(a))), mul(up, Math.sin(e)));
+        }
+        const k = parseFloat(get("k").value);
+        if (!Number.isFinite(k)) {
+          showError(`light ${i + 1} intensity: expected a number`, false);
+          get("k").value = light.intensity;
+          return;
+        }
+        light.intensity = k;
         send(`light${i}`, { type: "light", index: i, direction: light.direction, intensity: light.intensity });
       });
       box.appendChild(div);
@@ -251,10 +274,21 @@
 
   // ---- transfer function ----
   $("colormap").onchange = (e) => { transfer.colormap = e.target.value; sendTransfer(); };
-  const number = (id, apply) => ($(id).onchange = (e) => { apply(parseFloat(e.target.value)); sendTransfer(); });
-  number("window-lo", (v) => (transfer.window = [v, transfer.window[1]]));
-  number("window-hi", (v) => (transfer.window = [transfer.window[0], v]));
-  number("density", (v) => (transfer.density_scale = v));
+  // A field that is not a number is named and set back, not sent (it was sent as null, and
+  // the server's answer named no field).
+  const number = (id, label, get, apply) => ($(id).onchange = (e) => {
+    const v = parseFloat(e.target.value);
+    if (!Number.isFinite(v)) {
+      showError(`${label}: expected a number${e.target.value ? ` ("${e.target.value}")` : ""}`, false);
+      e.target.value = +Number(get()).toPrecision(6);
+      return;
+    }
+    apply(v);
+    sendTransfer();
+  });
+  number("window-lo", "window low", () => transfer.window[0], (v) => (transfer.window = [v, transfer.window[1]]));
+  number("window-hi", "window high", () => transfer.window[1], (v) => (transfer.window = [transfer.window[0], v]));
+  number("density", "density scale", () => transfer.density_scale, (v) => (transfer.density_scale = v));
 
   // The opacity curve over the value histogram (log counts), x: position in the window.
   const curve = $("curve");

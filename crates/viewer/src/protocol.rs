@@ -193,6 +193,8 @@ pub struct SceneFacts {
     pub width: u32,
     pub height: u32,
     pub fov_y: f32,
+    /// The scene's up (its camera table's `up`): the page orbits about it.
+    pub up: Vec3,
 }
 
 impl SceneFacts {
@@ -210,6 +212,7 @@ impl SceneFacts {
             width: scene.camera.width,
             height: scene.camera.height,
             fov_y: scene.camera.fov_y_degrees,
+            up: scene.up,
         }
     }
 }
@@ -373,18 +376,25 @@ impl LightSettings {
         }
     }
 
-    /// The scene's lights with these settings applied.
+    /// The scene's lights with these settings applied. A light whose direction is the scene's
+    /// own stays where the scene put it, bit for bit (rebuilt from its direction it moved by
+    /// roundings: an intensity edit once saved [70, 80, 60] as [69.81, 80.20, 59.96]).
     pub fn lights(&self, facts: &SceneFacts) -> Lights {
         let mut out = facts.lights.clone();
         for (light, &(dir, k)) in out.lights.iter_mut().zip(&self.lights) {
+            let moved = dir != light_direction(light, facts.centre);
             match light {
                 Light::Sphere(s) => {
-                    let distance = (s.center - facts.centre).length();
-                    s.center = facts.centre + dir * distance;
+                    if moved {
+                        let distance = (s.center - facts.centre).length();
+                        s.center = facts.centre + dir * distance;
+                    }
                     s.radiance *= k;
                 }
                 Light::Distant(d) => {
-                    d.direction = -dir;
+                    if moved {
+                        d.direction = -dir;
+                    }
                     d.irradiance *= k;
                 }
             }
@@ -459,6 +469,14 @@ pub fn check(
                 .ok_or("light direction [0, 0, 0]: expected a direction")?;
             let k = intensity("light", k)?;
             let mut next = lights.clone();
+            // The direction the page sent back unchanged (an intensity edit) is the one in
+            // force, bit for bit: normalising it again could move it by a rounding.
+            let current = lights.lights[index].0;
+            let dir = if dir.abs_diff_eq(current, 1e-6) {
+                current
+            } else {
+                dir
+            };
             next.lights[index] = (dir, k);
             Ok(Change::Lights(
                 next.lights(facts),
@@ -500,21 +518,46 @@ pub fn parse(text: &str) -> Result<ClientMessage, String> {
     serde_json::from_str(text).map_err(|e| format!("message not understood: {e}"))
 }
 
-/// The greeting sent to a page when it connects: the scene, what can be edited, and the
-/// current settings.
-pub fn hello(
-    facts: &SceneFacts,
-    show_lights: bool,
-    camera: &Camera,
-    transfer: &TransferSettings,
-    lights: &LightSettings,
-    method: Method,
-    denoiser: bool,
-) -> serde_json::Value {
+/// What the page is told of the view: everything it shows, so that a page that reloads or
+/// reconnects shows the server's whole state.
+#[derive(Debug, Clone, Copy)]
+pub struct ViewState<'a> {
+    pub camera: &'a Camera,
+    pub transfer: &'a TransferSettings,
+    pub lights: &'a LightSettings,
+    pub method: Method,
+    pub show_lights: bool,
+    /// The split view is on.
+    pub split: bool,
+    /// Denoising is on.
+    pub denoise: bool,
+    /// Whether the denoiser is offered (its library was found).
+    pub denoiser: bool,
+}
+
+/// The greeting a page gets on connecting: the scene's facts and the view's whole state.
+pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
+    let ViewState {
+        camera,
+        transfer,
+        lights,
+        method,
+        show_lights,
+        split,
+        denoise,
+        denoiser,
+    } = *view;
     let (_, down, forward) = camera.axes();
     // The page orbits its target: the point in front of the camera nearest the volume's centre.
     let target =
         camera.position + forward * (facts.centre - camera.position).dot(forward).max(1e-3);
+    // About the scene's up (the image's up tilts with the view: orbiting about it turned the
+    // volume about a slanted axis), unless the view looks along it.
+    let up = if facts.up.dot(forward).abs() < 0.999 {
+        facts.up
+    } else {
+        -down
+    };
     serde_json::json!({
         "type": "hello",
         "width": facts.width,
@@ -523,7 +566,7 @@ pub fn hello(
         "camera": {
             "eye": camera.position.to_array(),
             "target": target.to_array(),
-            "up": (-down).to_array(),
+            "up": up.to_array(),
             "fov_y": facts.fov_y,
         },
         "range": facts.range,
@@ -547,6 +590,8 @@ pub fn hello(
         "methods": Method::available(),
         "method": method.name(),
         "denoiser": denoiser,
+        "split": split,
+        "denoise": denoise,
         "max_message_bytes": MAX_MESSAGE_BYTES,
     })
 }

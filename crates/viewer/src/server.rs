@@ -347,14 +347,22 @@ async fn websocket(
     }
     if app.clients.fetch_add(1, Ordering::SeqCst) >= app.max_clients {
         app.clients.fetch_sub(1, Ordering::SeqCst);
-        return (
-            StatusCode::SERVICE_UNAVAILABLE,
-            format!(
-                "{} pages are connected, the most this viewer serves: close one (or start it with --max-clients)",
-                app.max_clients
-            ),
-        )
-            .into_response();
+        // Said in a close frame after the upgrade: a browser's WebSocket cannot read the body
+        // of a refused upgrade, so a page told "503" only showed "disconnected".
+        let reason = format!(
+            "{} pages are connected, the most this viewer serves: close one (or --max-clients)",
+            app.max_clients
+        );
+        return upgrade
+            .max_message_size(MAX_MESSAGE_BYTES)
+            .max_frame_size(MAX_MESSAGE_BYTES)
+            .on_upgrade(move |mut socket| async move {
+                let frame = axum::extract::ws::CloseFrame {
+                    code: 1013,
+                    reason: reason.into(),
+                };
+                let _ = send(&mut socket, Message::Close(Some(frame))).await;
+            });
     }
     let place = ClientPlace(app.clone());
     upgrade

@@ -12,7 +12,8 @@
 //! refines at full size. The split view previews too, both halves at the same size.
 
 use crate::protocol::{
-    Change, LightSettings, Method, SceneFacts, TransferSettings, check, hello, transfer_settings_of,
+    Change, LightSettings, Method, SceneFacts, TransferSettings, ViewState, check, hello,
+    transfer_settings_of,
 };
 use crate::save::{SaveRequest, save};
 use base64::Engine as _;
@@ -140,6 +141,24 @@ impl Worker {
         })
     }
 
+    /// The view's whole state for a page, as a message of type `kind`: `hello` on connecting,
+    /// `state` after a refused edit.
+    fn greeting(&self, kind: &str) -> String {
+        let view = ViewState {
+            camera: &self.camera,
+            transfer: &self.transfer,
+            lights: &self.lights,
+            method: self.method,
+            show_lights: self.session.scene().settings.path.show_lights,
+            split: self.split.is_some(),
+            denoise: self.denoise_on,
+            denoiser: self.denoiser.offered(),
+        };
+        let mut message = hello(&self.facts, &view);
+        message["type"] = serde_json::Value::from(kind);
+        message.to_string()
+    }
+
     /// Nothing to render: no page is connected (a viewer nobody watches burns no cores), or
     /// the still view has its samples.
     fn converged(&self) -> bool {
@@ -196,16 +215,7 @@ impl Worker {
                     Command::Shutdown => return,
                     Command::Hello { client } => {
                         self.watching += 1;
-                        let text = hello(
-                            &self.facts,
-                            self.session.scene().settings.path.show_lights,
-                            &self.camera,
-                            &self.transfer,
-                            &self.lights,
-                            self.method,
-                            self.denoiser.offered(),
-                        )
-                        .to_string();
+                        let text = self.greeting("hello");
                         let _ = events.send(Event {
                             to: Some(client),
                             text: Arc::new(text),
@@ -238,6 +248,12 @@ impl Worker {
                             let _ = events.send(Event {
                                 to: Some(client),
                                 text: Arc::new(error_json(&message)),
+                            });
+                            // The page's fields go back to the values in force: a refused
+                            // value left in a field was sent again with every later edit.
+                            let _ = events.send(Event {
+                                to: Some(client),
+                                text: Arc::new(self.greeting("state")),
                             });
                         }
                     }

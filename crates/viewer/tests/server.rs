@@ -87,6 +87,8 @@ struct Seen {
     stats: Vec<serde_json::Value>,
     errors: Vec<String>,
     saved: Vec<serde_json::Value>,
+    /// The view's state sent after a refused edit.
+    states: Vec<serde_json::Value>,
 }
 
 async fn read_until(socket: &mut Socket, seen: &mut Seen, done: impl Fn(&Seen) -> bool) {
@@ -103,6 +105,7 @@ async fn read_until(socket: &mut Socket, seen: &mut Seen, done: impl Fn(&Seen) -
                     "stats" => seen.stats.push(m),
                     "error" => seen.errors.push(m["message"].as_str().unwrap().to_string()),
                     "saved" => seen.saved.push(m),
+                    "state" => seen.states.push(m),
                     other => panic!("unknown message type {other}"),
                 }
             }
@@ -232,6 +235,13 @@ async fn an_edit_changes_the_image_and_bad_edits_are_refused() {
             seen.errors.last()
         );
     }
+    // After each edit the view refused (all but the unreadable message, refused before the
+    // view sees it), the page is sent the state in force, so it can set its fields back
+    // (issue 49, item 2: the bad window stayed in its field and was sent with every edit).
+    read_until(&mut socket, &mut seen, |s| s.states.len() >= 7).await;
+    let state = seen.states.last().unwrap();
+    assert_eq!(state["transfer"], hello["transfer"], "{state}");
+    assert_eq!(state["method"], hello["method"]);
     // A denser medium with the inferno map: a different image.
     let edit = r#"{"type":"transfer","colormap":"inferno","window":[0,255],"density_scale":3,"opacity":[[0,0],[0.3,0.2],[1,1]]}"#;
     socket.send(Message::Text(edit.into())).await.unwrap();
@@ -332,10 +342,27 @@ async fn a_dropped_client_frees_its_place_and_one_too_many_is_refused() {
     let v = start(&out, 1);
     let t = token(&v);
     let first = connect(&v, &t).await.unwrap();
-    match connect(&v, &t).await {
-        Err(tungstenite::Error::Http(r)) => assert_eq!(r.status(), 503),
-        other => panic!("a second page was let in: {:?}", other.map(|_| ())),
-    }
+    // The page one too many is told why, in a close frame a browser can read (issue 49: a
+    // refused upgrade showed only "disconnected").
+    let mut second = connect(&v, &t).await.unwrap();
+    let said = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            match second.next().await {
+                Some(Ok(Message::Close(Some(frame)))) => break Some(frame),
+                Some(Ok(Message::Close(None))) | None | Some(Err(_)) => break None,
+                Some(Ok(_)) => {}
+            }
+        }
+    })
+    .await
+    .expect("the close comes at once");
+    let frame = said.expect("a close frame with the reason");
+    assert_eq!(u16::from(frame.code), 1013, "{frame:?}");
+    assert!(
+        frame.reason.contains("the most this viewer serves"),
+        "{frame:?}"
+    );
+    drop(second);
     drop(first);
     // The server notices the close and frees the place within moments.
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -869,5 +896,50 @@ async fn a_drag_with_the_cache_previews_small_and_keeps_training() {
     .await;
     let still = seen.stats.last().unwrap();
     assert!(still["lookup_ms"].as_f64() > Some(0.0), "{still}");
+    v.stop();
+}
+
+/// Issue 49, items 1, 5 and 6: a page that reconnects is told the whole state (the split view
+/// and denoising were on in the image but unticked on a reloaded page); the page orbits about
+/// the scene's up, not the image's tilted up; and a light's intensity edit with its direction
+/// unchanged leaves the direction as it was, bit for bit, in the next greeting.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reconnecting_page_is_told_the_whole_state() {
+    let out = scratch("state");
+    let v = start(&out, 4);
+    let t = token(&v);
+    let mut socket = connect(&v, &t).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| s.hello.is_some()).await;
+    let hello = seen.hello.clone().unwrap();
+    assert_eq!(hello["split"], false);
+    assert_eq!(hello["denoise"], false);
+    // The default scene's camera looks down at the volume with up = +Y: the image's up is
+    // tilted, the orbit's is the scene's.
+    assert_eq!(hello["camera"]["up"], serde_json::json!([0.0, 1.0, 0.0]));
+    let direction = hello["lights"][0]["direction"].clone();
+    let edit = serde_json::json!({
+        "type": "light", "index": 0, "direction": direction, "intensity": 2.0
+    });
+    // The light first: the split view showing in a frame then says both were applied (a
+    // page's messages are applied in order).
+    for text in [
+        edit.to_string(),
+        r#"{"type":"split","on":true}"#.to_string(),
+    ] {
+        socket.send(Message::Text(text.into())).await.unwrap();
+    }
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.last().is_some_and(|m| !m["split"].is_null())
+    })
+    .await;
+    drop(socket);
+    let mut again = connect(&v, &t).await.unwrap();
+    let mut after = Seen::default();
+    read_until(&mut again, &mut after, |s| s.hello.is_some()).await;
+    let hello = after.hello.unwrap();
+    assert_eq!(hello["split"], true, "{hello}");
+    assert_eq!(hello["lights"][0]["intensity"], 2.0, "{hello}");
+    assert_eq!(hello["lights"][0]["direction"], direction, "{hello}");
     v.stop();
 }

@@ -209,7 +209,25 @@ def test_a_bad_field_is_named_set_back_and_does_not_block_the_next_edit(viewer, 
                      "arguments[0].dispatchEvent(new Event('change'));", density)
     wait(lambda: "density scale: expected a number" in d.find_element("id", "error").text,
          "the named error")
-    d.execute_script("arguments[0].value = 3 * arguments[0].value;"
+    d.execute_script("arguments[0].value = 10 * arguments[0].value;"
                      "arguments[0].dispatchEvent(new Event('change'));", density)
     wait(lambda: differ(settled(d), first) > 3, "the density edit to change the image")
     assert "window" not in d.find_element("id", "error").text
+
+
+def test_two_pages_show_one_view(viewer, browser):
+    """Issue 49, item 3: every page shows the one view: a colour map chosen in one tab shows
+    in the other's menu (it reverted the first tab's image while its menu kept the old one)."""
+    from selenium.webdriver.support.ui import Select
+
+    d = browser
+    d.get(viewer)
+    settled(d)
+    first = d.current_window_handle
+    d.switch_to.new_window("tab")
+    d.get(viewer)
+    settled(d)
+    Select(d.find_element("id", "colormap")).select_by_value("inferno")
+    d.switch_to.window(first)
+    wait(lambda: Select(d.find_element("id", "colormap")).first_selected_option
+         .get_attribute("value") == "inferno", "the other page's menu to follow")

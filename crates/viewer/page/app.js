@@ -88,7 +88,12 @@
     if (m.type === "hello") start(m);
     else if (m.type === "stats") stats(m);
     else if (m.type === "error") showError(m.message, false);
-    else if (m.type === "state") restore(m);
+    else if (m.type === "state") {
+      // Another page's change, or the state in force after a refused edit: the camera too,
+      // unless this page is dragging it.
+      if (pointers.size === 0) setFromEye(m.camera.eye, m.camera.target);
+      restore(m);
+    }
     else if (m.type === "saved") showError("saved: " + m.files.join(", "), true);
     else if (m.type === "levels") {
       const box = $("levels");

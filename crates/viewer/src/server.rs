@@ -463,7 +463,7 @@ async fn client(mut socket: WebSocket, app: Arc<App>, _place: ClientPlace) {
                 }
             }
             event = events.recv() => match event {
-                Ok(e) if e.to.is_none_or(|to| to == id) => {
+                Ok(e) if e.to.include(id) => {
                     if !send(&mut socket, Message::Text(e.text.as_str().into())).await {
                         break;
                     }

@@ -12,8 +12,8 @@
 //! refines at full size. The split view previews too, both halves at the same size.
 
 use crate::protocol::{
-    Change, LightSettings, Method, SceneFacts, TransferSettings, ViewState, check, hello,
-    transfer_settings_of,
+    Change, ClientMessage, LightSettings, Method, SceneFacts, TransferSettings, ViewState, check,
+    hello, transfer_settings_of,
 };
 use crate::save::{SaveRequest, save};
 use base64::Engine as _;
@@ -36,11 +36,31 @@ pub struct Frame {
     pub stats: String,
 }
 
-/// A text message for one client (`to`) or all (`None`).
+/// A text message for some of the pages.
 #[derive(Debug, Clone)]
 pub struct Event {
-    pub to: Option<u64>,
+    pub to: Recipients,
     pub text: Arc<String>,
+}
+
+/// Which pages an [`Event`] is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Recipients {
+    One(u64),
+    All,
+    /// Every page but this one (the one whose edit it reports).
+    Others(u64),
+}
+
+impl Recipients {
+    /// Whether page `id` gets it.
+    pub fn include(self, id: u64) -> bool {
+        match self {
+            Recipients::One(to) => to == id,
+            Recipients::All => true,
+            Recipients::Others(not) => not != id,
+        }
+    }
 }
 
 /// What the server asks of the render thread.
@@ -217,7 +237,7 @@ impl Worker {
                         self.watching += 1;
                         let text = self.greeting("hello");
                         let _ = events.send(Event {
-                            to: Some(client),
+                            to: Recipients::One(client),
                             text: Arc::new(text),
                         });
                         // A new client sees the current image at once. (The read guard
@@ -235,24 +255,39 @@ impl Worker {
                             self.moving = false;
                             if let Err(e) = self.set_camera() {
                                 let _ = events.send(Event {
-                                    to: None,
+                                    to: Recipients::All,
                                     text: Arc::new(error_json(&e)),
                                 });
                             }
                         }
                     }
                     Command::Message { client, message } => {
+                        // Every page shows the one view: a change one page made is pushed to
+                        // the others (a drag once its camera rests; a save or the levels
+                        // change nothing they show).
+                        let shared = !matches!(
+                            message,
+                            ClientMessage::Camera { moving: true, .. }
+                                | ClientMessage::Save {}
+                                | ClientMessage::Levels {}
+                        );
                         let applied = check(message, &self.facts, &self.lights)
                             .and_then(|change| self.apply(change, client, &events));
+                        if applied.is_ok() && shared && self.watching > 1 {
+                            let _ = events.send(Event {
+                                to: Recipients::Others(client),
+                                text: Arc::new(self.greeting("state")),
+                            });
+                        }
                         if let Err(message) = applied {
                             let _ = events.send(Event {
-                                to: Some(client),
+                                to: Recipients::One(client),
                                 text: Arc::new(error_json(&message)),
                             });
                             // The page's fields go back to the values in force: a refused
                             // value left in a field was sent again with every later edit.
                             let _ = events.send(Event {
-                                to: Some(client),
+                                to: Recipients::One(client),
                                 text: Arc::new(self.greeting("state")),
                             });
                         }
@@ -288,7 +323,7 @@ impl Worker {
                         self.preview = false;
                         if let Err(e) = self.set_camera() {
                             let _ = events.send(Event {
-                                to: None,
+                                to: Recipients::All,
                                 text: Arc::new(error_json(&e)),
                             });
                         }
@@ -296,7 +331,7 @@ impl Worker {
                 }
                 Err(e) => {
                     let _ = events.send(Event {
-                        to: None,
+                        to: Recipients::All,
                         text: Arc::new(error_json(&format!("rendering failed: {e}"))),
                     });
                     // Back to plain path tracing, which needs nothing that can fail.
@@ -389,7 +424,7 @@ impl Worker {
                     })
                     .collect();
                 let _ = events.send(Event {
-                    to: Some(client),
+                    to: Recipients::One(client),
                     text: Arc::new(
                         serde_json::json!({"type": "levels", "images": urls}).to_string(),
                     ),
@@ -441,7 +476,7 @@ impl Worker {
                     .map(|f| f.display().to_string())
                     .collect();
                 let _ = events.send(Event {
-                    to: Some(client),
+                    to: Recipients::One(client),
                     text: Arc::new(
                         serde_json::json!({"type": "saved", "files": files}).to_string(),
                     ),

@@ -96,6 +96,14 @@ impl Session {
         self
     }
 
+    /// [`Session::with_features`] on a session in place (a viewer turning denoising on).
+    pub fn set_features(&mut self, features: bool) {
+        if self.features != features {
+            self.features = features;
+            self.clear_image();
+        }
+    }
+
     /// The image's feature buffers (albedo, normal, depth, coverage over the same samples as
     /// the image); `None` unless the session keeps them ([`Session::with_features`]).
     pub fn feature_images(&self) -> Option<hdr_image::FeatureImages> {

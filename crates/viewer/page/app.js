@@ -121,7 +121,7 @@
 
   function stats(m) {
     $("stats").textContent =
-      `${m.method}, ${m.width}x${m.height}${m.moving ? " (moving)" : ""}${m.denoised ? ", denoised" : ""}\n` +
+      `${m.method}, ${m.width}x${m.height}${m.moving ? " (moving)" : ""}${m.denoised ? `, denoised at ${m.denoised_spp} spp` : ""}\n` +
       `${m.spp} / ${m.target_spp} spp, ${m.fps.toFixed(1)} frames/s\n` +
       `trace ${m.trace_ms.toFixed(1)} ms, read ${m.lookup_ms.toFixed(1)} ms, train ${m.train_ms.toFixed(1)} ms\n` +
       `denoise ${m.denoise_ms.toFixed(1)} ms, encode ${m.encode_ms.toFixed(1)} ms` +

@@ -117,6 +117,9 @@ pub struct Worker {
     last_frame: Option<Instant>,
     /// Picks the preview's size.
     governor: PreviewGovernor,
+    /// The still view's last denoised image and the samples per pixel it was made at: shown
+    /// until the next (see [`denoise_now`]).
+    denoised: Option<(u32, RgbImage)>,
 }
 
 impl Worker {
@@ -158,6 +161,7 @@ impl Worker {
             fps: 0.0,
             last_frame: None,
             governor: PreviewGovernor::default(),
+            denoised: None,
         })
     }
 
@@ -318,6 +322,12 @@ impl Worker {
                     if let Some(frame) = self.publishable(&report) {
                         frames.send_replace(Some(Arc::new(frame)));
                     }
+                    // The raw frame is on screen while the filter runs; then its result.
+                    if self.denoise_due()
+                        && let Some(frame) = self.denoise_still(&report)
+                    {
+                        frames.send_replace(Some(Arc::new(frame)));
+                    }
                     if self.preview {
                         // The quick frame is out: refine at full size from here.
                         self.preview = false;
@@ -453,8 +463,11 @@ impl Worker {
                     return Err(format!("denoising is not available: {why}"));
                 }
                 self.denoise_on = on;
-                // The next frame shows the change, even on a converged view.
+                // The albedo guides the filter; the next frame shows the change, even on a
+                // converged view.
+                self.session.set_features(on);
                 self.session.clear_image();
+                self.denoised = None;
             }
             Change::Save => {
                 let image = self.session.image();
@@ -513,8 +526,52 @@ impl Worker {
         Ok(())
     }
 
-    /// The session's image, denoised where asked, tone-mapped and encoded, with the frame's
-    /// statistics; `None` if the frame added nothing to the image (cancelled before a sample).
+    /// Whether the still view's image is due to be denoised now: with denoising on, at 4, 8,
+    /// 16, ... samples per pixel and at the last (issue 49: every frame was denoised, 1.1-1.8 s
+    /// each at 1280x720, and the first ones, of a sample or two, came out smeared).
+    fn denoise_due(&self) -> bool {
+        let spp = self.session.frames_in_image();
+        self.denoise_on
+            && !self.moving
+            && !self.preview
+            && denoise_now(spp, self.target_spp)
+            && self.denoised.as_ref().is_none_or(|(at, _)| *at != spp)
+    }
+
+    /// The still image denoised (guided by the albedo, except beside the split view's other
+    /// half), kept to be shown until the next, and published; `None` if the filter failed
+    /// (denoising is then turned off, and said).
+    fn denoise_still(&mut self, report: &FrameReport) -> Option<Frame> {
+        let d = self.denoiser.get().ok()?;
+        let spp = self.session.frames_in_image();
+        let mut image = self.session.image();
+        let features = self.session.feature_images();
+        let albedo = features
+            .as_ref()
+            .filter(|_| self.split.is_none())
+            .map(|f| f.albedo.as_slice());
+        if let Some(split) = &self.split {
+            image = side_by_side(&split.image(), &image);
+        }
+        let t = Instant::now();
+        match d.denoise(&image, albedo, None, denoise::Options::default()) {
+            Ok(out) => {
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                self.denoised = Some((spp, out.clone()));
+                Some(self.frame_of(&out, report, ms, 0.0))
+            }
+            Err(e) => {
+                self.denoise_on = false;
+                self.denoised = None;
+                eprintln!("gscache view: denoising turned off: {e}");
+                None
+            }
+        }
+    }
+
+    /// The session's image (or, with denoising on, the last denoised image of this view, until
+    /// the next), tone-mapped and encoded, with the frame's statistics; `None` if the frame
+    /// added nothing to the image (cancelled before a sample).
     fn publishable(&mut self, report: &FrameReport) -> Option<Frame> {
         if self.session.frames_in_image() == 0 {
             return None;
@@ -529,28 +586,39 @@ impl Worker {
             };
         }
         self.last_frame = Some(now);
+        let spp = self.session.frames_in_image();
+        // The denoised image belongs to this view while the view's image has at least its
+        // samples: an edit empties the image, and its frames then start again from one.
+        if self.denoised.as_ref().is_some_and(|(at, _)| *at > spp) || self.moving {
+            self.denoised = None;
+        }
         let start = Instant::now();
-        let mut image = self.session.image();
-        if let Some(split) = &self.split {
-            image = side_by_side(&split.image(), &image);
-        }
-        let mut denoise_ms = 0.0;
-        if self.denoise_on
-            && !self.moving
-            && let Ok(d) = self.denoiser.get()
-        {
-            let t = Instant::now();
-            match d.denoise(&image, None, None, denoise::Options::default()) {
-                Ok(out) => image = out,
-                Err(e) => {
-                    self.denoise_on = false;
-                    eprintln!("gscache view: denoising turned off: {e}");
+        let image = match (&self.denoised, self.denoise_on) {
+            (Some((_, d)), true) => d.clone(),
+            _ => {
+                let mut image = self.session.image();
+                if let Some(split) = &self.split {
+                    image = side_by_side(&split.image(), &image);
                 }
+                image
             }
-            denoise_ms = t.elapsed().as_secs_f64() * 1e3;
-        }
-        let jpeg = encode(&image, self.session.scene());
-        let encode_ms = start.elapsed().as_secs_f64() * 1e3 - denoise_ms;
+        };
+        let prepare_ms = start.elapsed().as_secs_f64() * 1e3;
+        Some(self.frame_of(&image, report, 0.0, prepare_ms))
+    }
+
+    /// `image` as the page gets it: tone-mapped JPEG and the frame's statistics (`denoise_ms`:
+    /// the filter's time on this image, `prepare_ms`: gathering it).
+    fn frame_of(
+        &self,
+        image: &RgbImage,
+        report: &FrameReport,
+        denoise_ms: f64,
+        prepare_ms: f64,
+    ) -> Frame {
+        let start = Instant::now();
+        let jpeg = encode(image, self.session.scene());
+        let encode_ms = start.elapsed().as_secs_f64() * 1e3 + prepare_ms;
         let stats = serde_json::json!({
             "type": "stats",
             "frame": report.frame,
@@ -579,11 +647,21 @@ impl Worker {
                 "right_ms": self.seconds[1] * 1e3,
             })),
             "moving": self.moving,
-            "denoised": self.denoise_on && !self.moving && self.denoiser.is_loaded(),
+            // The samples per pixel of the denoised image shown, if one is.
+            "denoised": self.denoise_on && !self.moving && self.denoised.is_some(),
+            "denoised_spp": self.denoised.as_ref().filter(|_| self.denoise_on).map(|(at, _)| at),
         })
         .to_string();
-        Some(Frame { jpeg, stats })
+        Frame { jpeg, stats }
     }
+}
+
+/// Whether a still image of `spp` samples (of `target`) is one to denoise: at 4, 8, 16, ...
+/// and at the last. Below 4 the filter smears more than it removes; doubling the samples
+/// between runs keeps the filter's share of the time bounded (each run costs what a few frames
+/// do at 1280x720).
+pub fn denoise_now(spp: u32, target: u32) -> bool {
+    spp >= 4.min(target) && (spp.is_power_of_two() || spp >= target)
 }
 
 /// Picks the size a moving view renders at: the largest whose frame, at the seconds a pixel
@@ -675,7 +753,19 @@ pub fn encode(image: &RgbImage, scene: &Scene) -> Vec<u8> {
 
 #[cfg(test)]
 mod tests {
-    use super::PreviewGovernor;
+    use super::{PreviewGovernor, denoise_now};
+
+    #[test]
+    fn a_still_view_is_denoised_at_doublings_from_four_samples_and_at_the_last() {
+        let due: Vec<u32> = (1..=40).filter(|&s| denoise_now(s, 40)).collect();
+        assert_eq!(due, [4, 8, 16, 32, 40]);
+        // A view refining to fewer than four samples is denoised at its last.
+        assert_eq!(
+            (1..=3).filter(|&s| denoise_now(s, 3)).collect::<Vec<_>>(),
+            [3]
+        );
+        assert!(denoise_now(1, 1));
+    }
 
     #[test]
     fn the_governor_sizes_the_preview_from_what_frames_cost() {

@@ -567,6 +567,16 @@ async fn turning_denoising_on_loads_the_denoiser_and_denoises_frames() {
     })
     .await;
     assert!(seen.errors.is_empty(), "{:?}", seen.errors);
+    // Issue 49, item 12: not every frame: the first denoised image is of 4 samples a pixel
+    // (the view refines to 8), and no frame of fewer samples was denoised.
+    let first = seen.stats.iter().find(|m| m["denoised"] == true).unwrap();
+    assert_eq!(first["denoised_spp"], 4, "{first}");
+    assert!(
+        seen.stats
+            .iter()
+            .filter(|m| m["spp"].as_u64() < Some(4))
+            .all(|m| m["denoised"] == false)
+    );
     v.stop();
 }
 

@@ -231,3 +231,29 @@ def test_two_pages_show_one_view(viewer, browser):
     d.switch_to.window(first)
     wait(lambda: Select(d.find_element("id", "colormap")).first_selected_option
          .get_attribute("value") == "inferno", "the other page's menu to follow")
+
+
+def test_the_layout_follows_the_window_and_shows_what_applies(viewer, browser):
+    """Issue 49, item 7: in a narrow window the view takes the width (it was 135 px of 500),
+    the cache's controls show only with a cache method, the split view's halves are labelled,
+    and a slider shows its value."""
+    from selenium.webdriver.support.ui import Select
+
+    d = browser
+    d.set_window_size(500, 900)
+    d.get(viewer)
+    settled(d)
+    width = d.execute_script("return [document.getElementById('frame').getBoundingClientRect()"
+                             ".width, window.innerWidth];")
+    assert width[0] >= 0.9 * width[1], width
+    cache = d.find_element("id", "cache-section")
+    assert not cache.is_displayed()
+    Select(d.find_element("id", "method")).select_by_value("cache")
+    assert cache.is_displayed()
+    d.find_element("id", "split").click()
+    labels = d.find_element("id", "split-labels")
+    assert labels.is_displayed() and "cache" in labels.text and "NEE" in labels.text
+    env = d.find_element("id", "environment")
+    d.execute_script("arguments[0].value = 2.5;"
+                     "arguments[0].dispatchEvent(new Event('input'));", env)
+    assert d.find_element("id", "environment-value").text == "2.5"

@@ -168,6 +168,8 @@
     $("window-hi").value = shown(transfer.window[1]);
     $("density").value = shown(transfer.density_scale);
     $("environment").value = m.environment;
+    $("environment-value").textContent = m.environment;
+    showMethod(m.method, !!m.split);
     $("show-lights").checked = m.show_lights;
     // The server's state, not the page's defaults: a reload or a reconnect shows what is on.
     $("denoise").checked = !!m.denoise;
@@ -184,14 +186,16 @@
       const div = document.createElement("div");
       div.className = "light";
       div.innerHTML = `<b>light ${i + 1}</b> (${l.kind})
-        <label>azimuth <input type="range" min="-180" max="180" step="1" value="${(az * 180 / Math.PI).toFixed(0)}" data-k="az"></label>
-        <label>elevation <input type="range" min="-89" max="89" step="1" value="${(el * 180 / Math.PI).toFixed(0)}" data-k="el"></label>
+        <label>azimuth <input type="range" min="-180" max="180" step="1" value="${(az * 180 / Math.PI).toFixed(0)}" data-k="az"> <output data-o="az">${(az * 180 / Math.PI).toFixed(0)}°</output></label>
+        <label>elevation <input type="range" min="-89" max="89" step="1" value="${(el * 180 / Math.PI).toFixed(0)}" data-k="el"> <output data-o="el">${(el * 180 / Math.PI).toFixed(0)}°</output></label>
         <label>intensity <input type="number" step="any" min="0" value="${l.intensity}" data-k="k"></label>`;
       div.addEventListener("input", (event) => {
         const get = (k) => div.querySelector(`[data-k=${k}]`);
         // An edit changes only what it names: the intensity keeps the direction as the server
         // has it (the sliders hold whole degrees, and rebuilding from them moved the light).
         if (event.target.dataset.k !== "k") {
+          div.querySelector("[data-o=az]").textContent = `${get("az").value}°`;
+          div.querySelector("[data-o=el]").textContent = `${get("el").value}°`;
           const a = get("az").value * Math.PI / 180, e = get("el").value * Math.PI / 180;
           const c = Math.cos(e);
           light.direction = add(add(mul(e1, c * Math.cos(a)), mul(e2, c * Math.sin(a))), mul(up, Math.sin(e)));
@@ -267,15 +271,31 @@
   };
 
   // ---- method, denoise, save ----
-  $("method").onchange = (e) => send("method", { type: "method", method: e.target.value });
+  // Controls that do not apply are hidden (the cache's with NEE), and the split view's halves
+  // are labelled.
+  function showMethod(method, split) {
+    $("cache-section").hidden = method === "nee";
+    $("split-labels").hidden = !split;
+    $("split-right").textContent = method;
+  }
+  $("method").onchange = (e) => {
+    showMethod(e.target.value, $("split").checked);
+    send("method", { type: "method", method: e.target.value });
+  };
   $("denoise").onchange = (e) => send("denoise", { type: "denoise", on: e.target.checked });
-  $("split").onchange = (e) => send("split", { type: "split", on: e.target.checked });
+  $("split").onchange = (e) => {
+    showMethod($("method").value, e.target.checked);
+    send("split", { type: "split", on: e.target.checked });
+  };
   $("show-lights").onchange = (e) => send("show_lights", { type: "show_lights", on: e.target.checked });
   $("save").onclick = () => send("save", { type: "save" });
   $("train").onchange = (e) => send("train", { type: "train", on: e.target.checked });
   $("reset-cache").onclick = () => { losses.length = 0; drawLoss(); send("reset", { type: "reset_cache" }); };
   $("show-levels").onclick = () => send("levels", { type: "levels" });
-  $("environment").oninput = (e) => send("environment", { type: "environment", intensity: parseFloat(e.target.value) });
+  $("environment").oninput = (e) => {
+    $("environment-value").textContent = e.target.value;
+    send("environment", { type: "environment", intensity: parseFloat(e.target.value) });
+  };
 
   // ---- transfer function ----
   $("colormap").onchange = (e) => { transfer.colormap = e.target.value; sendTransfer(); };

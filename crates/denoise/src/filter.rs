@@ -303,6 +303,25 @@ impl Denoiser {
         Err(DenoiseError::Oidn(format!("error {code}: {text}")))
     }
 
+    /// Denoises `color` guided by the feature buffers `guides` names, taken from `features`
+    /// (none taken without them): the one place a render's feature buffers become the filter's
+    /// guides, for the program, the experiments, the movies and the viewer.
+    pub fn denoise_guided(
+        &mut self,
+        color: &RgbImage,
+        features: Option<&hdr_image::FeatureImages>,
+        guides: Guides,
+        options: Options,
+    ) -> Result<RgbImage> {
+        let albedo = features
+            .filter(|_| guides != Guides::None)
+            .map(|f| f.albedo.as_slice());
+        let normal = features
+            .filter(|_| guides == Guides::AlbedoNormal)
+            .map(|f| f.normal.as_slice());
+        self.denoise(color, albedo, normal, options)
+    }
+
     /// Denoises `color` (linear HDR radiance), guided by `albedo` and `normal` where given.
     ///
     /// `albedo` values must lie in [0, 1] and `normal` components in [-1, 1] (OIDN's ranges);

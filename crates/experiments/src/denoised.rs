@@ -58,15 +58,9 @@ impl Denoisers {
         guides: Guides,
         spec: &DenoiseSpec,
     ) -> Result<(RgbImage, f64)> {
-        let albedo = features
-            .filter(|_| guides != Guides::None)
-            .map(|f| f.albedo.as_slice());
-        let normal = features
-            .filter(|_| guides == Guides::AlbedoNormal)
-            .map(|f| f.normal.as_slice());
         let d = self.for_guides(guides)?;
         let start = Instant::now();
-        let out = d.denoise(image, albedo, normal, spec.options())?;
+        let out = d.denoise_guided(image, features, guides, spec.options())?;
         Ok((out, start.elapsed().as_secs_f64()))
     }
 

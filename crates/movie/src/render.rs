@@ -201,16 +201,8 @@ pub fn render_movie(
         let shown = match (denoiser.as_deref_mut(), spec.denoise) {
             (Some(d), Some(ds)) => {
                 let features = session.feature_images();
-                let albedo = features
-                    .as_ref()
-                    .filter(|_| guides != Guides::None)
-                    .map(|x| x.albedo.as_slice());
-                let normal = features
-                    .as_ref()
-                    .filter(|_| guides == Guides::AlbedoNormal)
-                    .map(|x| x.normal.as_slice());
                 let t = std::time::Instant::now();
-                let out = d.denoise(&image, albedo, normal, ds.options())?;
+                let out = d.denoise_guided(&image, features.as_ref(), guides, ds.options())?;
                 denoise_seconds = t.elapsed().as_secs_f64();
                 // The first frame may build the filter: the budget follows the later ones.
                 if f > first {

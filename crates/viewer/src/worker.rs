@@ -545,16 +545,22 @@ impl Worker {
         let d = self.denoiser.get().ok()?;
         let spp = self.session.frames_in_image();
         let mut image = self.session.image();
-        let features = self.session.feature_images();
-        let albedo = features
-            .as_ref()
-            .filter(|_| self.split.is_none())
-            .map(|f| f.albedo.as_slice());
+        // The joined halves of the split view have no one albedo: unguided there.
+        let features = self
+            .session
+            .feature_images()
+            .filter(|_| self.split.is_none());
         if let Some(split) = &self.split {
             image = side_by_side(&split.image(), &image);
         }
         let t = Instant::now();
-        match d.denoise(&image, albedo, None, denoise::Options::default()) {
+        let guides = denoise::Guides::Albedo;
+        match d.denoise_guided(
+            &image,
+            features.as_ref(),
+            guides,
+            denoise::Options::default(),
+        ) {
             Ok(out) => {
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 self.denoised = Some((spp, out.clone()));

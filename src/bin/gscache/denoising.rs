@@ -99,14 +99,8 @@ pub fn write_denoised(
     exposure: f32,
     tonemap: ToneMap,
 ) -> Result<(PathBuf, f64)> {
-    let albedo = features
-        .filter(|_| args.denoise_guides != Guides::None)
-        .map(|f| f.albedo.as_slice());
-    let normal = features
-        .filter(|_| args.denoise_guides == Guides::AlbedoNormal)
-        .map(|f| f.normal.as_slice());
     let start = std::time::Instant::now();
-    let out = denoiser.denoise(image, albedo, normal, args.options())?;
+    let out = denoiser.denoise_guided(image, features, args.denoise_guides, args.options())?;
     let seconds = start.elapsed().as_secs_f64();
     let path = denoised_path(exr);
     out.write_exr(&path)?;

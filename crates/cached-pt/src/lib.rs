@@ -102,6 +102,7 @@ impl FrameCache for GsFrame<'_> {
             record.add_statistics(pixel.in_tile, &statistics);
         }
         record.add_samples(pixel.in_tile, path.0.samples());
+        record.add_path(pixel.in_tile, path.0.length());
     }
 }
 

@@ -598,3 +598,58 @@ fn a_still_view_is_handed_back_to_plain_path_tracing() {
     assert!(!handed_off, "a camera move takes the cache back");
     assert!(colours(&cache) != trained, "and it trains again");
 }
+
+/// Error-aware termination's support test (`min_coverage`, gs-cache's `support.rs`): a pixel
+/// whose cache pixel no level may be read at (too few paths reach its vertices around it: the
+/// volume's border, the background) renders as plain path tracing bit for bit, while the
+/// covered interior still reads the cache; and the test reads fewer pixels than the cache
+/// without it.
+#[test]
+fn paths_go_on_where_too_few_paths_reach_a_level() {
+    let s = scene();
+    let config = |min_coverage| CacheConfig {
+        min_coverage,
+        ..Default::default()
+    };
+    let mut strict = new_cache(&s, config(0.9));
+    let mut loose = new_cache(&s, config(0.0));
+    for f in 1..20 {
+        one_frame(&s, &s.camera, 11, f, &mut strict);
+        one_frame(&s, &s.camera, 11, f, &mut loose);
+    }
+    // The verdicts the next frame's paths see (training updated them after the last frame).
+    let frame = strict.frame().unwrap();
+    let levels = frame.levels();
+    let read_nowhere: Vec<bool> = (0..(SIZE * SIZE) as usize)
+        .map(|p| (0..levels).all(|l| !frame.trusted(l, frame.bin(p))))
+        .collect();
+    let strict_fraction = frame.trusted_fractions()[0];
+    let loose_fraction = loose.frame().unwrap().trusted_fractions()[0];
+    // Frame 0 of seed 11 draws the paths of plain NEE's first sample of seed 11.
+    let image = one_frame(&s, &s.camera, 11, 0, &mut strict);
+    let plain_image = plain(&s, 1, 11);
+    let mut same_where_unread = 0;
+    for (p, &unread) in read_nowhere.iter().enumerate() {
+        if unread {
+            assert!(
+                image[p] == plain_image[p],
+                "pixel {p} reads no level but differs from plain NEE: {} against {}",
+                image[p],
+                plain_image[p]
+            );
+            same_where_unread += 1;
+        }
+    }
+    let differing = (0..image.len())
+        .filter(|&p| image[p] != plain_image[p])
+        .count();
+    eprintln!(
+        "min_coverage 0.9: {same_where_unread} pixels read no level, {differing} read the \
+         cache; level 1 read at {strict_fraction:.2} of cache pixels (without the test {loose_fraction:.2})"
+    );
+    assert!(same_where_unread > 0 && differing > 0);
+    assert!(
+        strict_fraction < loose_fraction,
+        "{strict_fraction} against {loose_fraction}"
+    );
+}

@@ -65,6 +65,10 @@
 // this many (with adaptive training).
 #define SETTLED_TRAIN_EVERY 4
 
+// Each frame, the decayed sums are multiplied by this before the frame's counts are added:
+// about three frames of memory, so a moving view's coverage follows it.
+#define DECAY 0.7
+
 // Outcome of a call.
 typedef enum GsCacheStatus {
   GS_CACHE_STATUS_OK = 0,
@@ -152,6 +156,10 @@ typedef struct GsCacheConfig {
   float min_continuation;
   // With `unbiased`: a fixed kappa (0: chosen by the rule).
   float continuation_scale;
+  // Paths stop into a level only where at least this fraction of the paths around their
+  // cache pixel reached its vertex (0: everywhere; see `CacheConfig`). Needs the paths
+  // counted with `gs_cache_add_path`.
+  float min_coverage;
 } GsCacheConfig;
 
 // A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -282,6 +290,14 @@ enum GsCacheStatus gs_cache_add_sample(struct GsCacheHandle *cache,
                                        uint32_t level,
                                        uint32_t pixel,
                                        const float *rgb);
+
+// Counts one path through row-major `pixel` that reached `length` scattering vertices before
+// it ended (stopped into the cache or not): the coverage `min_coverage` tests. Call it once
+// per path, including those with no vertex (`length` 0).
+//
+// # Safety
+// `cache` must be a live handle.
+enum GsCacheStatus gs_cache_add_path(struct GsCacheHandle *cache, uint32_t pixel, uint32_t length);
 
 // The unbiased estimator at a path's vertex of length `level + 1` through row-major `pixel`
 // (see the crate docs): the path's throughput there is `throughput` (3 floats) and `key` is a

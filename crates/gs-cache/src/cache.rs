@@ -7,6 +7,7 @@ use crate::fallback::{Trust, Verdict, update_trust};
 use crate::init::{SH_C0, initial_levels};
 use crate::resolution::PixelMap;
 use crate::schedule::Schedule;
+use crate::support::Support;
 use crate::targets::TrainingTargets;
 use crate::warm_start::{Drawn, apply_fit, warm_sums};
 use glam::Vec3;
@@ -84,6 +85,9 @@ pub struct CacheFrame {
     /// Where paths may stop into each level (`None`: everywhere, the fallback is off). Carried
     /// from frame to frame and updated by training.
     trust: Option<Trust>,
+    /// Where enough paths reach each level's vertex for paths to stop into it (`None`: the
+    /// support test is off). Carried from frame to frame and updated by training.
+    support: Option<Support>,
     /// The still view has had its `handoff_frames`: paths do not read the cache and it does not
     /// train (see [`CacheConfig::handoff_frames`]).
     handed_off: bool,
@@ -141,16 +145,25 @@ impl CacheFrame {
     /// [`crate::fallback`]); always true with the fallback off.
     #[inline]
     pub fn trusted(&self, level: usize, bin: usize) -> bool {
-        !self.handed_off && self.trust.as_ref().is_none_or(|t| t.trusted(level, bin))
+        !self.handed_off
+            && self.trust.as_ref().is_none_or(|t| t.trusted(level, bin))
+            && self
+                .support
+                .as_ref()
+                .is_none_or(|s| s.supported(level, bin))
     }
-    /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback off, 0
-    /// once handed off).
+    /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback and the
+    /// support test off, 0 once handed off).
     pub fn trusted_fractions(&self) -> Vec<f64> {
+        let bins = self.map.width as usize * self.map.height as usize;
         (0..self.levels())
-            .map(|l| match (&self.trust, self.handed_off) {
-                (_, true) => 0.0,
-                (Some(t), false) => t.trusted_fraction(l),
-                (None, false) => 1.0,
+            .map(|l| match (&self.trust, &self.support, self.handed_off) {
+                (_, _, true) => 0.0,
+                (None, None, false) => 1.0,
+                (Some(t), None, false) => t.trusted_fraction(l),
+                (_, Some(_), false) => {
+                    (0..bins).filter(|&b| self.trusted(l, b)).count() as f64 / bins.max(1) as f64
+                }
             })
             .collect()
     }
@@ -463,13 +476,23 @@ impl GsCache {
         }
         self.levels_changed = false;
         let (cache_camera, map) = PixelMap::new(camera, self.config.resolution_divisor);
+        // The last frame's verdicts, carried to this frame's size.
+        let (old_trust, old_support) = self
+            .frame
+            .take()
+            .map_or((None, None), |f| (f.trust, f.support));
         let trust = self.config.fallback.then(|| {
-            let mut trust = self.frame.take().and_then(|f| f.trust).unwrap_or_default();
+            let mut trust = old_trust.unwrap_or_default();
             trust.fit(self.levels.len(), map.width, map.height);
             if self.fresh {
                 trust.distrust_all();
             }
             trust
+        });
+        let support = (self.config.min_coverage > 0.0).then(|| {
+            let mut support = old_support.unwrap_or_default();
+            support.fit(self.levels.len(), map.width, map.height);
+            support
         });
         let draw_camera = &cache_camera;
         // The levels are drawn side by side, as they train (see `LevelStep`): one level's
@@ -537,6 +560,7 @@ impl GsCache {
             upsampled: OnceLock::new(),
             states,
             trust,
+            support,
             handed_off,
             kappa,
         })
@@ -622,6 +646,10 @@ impl GsCache {
                 map.width,
                 map.height
             )));
+        }
+        if let Some(support) = frame.support.as_mut() {
+            let (paths, reached) = targets.path_counts();
+            support.update(paths, reached, self.config.min_coverage);
         }
         if frame.handed_off {
             self.report.train_seconds = 0.0;

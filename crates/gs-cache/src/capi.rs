@@ -151,6 +151,10 @@ pub struct GsCacheConfig {
     pub min_continuation: f32,
     /// With `unbiased`: a fixed kappa (0: chosen by the rule).
     pub continuation_scale: f32,
+    /// Paths stop into a level only where at least this fraction of the paths around their
+    /// cache pixel reached its vertex (0: everywhere; see `CacheConfig`). Needs the paths
+    /// counted with `gs_cache_add_path`.
+    pub min_coverage: f32,
 }
 
 /// A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -319,6 +323,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             unbiased: c.unbiased,
             min_continuation: c.min_continuation,
             continuation_scale: c.continuation_scale,
+            min_coverage: c.min_coverage,
         })
     }
 }
@@ -379,6 +384,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         unbiased: d.unbiased,
         min_continuation: d.min_continuation,
         continuation_scale: d.continuation_scale,
+        min_coverage: d.min_coverage,
     }
 }
 
@@ -618,6 +624,36 @@ pub unsafe extern "C" fn gs_cache_add_sample(
             )));
         }
         t.add(level as usize, pixel as usize, [rgb[0], rgb[1], rgb[2]]);
+        Ok(())
+    })
+}
+
+/// Counts one path through row-major `pixel` that reached `length` scattering vertices before
+/// it ended (stopped into the cache or not): the coverage `min_coverage` tests. Call it once
+/// per path, including those with no vertex (`length` 0).
+///
+/// # Safety
+/// `cache` must be a live handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn gs_cache_add_path(
+    cache: *mut GsCacheHandle,
+    pixel: u32,
+    length: u32,
+) -> GsCacheStatus {
+    guarded(|| {
+        // SAFETY: the caller passes a live handle.
+        let h = unsafe { handle(cache) }?;
+        let t = h.targets.as_mut().ok_or((
+            GsCacheStatus::NoFrame,
+            "gs_cache_add_path before gs_cache_begin_frame".to_string(),
+        ))?;
+        let pixels = t.width() as usize * t.height() as usize;
+        if pixel as usize >= pixels {
+            return Err(invalid(format!(
+                "path at pixel {pixel}: the frame has {pixels} pixels"
+            )));
+        }
+        t.add_path(pixel as usize, length as usize);
         Ok(())
     })
 }

@@ -15,6 +15,8 @@
 //! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
 //! - [`fallback`]: plain path tracing where a level's last residual says it is stale.
+//! - [`support`]: plain path tracing where too few paths reach a level's vertex for its fit
+//!   to be more than the Gaussians' blur (error-aware termination).
 //! - [`warm_start`]: a fresh level's colours fitted to its first frames' samples.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
 //! - [`capi`]: the C ABI (header `include/gs_cache.h`; a C program using it in `c/`).
@@ -194,7 +196,13 @@
 //! estimator is unchanged, the cache only gets closer to `Lambda_n` sooner. (7) Staleness. Where
 //! a level's last residual is large beyond its noise, and everywhere in the frame after a scene
 //! change, paths do not stop into it ([`fallback`]): those pixels are plain path tracing, so
-//! their bias terms above vanish, at the variance plain path tracing has.
+//! their bias terms above vanish, at the variance plain path tracing has. (8) Support. The
+//! second bias term is largest where a cache pixel's fit rests on few paths: where most of the
+//! paths through it never reach the level's vertex (a thin halo, a silhouette its footprint
+//! straddles), the level there is the Gaussians' blur of denser neighbours, and the bilinear
+//! read mixes in pixels with no target at all. With `min_coverage`, paths stop into a level
+//! only where, around their cache pixel, at least that fraction of the paths reached its vertex
+//! ([`support`]); elsewhere they are plain path tracing, as under the fallback.
 
 pub mod cache;
 pub mod capi;
@@ -207,6 +215,7 @@ pub mod path;
 pub mod persist;
 pub mod resolution;
 pub mod schedule;
+pub mod support;
 pub mod targets;
 pub mod termination;
 pub mod warm_start;

@@ -27,6 +27,10 @@ pub struct TrainingTargets {
     map: PixelMap,
     /// Per level, per bin: its samples' sums.
     bins: Vec<Vec<BinSums>>,
+    /// Per bin, the paths through it (index 0) and, per level `l`, those that reached the
+    /// level's vertex (index `l + 1`), stopped there or not: the support test's coverage
+    /// ([`crate::support`]). Renderers that do not report paths leave them zero.
+    paths: Vec<Vec<u32>>,
     /// Samples refused this frame for being not finite or too large in magnitude.
     dropped: u64,
     /// The unbiased estimator's statistics per cache pixel (see [`crate::control`]), and per
@@ -98,9 +102,26 @@ impl TrainingTargets {
         Self {
             map,
             bins: vec![vec![BinSums::default(); n]; levels],
+            paths: vec![vec![0; n]; levels + 1],
             dropped: 0,
             statistics: None,
         }
+    }
+
+    /// Counts one path through row-major frame pixel `pixel` that reached `length` vertices
+    /// (a renderer without tiles: the C ABI).
+    pub fn add_path(&mut self, pixel: usize, length: usize) {
+        let w = self.width() as usize;
+        let bin = self.map.bin((pixel % w) as u32, (pixel / w) as u32);
+        for counts in self.paths.iter_mut().take(length.saturating_add(1)) {
+            counts[bin] = counts[bin].saturating_add(1);
+        }
+    }
+
+    /// Per bin, the paths through it, and per level the paths that reached its vertex (see
+    /// [`crate::support`]).
+    pub fn path_counts(&self) -> (&[u32], &[Vec<u32>]) {
+        (&self.paths[0], &self.paths[1..])
     }
 
     /// These targets also gather the unbiased estimator's statistics per cache pixel.
@@ -193,6 +214,9 @@ impl TrainingTargets {
             bins.par_chunks_mut(CHUNK)
                 .for_each(|c| c.fill(BinSums::default()));
         }
+        for counts in &mut self.paths {
+            counts.fill(0);
+        }
         if let Some((s, moments)) = self.statistics.as_mut() {
             *s = Statistics::new(
                 s.levels(),
@@ -258,6 +282,9 @@ pub struct TileTargets {
     sums: Vec<Vec3>,
     /// Summed sample weights (sample counts when every weight is 1).
     weights: Vec<f32>,
+    /// Per tile pixel, the paths through it (block 0) and per level those that reached its
+    /// vertex (block `l + 1`), as [`TrainingTargets`] keeps them per bin.
+    paths: Vec<u32>,
     /// Samples refused for a non-finite or too large value, or a bad weight.
     dropped: u64,
     /// The unbiased estimator's statistics per tile pixel, when gathered.
@@ -276,8 +303,19 @@ impl TileTargets {
             levels,
             sums: vec![Vec3::ZERO; n],
             weights: vec![0.0; n],
+            paths: vec![0; n + width as usize * height as usize],
             dropped: 0,
             statistics: None,
+        }
+    }
+
+    /// Counts one path through row-major tile pixel `in_tile` that reached `length` vertices
+    /// ([`crate::CachedPath::length`] when it ended), for the support test's coverage.
+    pub fn add_path(&mut self, in_tile: usize, length: usize) {
+        let tile_pixels = self.width as usize * self.height as usize;
+        for block in 0..=length.min(self.levels) {
+            let k = block * tile_pixels + in_tile;
+            self.paths[k] = self.paths[k].saturating_add(1);
         }
     }
 
@@ -400,6 +438,25 @@ impl TrainingTargets {
                 .sum::<u64>();
         }
         self.dropped += dropped;
+        // The path counts, block by block (block 0: every path; block l + 1: level l's).
+        for (block, counts) in self.paths.iter_mut().enumerate() {
+            counts
+                .par_chunks_mut(cache_width)
+                .zip(rows.par_iter())
+                .for_each(|(counts, rows)| {
+                    for y in rows.clone() {
+                        for tile in crossing[y as usize].iter().filter(|t| block <= t.levels) {
+                            let tile_pixels = tile.width as usize * tile.height as usize;
+                            let j = y as usize - tile.y0 as usize;
+                            for i in 0..tile.width as usize {
+                                let k = block * tile_pixels + j * tile.width as usize + i;
+                                let count = &mut counts[column[tile.x0 as usize + i]];
+                                *count = count.saturating_add(tile.paths[k]);
+                            }
+                        }
+                    }
+                });
+        }
     }
 }
 
@@ -410,6 +467,30 @@ mod tests {
     /// A frame of `w` x `h` pixels kept at its own resolution.
     fn identity(w: u32, h: u32) -> PixelMap {
         PixelMap::for_size(w, h, 1)
+    }
+
+    /// Paths counted in tiles reach the bins as paths counted one by one do: every path in
+    /// block 0, and in each level's block those that reached its vertex.
+    #[test]
+    fn path_counts_bin_like_single_paths() {
+        let map = PixelMap::for_size(8, 4, 2);
+        let mut tiles = TileTargets::new(2, 4, 0, 4, 4);
+        let mut direct = TrainingTargets::new(2, map);
+        // Frame pixel (5, 1): lengths 0, 1, 3; pixel (4, 0): length 2.
+        for (x, y, length) in [(5u32, 1u32, 0usize), (5, 1, 1), (5, 1, 3), (4, 0, 2)] {
+            tiles.add_path(((y * 4) + x - 4) as usize, length);
+            direct.add_path((y * 8 + x) as usize, length);
+        }
+        let mut binned = TrainingTargets::new(2, map);
+        binned.add_tile(&tiles);
+        let bin = map.bin(5, 1);
+        for t in [&binned, &direct] {
+            let (paths, reached) = t.path_counts();
+            assert_eq!((paths[bin], reached[0][bin], reached[1][bin]), (4, 3, 2));
+            assert_eq!(paths.iter().sum::<u32>(), 4, "one bin holds them all");
+        }
+        binned.clear();
+        assert_eq!(binned.path_counts().0[bin], 0);
     }
 
     /// A target brighter than any sample a film accepts is refused and counted like a NaN one:

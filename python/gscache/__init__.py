@@ -95,8 +95,10 @@ class Scene:
     ``target``, ``up``, ``fov_y``, ``width``, ``height``), ``lights`` (each ``center``,
     ``radius``, ``radiance``), ``environment`` (RGB radiance), ``phase``, ``render`` (``spp``,
     ``max_depth``, ``integrator``, ``seed``, ``rr_start_depth``), ``output`` (``exposure``,
-    ``tonemap``); ``spacing``, ``origin``, ``filter`` and ``macrocell`` place the volume as the
-    ``[volume]`` table does. Preset paths are relative to the working folder. The tables are
+    ``tonemap``), ``clip`` (``box`` as ``{"min": [x, y, z], "max": [x, y, z]}`` and ``plane``
+    as a list of ``{"point": ..., "normal": ...}``, the side the normal points to cut away);
+    ``spacing``, ``origin``, ``filter`` and ``macrocell`` place the volume as the ``[volume]``
+    table does. Preset paths are relative to the working folder. The tables are
     parsed by the program's own code, so a mistake gets the program's message."""
 
     def __init__(
@@ -110,6 +112,7 @@ class Scene:
         phase: Optional[Mapping[str, Any]] = None,
         render: Optional[Mapping[str, Any]] = None,
         output: Optional[Mapping[str, Any]] = None,
+        clip: Optional[Mapping[str, Any]] = None,
         spacing: Optional[Sequence[float]] = None,
         origin: Optional[Sequence[float]] = None,
         filter: Optional[str] = None,
@@ -131,7 +134,12 @@ class Scene:
         }
         if environment is not None:
             tables["environment"] = {"radiance": environment}
-        for name, table in (("phase", phase), ("render", render), ("output", output)):
+        for name, table in (
+            ("phase", phase),
+            ("render", render),
+            ("output", output),
+            ("clip", clip),
+        ):
             if table is not None:
                 tables[name] = dict(table)
         _finite_tables(tables, "")
@@ -166,6 +174,33 @@ class Scene:
         self._inner = _gscache.Scene.load(str(path))
         self._path = str(path)
         return self
+
+    def clipped(
+        self,
+        box: Optional[Tuple[Sequence[float], Sequence[float]]] = None,
+        planes: Sequence[Tuple[Sequence[float], Sequence[float]]] = (),
+    ) -> "Scene":
+        """This scene with the medium cut (replacing any clipping it had): only what lies in
+        ``box`` (``(min, max)`` corners, world units) is kept, and each plane ``(point,
+        normal)`` cuts away the side its normal points to. No arguments: nothing is cut. The
+        renderer tracks only through the kept medium, so the image is the exact render of the
+        clipped volume (docs/scene-format.md, ``[clip]``)."""
+        table: dict = {}
+        if box is not None:
+            lo, hi = box
+            table["box"] = {"min": list(lo), "max": list(hi)}
+        if planes:
+            table["plane"] = [{"point": list(p), "normal": list(n)} for p, n in planes]
+        _finite_tables(table, "clip")
+        out = Scene.__new__(Scene)
+        out.__dict__.update(self.__dict__)
+        out._inner = self._inner.with_clipping(json.dumps(table, default=_json_number))
+        return out
+
+    @property
+    def clip(self) -> dict:
+        """The clipping as the ``[clip]`` table (``{}``: nothing is cut)."""
+        return json.loads(self._inner.clipping)
 
     width = property(lambda self: self._inner.width)
     height = property(lambda self: self._inner.height)

@@ -81,6 +81,38 @@ def test_scene_file_threads_and_overrides_match_the_program(repo, program, tmp_p
             assert np.array_equal(image.view(np.uint32), expect.view(np.uint32)), (kw, threads)
 
 
+def test_clipping_from_python_is_the_programs(repo, program, tmp_path):
+    """A clip box and plane given to ``Scene.clipped``, or as the ``clip`` table, render the
+    program's ``--clip-box``/``--clip-plane`` image bit for bit; clipping changes the image and
+    the render key, and clearing it gives the unclipped image back."""
+    tables, voxels = default_tables(repo)
+    volume = gscache.Volume.from_array(voxels)
+    scene = scene_from_tables(tables, volume)
+    box = ([-40.0, -40.0, -40.0], [40.0, 40.0, 8.0])
+    plane = ([0.0, 0.0, 0.0], [1.0, 0.5, 0.0])
+    clipped = scene.clipped(box=box, planes=[plane])
+    assert clipped.clip == {"box": {"min": box[0], "max": box[1]},
+                            "plane": [{"point": plane[0], "normal": plane[1]}]}
+    assert scene.clip == {}, "the original scene is not changed"
+    assert clipped.render_key != scene.render_key
+    image = gscache.render(clipped, spp=2)
+    expect = program_exr(program, tmp_path, "data/scenes/default.toml", "--spp", "2",
+                         "--clip-box=-40,-40,-40,40,40,8", "--clip-plane", "0,0,0,1,0.5,0")
+    assert np.array_equal(image.view(np.uint32), expect.view(np.uint32))
+    plain = gscache.render(scene, spp=2)
+    assert not np.array_equal(image, plain)
+    assert np.array_equal(gscache.render(clipped.clipped(), spp=2), plain)
+    camera = dict(tables["camera"], width=48, height=40)
+    as_table = gscache.Scene(volume, transfer=tables["transfer"], camera=camera,
+                             lights=tables["light"], environment=tables["environment"]["radiance"],
+                             phase=tables["phase"], render=tables["render"],
+                             output=tables["output"], spacing=tables["volume"]["spacing"],
+                             clip=clipped.clip)
+    assert np.array_equal(gscache.render(as_table, spp=2).view(np.uint32), expect.view(np.uint32))
+    with pytest.raises(gscache.GscacheError, match="min < max"):
+        scene.clipped(box=([0, 0, 0], [1, 1, 0]))
+
+
 @pytest.mark.parametrize("dtype", ["uint8", "int8", "uint16", "int16", "float32"])
 def test_every_reader_dtype_is_kept_and_strides_do_not_matter(repo, dtype):
     tables, voxels = default_tables(repo)

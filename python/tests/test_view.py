@@ -257,3 +257,46 @@ def test_the_layout_follows_the_window_and_shows_what_applies(viewer, browser):
     d.execute_script("arguments[0].value = 2.5;"
                      "arguments[0].dispatchEvent(new Event('input'));", env)
     assert d.find_element("id", "environment-value").text == "2.5"
+
+
+def test_clipping_from_the_page_changes_the_image_and_the_saved_scene_renders_it(
+        viewer, browser):
+    """Issue 49, item 10: the clip box's sliders and the clip plane cut the volume in the view;
+    the saved scene holds the clipping (a reloaded page shows it), and `gscache render` of the
+    saved scene renders the clipped volume (its image differs from the unclipped scene's the
+    way the view's did)."""
+    import tomllib
+
+    d = browser
+    d.get(viewer)
+    first = settled(d)
+    # The x axis kept from 0.5 of the box on, and a plane through the centre.
+    slider = d.find_element("css selector", "[data-clip=x0]")
+    d.execute_script("arguments[0].value = 0.5;"
+                     "arguments[0].dispatchEvent(new Event('input', {bubbles: true}));", slider)
+    # (Measured: 2.3 grey levels of 255 on average over the 16x9 read-back.)
+    wait(lambda: differ(settled(d), first) > 1, "the clip box to change the image")
+    boxed = settled(d)
+    d.find_element("id", "clip-plane").click()
+    wait(lambda: differ(settled(d), boxed) > 1, "the clip plane to change the image")
+    d.find_element("id", "save").click()
+    said = wait(lambda: (t := d.find_element("id", "error").text).startswith("saved:") and t,
+                "the save")
+    files = [f.strip() for f in said[len("saved:"):].split(",")]
+    scene_file = next(f for f in files if f.endswith(".toml"))
+    saved = tomllib.loads(open(scene_file).read())
+    assert saved["clip"]["box"]["min"][0] == 0.0, saved["clip"]  # the default box is centred
+    assert len(saved["clip"]["plane"]) == 1, saved["clip"]
+    # A reloaded page shows the clipping in force.
+    d.refresh()
+    wait(lambda: "spp" in d.find_element("id", "stats").text, "the reloaded page's first frame")
+    assert d.find_element("id", "clip-plane").is_selected()
+    assert float(d.find_element("css selector", "[data-clip=x0]").get_attribute("value")) == 0.5
+    # The saved scene renders clipped: against the same scene with its clipping cleared, the
+    # mean brightness moves (half the volume is cut away).
+    import gscache
+    saved_scene = gscache.Scene.load(scene_file)
+    assert saved_scene.clip == saved["clip"]
+    clipped = gscache.render(saved_scene, spp=8)
+    unclipped = gscache.render(saved_scene.clipped(), spp=8)
+    assert abs(float(clipped.mean()) - float(unclipped.mean())) > 0.02 * float(unclipped.mean())

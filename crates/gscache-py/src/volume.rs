@@ -327,6 +327,29 @@ impl Scene {
         ))
     }
 
+    /// This scene with its clipping replaced by `clip_json` (the `[clip]` table as JSON: `box`
+    /// and `plane`); `{}` clips nothing. The render key follows the clipping.
+    fn with_clipping(&self, clip_json: &str) -> PyResult<Self> {
+        let clipping: volume_pt::Clipping =
+            serde_json::from_str(clip_json).map_err(|e| crate::error(format!("clip: {e}")))?;
+        let mut scene = self.scene.clone();
+        scene
+            .media
+            .medium
+            .set_clipping(clipping)
+            .map_err(crate::error)?;
+        Ok(Self {
+            scene,
+            origin: self.origin.clone(),
+        })
+    }
+
+    /// The clipping as JSON (the `[clip]` table).
+    #[getter]
+    fn clipping(&self) -> PyResult<String> {
+        serde_json::to_string(self.scene.media.medium.clipping()).map_err(crate::error)
+    }
+
     /// Reads a scene file (TOML), as `gscache render` does.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {

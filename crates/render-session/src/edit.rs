@@ -15,7 +15,7 @@ use crate::cache::CacheChoice;
 use glam::Vec3;
 use render_base::Camera;
 use std::path::PathBuf;
-use volume_pt::{Lights, PathSettings, SceneMedia, TransferFunction};
+use volume_pt::{Clipping, Lights, PathSettings, SceneMedia, TransferFunction};
 
 /// One change to a session.
 #[derive(Debug, Clone)]
@@ -26,6 +26,9 @@ pub enum Edit {
     Lights(Lights),
     /// The environment's radiance alone.
     Environment(Vec3),
+    /// What is cut away of the medium (volume-pt's `clip`): the caches restart as after a
+    /// transfer-function edit.
+    Clipping(Clipping),
     /// Another volume: the whole medium and its lights, and the file they came from.
     Volume {
         media: Box<SceneMedia>,

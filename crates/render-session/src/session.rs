@@ -366,6 +366,14 @@ impl Session {
                 self.scene.media.lights = lights;
                 cache = self.cache.scene_changed();
             }
+            Edit::Clipping(clipping) => {
+                self.scene
+                    .media
+                    .medium
+                    .set_clipping(clipping)
+                    .map_err(|e| SessionError::Invalid(e.to_string()))?;
+                cache = self.cache.scene_changed();
+            }
             Edit::Environment(radiance) => {
                 if !radiance.is_finite() || radiance.min_element() < 0.0 {
                     return Err(SessionError::Invalid(format!(

@@ -152,6 +152,7 @@
     maps.innerHTML = "";
     for (const name of m.colormaps) maps.add(new Option(name, name));
     $("denoise").disabled = !m.denoiser;
+    buildClip();
     restore(m);
   }
 
@@ -211,8 +212,99 @@
       });
       box.appendChild(div);
     });
+    restoreClip(m);
     drawCurve();
   }
+
+  // ---- clipping: a box per axis as fractions of the volume's box, and one plane ----
+  // The plane's normal is given by azimuth and elevation in the scene's up frame (as the
+  // lights'), its position by an offset from the volume's centre along the normal, in half
+  // diagonals. Planes the scene file has beyond the first are kept as they are.
+  const clip = { box: [[0, 0, 0], [1, 1, 1]], plane: false, az: 0, el: 0, offset: 0, extra: [] };
+  const axisNames = ["x", "y", "z"];
+  const fmt = (v) => +Number(v).toPrecision(4);
+  function clipGeometry() {
+    const [lo, hi] = hello.bounds;
+    const centre = mul(add(lo, hi), 0.5);
+    return { lo, hi, centre, half: 0.5 * Math.hypot(...sub(hi, lo)) };
+  }
+  function clipNormal() {
+    const { up, e1, e2 } = frame();
+    const a = clip.az * Math.PI / 180, e = clip.el * Math.PI / 180, c = Math.cos(e);
+    return add(add(mul(e1, c * Math.cos(a)), mul(e2, c * Math.sin(a))), mul(up, Math.sin(e)));
+  }
+  function clipMessage() {
+    const { lo, hi, centre, half } = clipGeometry();
+    const whole = clip.box[0].every((f) => f <= 0) && clip.box[1].every((f) => f >= 1);
+    const corner = (f) => lo.map((l, a) => l + f[a] * (hi[a] - l));
+    const planes = clip.plane ? [{ point: add(centre, mul(clipNormal(), clip.offset * half)), normal: clipNormal() }] : [];
+    return { type: "clip", box: whole ? null : { min: corner(clip.box[0]), max: corner(clip.box[1]) }, plane: planes.concat(clip.extra) };
+  }
+  function showClip() {
+    const { lo, hi } = clipGeometry();
+    axisNames.forEach((name, a) => {
+      for (const side of [0, 1]) {
+        const input = document.querySelector(`[data-clip="${name}${side}"]`);
+        input.value = clip.box[side][a];
+        document.querySelector(`[data-clip-out="${name}${side}"]`).textContent = fmt(lo[a] + clip.box[side][a] * (hi[a] - lo[a]));
+      }
+    });
+    $("clip-plane").checked = clip.plane;
+    $("clip-plane-controls").hidden = !clip.plane;
+    for (const [id, v, unit] of [["clip-az", clip.az, "°"], ["clip-el", clip.el, "°"], ["clip-offset", clip.offset, ""]]) {
+      $(id).value = v;
+      $(`${id}-value`).textContent = `${fmt(v)}${unit}`;
+    }
+  }
+  function buildClip() {
+    const box = $("clip-box");
+    box.innerHTML = "";
+    axisNames.forEach((name, a) => {
+      const row = document.createElement("div");
+      row.className = "clip-axis";
+      row.innerHTML = `<b>${name}</b>
+        <label>from <input type="range" min="0" max="1" step="0.01" data-clip="${name}0"> <output data-clip-out="${name}0"></output></label>
+        <label>to <input type="range" min="0" max="1" step="0.01" data-clip="${name}1"> <output data-clip-out="${name}1"></output></label>`;
+      row.addEventListener("input", (event) => {
+        const side = +event.target.dataset.clip.slice(1);
+        const v = parseFloat(event.target.value);
+        // The box keeps at least a hundredth of the volume on every axis.
+        if (side === 0) clip.box[0][a] = Math.min(v, clip.box[1][a] - 0.01);
+        else clip.box[1][a] = Math.max(v, clip.box[0][a] + 0.01);
+        showClip();
+        send("clip", clipMessage());
+      });
+      box.appendChild(row);
+    });
+  }
+  // The clipping in force, from the server's state.
+  function restoreClip(m) {
+    const { lo, hi, centre, half } = clipGeometry();
+    const c = m.clip || {};
+    clip.box = c.box
+      ? [0, 1].map((side) => lo.map((l, a) => Math.max(0, Math.min(1, ((side ? c.box.max : c.box.min)[a] - l) / (hi[a] - l)))))
+      : [[0, 0, 0], [1, 1, 1]];
+    const planes = c.plane || [];
+    clip.plane = planes.length > 0;
+    clip.extra = planes.slice(1);
+    if (clip.plane) {
+      const { up, e1, e2 } = frame();
+      const n = norm(planes[0].normal);
+      clip.az = Math.round(Math.atan2(dot(n, e2), dot(n, e1)) * 180 / Math.PI);
+      clip.el = Math.round(Math.asin(Math.max(-1, Math.min(1, dot(n, up)))) * 180 / Math.PI);
+      clip.offset = Math.max(-1, Math.min(1, dot(sub(planes[0].point, centre), n) / half));
+    }
+    showClip();
+  }
+  $("clip-plane").onchange = (e) => { clip.plane = e.target.checked; showClip(); send("clip", clipMessage()); };
+  for (const [id, key] of [["clip-az", "az"], ["clip-el", "el"], ["clip-offset", "offset"]]) {
+    $(id).oninput = (e) => { clip[key] = parseFloat(e.target.value); showClip(); send("clip", clipMessage()); };
+  }
+  $("clip-none").onclick = () => {
+    Object.assign(clip, { box: [[0, 0, 0], [1, 1, 1]], plane: false, extra: [] });
+    showClip();
+    send("clip", clipMessage());
+  };
 
   // ---- camera: orbit (left drag), pan (right or shift drag), zoom (wheel, pinch) ----
   const view = $("view");

@@ -10,7 +10,7 @@ use glam::Vec3;
 use render_base::Camera;
 use render_session::CacheChoice;
 use serde::Deserialize;
-use volume_pt::{Colormap, Light, Lights, Scene, TransferFunction};
+use volume_pt::{ClipBox, ClipPlane, Clipping, Colormap, Light, Lights, Scene, TransferFunction};
 
 /// The largest message the server reads (the WebSocket closes on a larger one).
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024;
@@ -50,6 +50,15 @@ pub enum ClientMessage {
     },
     /// A factor on the scene's environment radiance.
     Environment { intensity: f32 },
+    /// What is cut away of the medium, world units, as the scene file's `[clip]` table: keep
+    /// what lies in `box` (if given) and behind every `plane` (the side a plane's normal
+    /// points to is cut away). No box and no plane: nothing is cut.
+    Clip {
+        #[serde(default, rename = "box")]
+        bounds: Option<ClipBox>,
+        #[serde(default)]
+        plane: Vec<ClipPlane>,
+    },
     /// `nee`, `cache` (the Gaussian cache), `cache-rt` (its ray-traced lookup), `unbiased` (the
     /// unbiased Gaussian cache) or `nrc` (the neural cache, where the program has it).
     Method { method: String },
@@ -77,6 +86,7 @@ pub enum Change {
     Camera { camera: Camera, moving: bool },
     Transfer(TransferFunction, TransferSettings),
     Lights(Lights, Vec<(Vec3, f32)>, f32),
+    Clip(Clipping),
     Method(Method),
     Denoise(bool),
     Split(bool),
@@ -182,6 +192,8 @@ impl Method {
 pub struct SceneFacts {
     /// The volume's box centre: cameras orbit it and lights move about it.
     pub centre: Vec3,
+    /// The volume's box, world units (the page places clip boxes and planes in it).
+    pub bounds: [Vec3; 2],
     /// The data range.
     pub range: [f32; 2],
     /// The scene's own lights and environment (intensity factors are relative to these).
@@ -205,6 +217,7 @@ impl SceneFacts {
         let (min, max) = grid.range();
         Self {
             centre: 0.5 * (lo + hi),
+            bounds: [lo, hi],
             range: [min, max],
             lights: scene.media.lights.clone(),
             histogram: histogram(grid, min, max),
@@ -496,6 +509,14 @@ pub fn check(
                 next.environment,
             ))
         }
+        ClientMessage::Clip { bounds, plane } => {
+            let clipping = Clipping {
+                bounds,
+                planes: plane,
+            };
+            clipping.validate()?;
+            Ok(Change::Clip(clipping))
+        }
         ClientMessage::Method { method } => Ok(Change::Method(Method::parse(&method)?)),
         ClientMessage::Denoise { on } => Ok(Change::Denoise(on)),
         ClientMessage::Split { on } => Ok(Change::Split(on)),
@@ -525,6 +546,8 @@ pub struct ViewState<'a> {
     pub camera: &'a Camera,
     pub transfer: &'a TransferSettings,
     pub lights: &'a LightSettings,
+    /// What is cut away of the medium.
+    pub clip: &'a Clipping,
     pub method: Method,
     pub show_lights: bool,
     /// The split view is on.
@@ -541,6 +564,7 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         camera,
         transfer,
         lights,
+        clip,
         method,
         show_lights,
         split,
@@ -563,6 +587,7 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         "width": facts.width,
         "height": facts.height,
         "centre": facts.centre.to_array(),
+        "bounds": [facts.bounds[0].to_array(), facts.bounds[1].to_array()],
         "camera": {
             "eye": camera.position.to_array(),
             "target": target.to_array(),
@@ -586,6 +611,7 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
             "intensity": k,
         })).collect::<Vec<_>>(),
         "environment": lights.environment,
+        "clip": clip,
         "show_lights": show_lights,
         "methods": Method::available(),
         "method": method.name(),

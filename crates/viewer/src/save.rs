@@ -261,6 +261,7 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
             ..RenderDesc::from_settings(&r.scene.settings)
         },
         output: r.scene.output,
+        clip: r.scene.media.medium.clipping().clone(),
     };
     description
         .to_toml(&format!(

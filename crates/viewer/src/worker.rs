@@ -172,6 +172,7 @@ impl Worker {
             camera: &self.camera,
             transfer: &self.transfer,
             lights: &self.lights,
+            clip: self.session.scene().media.medium.clipping(),
             method: self.method,
             show_lights: self.session.scene().settings.path.show_lights,
             split: self.split.is_some(),
@@ -386,6 +387,10 @@ impl Worker {
                     lights: directions,
                     environment,
                 };
+                self.set_camera()?;
+            }
+            Change::Clip(clipping) => {
+                self.edit_all(Edit::Clipping(clipping))?;
                 self.set_camera()?;
             }
             Change::Method(method) => {

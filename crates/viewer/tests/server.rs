@@ -995,3 +995,78 @@ async fn two_pages_are_told_each_others_changes() {
     assert!(seen_a.states.is_empty(), "{:?}", seen_a.states);
     v.stop();
 }
+
+/// Clipping from the page: the image changes, a bad clip is refused by name and the clipping
+/// in force is kept, a reconnecting page is told the clipping, and the saved scene holds it
+/// (and renders clipped: its medium's clipping is the one the page set).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clipping_from_the_page_changes_the_image_and_is_saved() {
+    let out = scratch("clip");
+    let v = start(&out, 4);
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, converged).await;
+    let hello = seen.hello.clone().unwrap();
+    assert_eq!(
+        hello["clip"],
+        serde_json::json!({}),
+        "nothing is cut at first"
+    );
+    let bounds = hello["bounds"].clone();
+    let (lo, hi) = (bounds[0].clone(), bounds[1].clone());
+    assert!(lo[0].as_f64() < hi[0].as_f64(), "{bounds}");
+    let unclipped = mean_colour(seen.frames.last().unwrap());
+    // Keep the half of the box below the centre's height, and cut x > 0 with a plane.
+    let clip = serde_json::json!({
+        "type": "clip",
+        "box": { "min": lo, "max": [hi[0], 0.0, hi[2]] },
+        "plane": [{ "point": [0.0, 0.0, 0.0], "normal": [1.0, 0.0, 0.0] }],
+    });
+    socket
+        .send(Message::Text(clip.to_string().into()))
+        .await
+        .unwrap();
+    let before = seen.stats.len();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.len() > before + 1 && converged(s)
+    })
+    .await;
+    let clipped = mean_colour(seen.frames.last().unwrap());
+    let changed = (0..3)
+        .map(|c| (clipped[c] - unclipped[c]).abs())
+        .sum::<f64>();
+    assert!(changed > 3.0, "clipped {clipped:?} against {unclipped:?}");
+    // A bad box is refused, named; the state sent back keeps the clipping in force.
+    let bad = r#"{"type":"clip","box":{"min":[0,0,0],"max":[1,-1,1]}}"#;
+    socket.send(Message::Text(bad.into())).await.unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.states.is_empty()).await;
+    assert!(
+        seen.errors.iter().any(|e| e.contains("min < max")),
+        "{:?}",
+        seen.errors
+    );
+    assert_eq!(
+        seen.states[0]["clip"]["plane"][0]["normal"],
+        serde_json::json!([1.0, 0.0, 0.0])
+    );
+    // A page that connects now is told the clipping.
+    let mut other = connect(&v, &token(&v)).await.unwrap();
+    let mut other_seen = Seen::default();
+    read_until(&mut other, &mut other_seen, |s| s.hello.is_some()).await;
+    assert_eq!(
+        other_seen.hello.as_ref().unwrap()["clip"],
+        seen.states[0]["clip"]
+    );
+    drop(other);
+    socket
+        .send(Message::Text(r#"{"type":"save"}"#.into()))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.saved.is_empty()).await;
+    v.stop();
+    let scene = volume_pt::load_scene(&out.join("view-0001.toml")).unwrap();
+    let saved = scene.media.medium.clipping();
+    assert_eq!(saved.bounds.unwrap().max[1], 0.0);
+    assert_eq!(saved.planes.len(), 1);
+    assert_eq!(saved.planes[0].normal, [1.0, 0.0, 0.0]);
+}

@@ -20,6 +20,7 @@
 //! The choice is a [`SceneFile`] written as TOML text, so it is printed, saved
 //! (`--save-scene`) and edited like any scene, and loaded by the same code.
 
+use crate::clip::Clipping;
 use crate::colormap::Colormap;
 use crate::error::Result;
 use crate::grid::ScalarGrid;
@@ -199,6 +200,7 @@ pub fn scene_description(
             exposure: 0.0,
             tonemap: ToneMap::Aces,
         },
+        clip: Clipping::default(),
     };
     let comment = format!(
         "Made by `gscache render` for {} (colour map {colormap}): edit and render it as any \

@@ -4,7 +4,8 @@
 //! Read it in this order:
 //! - [`io`]: reading raw, NRRD, VTK and NIfTI volumes into a [`grid::ScalarGrid`].
 //! - [`transfer`]: window, colour, opacity and density scale: scalar to medium.
-//! - [`medium`] and [`majorant`]: the placed, classified volume and its macrocell majorants.
+//! - [`medium`] and [`majorant`]: the placed, classified volume and its macrocell majorants;
+//!   [`clip`]: the box and planes that cut it.
 //! - [`tracking`]: delta tracking (free flights) and ratio tracking (transmittance).
 //! - [`phase`], [`lights`]: phase functions; the emitter types (sphere, distant) and a
 //!   constant environment.
@@ -19,6 +20,7 @@
 
 pub mod auto_scene;
 pub mod cache;
+pub mod clip;
 pub mod colormap;
 pub mod error;
 pub mod film;
@@ -41,6 +43,7 @@ pub use cache::{
     ControlVariate, FrameCache, NoCache, PathHooks, TilePixel, TileRect, Vertex, path_key,
     sample_cache_points,
 };
+pub use clip::{ClipBox, ClipPlane, Clipping};
 pub use colormap::Colormap;
 pub use error::{Error, Result};
 pub use film::{ExactRgb, Film};

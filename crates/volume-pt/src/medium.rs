@@ -6,6 +6,7 @@
 //! no medium. Rays are tracked in index space (`u = (x - origin) / spacing`) with the world
 //! distance `t` as parameter, so anisotropic spacing costs nothing in the inner loop.
 
+use crate::clip::{Clipping, IndexClip};
 use crate::grid::{Filter, ScalarGrid};
 use crate::majorant::{MajorantGrid, Segments, ValueRanges};
 use crate::transfer::TransferFunction;
@@ -40,6 +41,10 @@ pub struct Medium {
     tf: TransferFunction,
     ranges: ValueRanges,
     majorants: MajorantGrid,
+    /// What is cut away, as given (world units), and in index space (`None`: nothing, and
+    /// [`Medium::clip`] does exactly what it did before clipping existed).
+    clipping: Clipping,
+    index_clip: Option<IndexClip>,
 }
 
 impl Medium {
@@ -84,7 +89,33 @@ impl Medium {
             tf,
             ranges,
             majorants,
+            clipping: Clipping::default(),
+            index_clip: None,
         })
+    }
+
+    /// Cuts the medium to `clipping` (see [`crate::clip`]), replacing any earlier clipping; an
+    /// empty one cuts nothing. Refused, with the field named, when a value is invalid.
+    pub fn set_clipping(&mut self, clipping: Clipping) -> crate::Result<()> {
+        clipping.validate().map_err(crate::Error::Invalid)?;
+        self.index_clip =
+            (!clipping.is_empty()).then(|| IndexClip::new(&clipping, self.origin, self.spacing));
+        self.clipping = clipping;
+        Ok(())
+    }
+
+    /// What is cut away (empty: nothing).
+    pub fn clipping(&self) -> &Clipping {
+        &self.clipping
+    }
+
+    /// Whether world point `x` lies in the kept medium: inside the volume's box and not
+    /// clipped away.
+    pub fn keeps(&self, x: Vec3) -> bool {
+        let u = (x - self.origin) * self.inv_spacing;
+        u.cmpge(Vec3::ZERO).all()
+            && u.cmple(self.dims).all()
+            && self.index_clip.as_ref().is_none_or(|c| c.keeps(u))
     }
 
     /// Changes the transfer function; the majorants are rebuilt from the stored value ranges.
@@ -125,7 +156,8 @@ impl Medium {
         }
     }
 
-    /// The parameter interval where the ray is inside the box, clipped to `[t_min, t_max]`.
+    /// The parameter interval where the ray is inside the box and the kept region of the
+    /// clipping ([`crate::clip`]), within `[t_min, t_max]`.
     /// Robust to direction components that are zero (rays parallel to, or grazing, a face).
     #[inline]
     pub fn clip(&self, r: &IndexRay, t_min: f32, t_max: f32) -> Option<(f32, f32)> {
@@ -145,7 +177,11 @@ impl Medium {
             }
         }
         // Written so that NaN bounds mean no overlap.
-        (t0 < t1).then_some((t0, t1))
+        let inside = (t0 < t1).then_some((t0, t1));
+        match &self.index_clip {
+            None => inside,
+            Some(clip) => inside.and_then(|(t0, t1)| clip.narrow(r, t0, t1)),
+        }
     }
 
     /// Majorant segments of the ray over `[t0, t1]` (an interval returned by [`Medium::clip`]).

@@ -1,6 +1,7 @@
 //! Scene files (TOML): what to render and how. Every key is documented in `docs/scene-format.md`.
 //! Relative paths are resolved against the scene file's folder.
 
+use crate::clip::{ClipBox, ClipPlane, Clipping};
 use crate::error::{Error, Result};
 use crate::grid::Filter;
 use crate::integrator::{IntegratorKind, PathSettings, SceneMedia};
@@ -143,6 +144,9 @@ pub struct SceneFile {
     pub render: RenderDesc,
     #[serde(default)]
     pub output: OutputDesc,
+    /// `[clip]`: a box and planes that cut the medium away (see [`crate::clip`]).
+    #[serde(default, skip_serializing_if = "Clipping::is_empty")]
+    pub clip: Clipping,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -437,7 +441,7 @@ pub fn open_scene(path: &Path, colormap: crate::Colormap) -> Result<OpenedScene>
 /// What a command line or a Python call changes of a loaded scene: one type for `gscache
 /// render`, `gscache view` and the Python package, so that an override means the same
 /// everywhere. Each field left `None` keeps the scene's value.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct SceneOverrides {
     /// Samples per pixel (overrides the scene); with a cache, per frame.
@@ -461,6 +465,43 @@ pub struct SceneOverrides {
     /// Majorant macrocell size in voxels (a size >= the largest dim gives one global majorant).
     #[cfg_attr(feature = "clap", arg(long))]
     pub macrocell: Option<u32>,
+    /// Keep only the medium inside this box, world units: `MINX,MINY,MINZ,MAXX,MAXY,MAXZ`
+    /// (replaces the scene's clip box).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "MIN,MAX", value_parser = parse_clip_box))]
+    pub clip_box: Option<ClipBox>,
+    /// Cut away the medium on the side a plane's normal points to: `PX,PY,PZ,NX,NY,NZ` (a
+    /// point on the plane, then the normal), repeatable (replaces the scene's planes).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "POINT,NORMAL", value_parser = parse_clip_plane))]
+    pub clip_plane: Vec<ClipPlane>,
+}
+
+/// Six comma-separated numbers, named in errors as `what`.
+fn six_numbers(text: &str, what: &str) -> std::result::Result<[f32; 6], String> {
+    let numbers: Vec<f32> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| format!("{what} `{text}`: {e}"))?;
+    <[f32; 6]>::try_from(numbers.as_slice())
+        .map_err(|_| format!("{what} `{text}`: expected 6 comma-separated numbers"))
+}
+
+/// `--clip-box`'s value.
+pub fn parse_clip_box(text: &str) -> std::result::Result<ClipBox, String> {
+    let v = six_numbers(text, "clip box")?;
+    Ok(ClipBox {
+        min: [v[0], v[1], v[2]],
+        max: [v[3], v[4], v[5]],
+    })
+}
+
+/// `--clip-plane`'s value.
+pub fn parse_clip_plane(text: &str) -> std::result::Result<ClipPlane, String> {
+    let v = six_numbers(text, "clip plane")?;
+    Ok(ClipPlane {
+        point: [v[0], v[1], v[2]],
+        normal: [v[3], v[4], v[5]],
+    })
 }
 
 impl SceneOverrides {
@@ -487,11 +528,21 @@ impl SceneOverrides {
     }
 
     /// Applies every override to `scene`: its settings, its macrocells (the majorants are
-    /// rebuilt) and its image size.
+    /// rebuilt), its clipping and its image size.
     pub fn apply(&self, scene: &mut Scene) -> Result<()> {
         scene.settings = self.settings(scene.settings)?;
         if let Some(cells) = self.macrocell {
             scene.media.medium.set_macrocell_size(cells);
+        }
+        if self.clip_box.is_some() || !self.clip_plane.is_empty() {
+            let mut clipping = scene.media.medium.clipping().clone();
+            if let Some(b) = self.clip_box {
+                clipping.bounds = Some(b);
+            }
+            if !self.clip_plane.is_empty() {
+                clipping.planes = self.clip_plane.clone();
+            }
+            scene.media.medium.set_clipping(clipping)?;
         }
         if self.width.is_some() || self.height.is_some() {
             let camera = scene.camera;
@@ -528,12 +579,18 @@ pub fn scene_file_key(path: &Path, scene: &Scene) -> Result<crate::shard::Render
 }
 
 /// The settings that decide a render's pixels besides the media (samples, seed, path
-/// settings, camera, macrocells), as text for a key.
+/// settings, camera, macrocells, clipping), as text for a key.
 pub fn settings_fingerprint(settings: &RenderSettings, camera: &Camera, medium: &Medium) -> String {
-    format!(
+    let mut text = format!(
         "{settings:?}|{camera:?}|macrocell {}",
         medium.majorants().cell_size()
-    )
+    );
+    // Clipping given on the command line or from Python is not in the scene file's text; an
+    // unclipped render keeps the key it had before clipping existed.
+    if !medium.clipping().is_empty() {
+        text.push_str(&format!("|clip {:?}", medium.clipping()));
+    }
+    text
 }
 
 /// Builds a scene from its parsed description; `path` names the file in errors and anchors
@@ -639,8 +696,11 @@ pub fn build_scene_with_volume(
         )));
     }
     let tf_density_scale = tf.density_scale();
-    let medium = Medium::new(grid, v.filter, origin, spacing, tf, v.macrocell)
+    let mut medium = Medium::new(grid, v.filter, origin, spacing, tf, v.macrocell)
         .map_err(|e| scene_err(e.to_string()))?;
+    medium
+        .set_clipping(desc.clip.clone())
+        .map_err(|e| scene_err(format!("[clip]: {e}")))?;
     let c = &desc.camera;
     let camera = Camera::look_at(
         vec3(c.eye),

@@ -48,9 +48,17 @@ fn overrides_change_only_what_they_name() {
         width: Some(40),
         height: None,
         macrocell: Some(4),
+        clip_box: Some(volume_pt::ClipBox {
+            min: [-10.0, -20.0, -30.0],
+            max: [10.0, 20.0, 30.0],
+        }),
+        clip_plane: vec![],
     }
     .apply(&mut scene)
     .unwrap();
+    let clip = scene.media.medium.clipping();
+    assert_eq!(clip.bounds.unwrap().max, [10.0, 20.0, 30.0]);
+    assert!(clip.planes.is_empty(), "no plane given, none made");
     assert_eq!(scene.settings.spp, 3);
     assert_eq!(scene.settings.path.integrator, IntegratorKind::Uniform);
     assert_eq!(scene.settings.path.max_depth, None);
@@ -89,6 +97,26 @@ fn a_bad_override_is_refused_by_name() {
             ..Default::default()
         },
         "max_depth -2",
+    );
+    refused(
+        SceneOverrides {
+            clip_plane: vec![volume_pt::ClipPlane {
+                point: [0.0; 3],
+                normal: [0.0; 3],
+            }],
+            ..Default::default()
+        },
+        "clip plane 0",
+    );
+    assert!(
+        volume_pt::scene::parse_clip_box("1,2,3")
+            .unwrap_err()
+            .contains("expected 6 comma-separated numbers")
+    );
+    assert!(
+        volume_pt::scene::parse_clip_plane("0,0,0,1,x,0")
+            .unwrap_err()
+            .contains("clip plane `0,0,0,1,x,0`")
     );
     let mut s = scene.clone();
     let e = SceneOverrides {

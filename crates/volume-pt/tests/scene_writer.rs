@@ -94,6 +94,17 @@ show_lights = false
 [output]
 exposure = -1.5
 tonemap = "aces"
+
+[clip]
+box = { min = [-1.0, -2.0, -3.0], max = [1.5, 2.5, 3.5] }
+
+[[clip.plane]]
+point = [0.0, 0.5, 0.0]
+normal = [1.0, -1.0, 0.25]
+
+[[clip.plane]]
+point = [0.25, 0.0, 0.0]
+normal = [0.0, 0.0, -1.0]
 "#;
 
 #[test]

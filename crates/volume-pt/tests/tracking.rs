@@ -387,3 +387,74 @@ fn residual_ratio_tracking_is_unbiased_against_ratio_tracking() {
     eprintln!("summed variance: residual {var_residual:.4e}, ratio {var_ratio:.4e}");
     scores.assert_unbiased("residual vs ratio tracking", 5.5, 80);
 }
+
+/// Clipping (`volume_pt::clip`) against the closed form: an absorbing unit cube (optical depth
+/// `tau` across) seen along +z under a unit environment, cut by planes and a box, renders
+/// `exp(-tau L)` with `L` the length of the ray inside the kept region, with both integrators;
+/// and the transmittance of a shadow ray through it (residual ratio tracking, exact in a
+/// homogeneous cell) is the same closed form to 0.05% (measured 0.015% off, the unclipped
+/// cube's f32 arithmetic; a kept length off by 0.01, a hundredth of the cube, changes it by 2%).
+#[test]
+fn clipping_cuts_the_medium_exactly() {
+    use volume_pt::{ClipBox, ClipPlane, Clipping};
+    let tau = 2.0f32;
+    let plane = |point: [f32; 3], normal: [f32; 3]| ClipPlane { point, normal };
+    let slab = |lo: f32, hi: f32| ClipBox {
+        min: [-1.0, -1.0, lo],
+        max: [1.0, 1.0, hi],
+    };
+    // The ray runs along +z through (0.1, -0.2): the cube spans z in [-0.5, 0.5].
+    let cases = [
+        (
+            "plane cutting z > 0.25",
+            None,
+            vec![plane([0.0, 0.0, 0.25], [0.0, 0.0, 1.0])],
+            0.75,
+        ),
+        (
+            "plane cutting z < 0.25",
+            None,
+            vec![plane([0.0, 0.0, 0.25], [0.0, 0.0, -2.0])],
+            0.25,
+        ),
+        ("box z in [-0.2, 0.3]", Some(slab(-0.2, 0.3)), vec![], 0.5),
+        // x + z > 0 cut: at x = 0.1 the kept part ends at z = -0.1.
+        (
+            "box z >= -0.3 and a tilted plane",
+            Some(slab(-0.3, 1.0)),
+            vec![plane([0.0; 3], [1.0, 0.0, 1.0])],
+            0.2,
+        ),
+        ("everything cut", Some(slab(0.6, 0.7)), vec![], 0.0),
+    ];
+    let (origin, dir) = (Vec3::new(0.1, -0.2, -5.0), Vec3::Z);
+    for (name, bounds, planes, length) in cases {
+        let mut medium = homogeneous(tau, Vec3::ZERO, 1.0, 8);
+        medium.set_clipping(Clipping { bounds, planes }).unwrap();
+        let p = (-(tau as f64) * length).exp();
+        let ray = medium.to_index_ray(origin, dir);
+        let mut rng = SampleStream::new(3, 0, 0);
+        let t = transmittance(&medium, &ray, 0.0, f32::INFINITY, &mut rng) as f64;
+        assert!(
+            (t - p).abs() <= 5e-4 * p + 1e-12,
+            "{name}: transmittance {t} against {p}"
+        );
+        let scene = scene(medium, Phase::Isotropic, lights_env(1.0));
+        for integrator in [IntegratorKind::Uniform, IntegratorKind::Nee] {
+            let settings = PathSettings {
+                integrator,
+                max_depth: None,
+                ..PathSettings::default()
+            };
+            let n = 200_000;
+            let (mean, _) = path_stats(&scene, &settings, origin, dir, n, 17);
+            // Bernoulli(p): standard error sqrt(p (1 - p) / n).
+            let se = (p * (1.0 - p) / n as f64).sqrt();
+            assert!(
+                (mean[0] - p).abs() <= Z * se + 1e-12,
+                "{name}, {integrator}: {} against {p} (se {se})",
+                mean[0]
+            );
+        }
+    }
+}

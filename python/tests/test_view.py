@@ -211,7 +211,9 @@ def test_a_bad_field_is_named_set_back_and_does_not_block_the_next_edit(viewer, 
          "the named error")
     d.execute_script("arguments[0].value = 10 * arguments[0].value;"
                      "arguments[0].dispatchEvent(new Event('change'));", density)
-    wait(lambda: differ(settled(d), first) > 3, "the density edit to change the image")
+    # (Measured: 3.0 grey levels on average over the 16x9 read-back; two converged frames of one
+    # view differ by well under 1.)
+    wait(lambda: differ(settled(d), first) > 1.5, "the density edit to change the image")
     assert "window" not in d.find_element("id", "error").text
 
 
@@ -300,3 +302,49 @@ def test_clipping_from_the_page_changes_the_image_and_the_saved_scene_renders_it
     clipped = gscache.render(saved_scene, spp=8)
     unclipped = gscache.render(saved_scene.clipped(), spp=8)
     assert abs(float(clipped.mean()) - float(unclipped.mean())) > 0.02 * float(unclipped.mean())
+
+
+def test_the_page_probes_keeps_views_and_draws_its_guides(viewer, browser, repo):
+    """Issue 49, items 8, 9 and 11: a click on the image reports the voxel the camera's ray
+    first meets in visible medium, with the value a voxel lookup of the file gives there; the
+    data panel names the volume; the colour bar is drawn; a view along an axis changes the
+    image, and a kept view is listed and brings the camera back."""
+    import re
+
+    import numpy as np
+    from selenium.webdriver import ActionChains
+
+    d = browser
+    d.get(viewer)
+    first = settled(d)
+    assert "neghip_64x64x64_uint8.raw" in d.find_element("id", "data").text
+    assert "64 x 64 x 64 voxels, uint8" in d.find_element("id", "data").text
+    # A click in the middle of the view (the volume's centre is there).
+    ActionChains(d).move_to_element(d.find_element("id", "view")).click().perform()
+    text = wait(lambda: (t := d.find_element("id", "probe").text).startswith("at (") and t,
+                "the probe's answer")
+    voxel = [int(v) for v in re.search(r"voxel \((\d+), (\d+), (\d+)\)", text).groups()]
+    value = float(re.search(r"value ([-\d.e]+)", text).group(1))
+    raw = np.fromfile(repo / "data/volumes/neghip_64x64x64_uint8.raw", dtype=np.uint8)
+    x, y, z = voxel
+    assert value == raw.reshape(64, 64, 64)[z, y, x], (text, raw.reshape(64, 64, 64)[z, y, x])
+    assert value > 0
+    # A click is not a drag: the image did not restart from a new camera.
+    assert differ(settled(d), first) < 1
+    # The colour bar shows the transfer function's colours (not blank).
+    spread = d.execute_script(
+        "const c = document.getElementById('colour-bar');"
+        "const p = c.getContext('2d').getImageData(0, 0, c.width, 1).data;"
+        "let lo = 255, hi = 0; for (let i = 0; i < p.length; i += 4) {"
+        "  const v = p[i] + p[i + 1] + p[i + 2]; lo = Math.min(lo, v); hi = Math.max(hi, v); }"
+        "return hi - lo;")
+    assert spread > 30, spread
+    # Keep this view, look along +x, then go back to the kept view.
+    d.find_element("id", "view-name").send_keys("start")
+    d.find_element("id", "view-keep").click()
+    kept = wait(lambda: d.find_elements("css selector", "#views button"), "the kept view")
+    assert kept[0].text == "start"
+    d.find_element("css selector", "#axis-views button[title='view from +x']").click()
+    wait(lambda: differ(settled(d), first) > 3, "the view along +x")
+    d.find_element("css selector", "#views button").click()
+    wait(lambda: differ(settled(d), first) < 1, "the kept view's image again")

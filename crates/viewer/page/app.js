@@ -60,6 +60,8 @@
   }
   function sendCamera(moving) {
     send("camera", { type: "camera", eye: eye(), target: state.target, up: state.up, moving });
+    probeMark = null;
+    drawOverlay();
   }
   function sendTransfer() {
     send("transfer", { type: "transfer", colormap: transfer.colormap, window: transfer.window, density_scale: transfer.density_scale, opacity: transfer.opacity });
@@ -95,6 +97,8 @@
       restore(m);
     }
     else if (m.type === "saved") showError("saved: " + m.files.join(", "), true);
+    else if (m.type === "colours") { colours = m.colours; drawColourBar(); }
+    else if (m.type === "probe") showProbe(m);
     else if (m.type === "levels") {
       const box = $("levels");
       box.innerHTML = "";
@@ -152,6 +156,11 @@
     maps.innerHTML = "";
     for (const name of m.colormaps) maps.add(new Option(name, name));
     $("denoise").disabled = !m.denoiser;
+    const d = m.data, mb = (b) => `${(b / 1048576).toFixed(b < 10485760 ? 2 : 0)} MB`;
+    $("data").textContent =
+      `${d.file}\n${d.dims.join(" x ")} voxels, ${d.dtype}\n` +
+      `spacing ${d.spacing.map(fmt).join(" x ")}\nvalues ${fmt(m.range[0])} to ${fmt(m.range[1])}\n` +
+      `memory: voxels ${mb(d.voxel_bytes)}, with majorants ${mb(d.medium_bytes)}`;
     buildClip();
     restore(m);
   }
@@ -213,7 +222,12 @@
       box.appendChild(div);
     });
     restoreClip(m);
+    colours = m.colours;
+    views = m.views;
+    showViews();
     drawCurve();
+    drawColourBar();
+    drawOverlay();
   }
 
   // ---- clipping: a box per axis as fractions of the volume's box, and one plane ----
@@ -306,6 +320,150 @@
     send("clip", clipMessage());
   };
 
+  // ---- where the image lies on the page, and the camera's projection ----
+  // The image is shown whole (object-fit: contain): its rectangle inside the view, in the
+  // view's CSS pixels.
+  function imageRect() {
+    const v = $("view").getBoundingClientRect();
+    const k = Math.min(v.width / hello.width, v.height / hello.height);
+    const w = hello.width * k, h = hello.height * k;
+    return { left: (v.width - w) / 2, top: (v.height - h) / 2, width: w, height: h, scale: k };
+  }
+  // World point to the view's CSS pixels through the page's camera (the server's pinhole:
+  // right = forward x up, down = forward x right, focal length from the vertical field of view);
+  // null behind the camera.
+  function projector() {
+    const e = eye(), forward = norm(sub(state.target, e));
+    const right = norm(cross(forward, state.up)), down = cross(forward, right);
+    const r = imageRect();
+    const focal = 0.5 * hello.height / Math.tan(hello.camera.fov_y * Math.PI / 360);
+    return (p) => {
+      const v = sub(p, e), z = dot(v, forward);
+      if (z <= 1e-6) return null;
+      return [r.left + (0.5 * hello.width + focal * dot(v, right) / z) * r.scale,
+              r.top + (0.5 * hello.height + focal * dot(v, down) / z) * r.scale];
+    };
+  }
+
+  // ---- the overlay: the volume's box, an axis triad and a scale bar; the probed point ----
+  let probeMark = null;
+  function drawOverlay() {
+    const c = $("overlay");
+    if (!hello) return;
+    const v = $("view").getBoundingClientRect(), dpr = window.devicePixelRatio || 1;
+    c.width = Math.round(v.width * dpr);
+    c.height = Math.round(v.height * dpr);
+    const g = c.getContext("2d");
+    g.setTransform(dpr, 0, 0, dpr, 0, 0);
+    g.clearRect(0, 0, v.width, v.height);
+    const r = imageRect();
+    if ($("guides").checked) {
+      const project = projector();
+      const [lo, hi] = hello.bounds;
+      const corner = (i) => [i & 1 ? hi[0] : lo[0], i & 2 ? hi[1] : lo[1], i & 4 ? hi[2] : lo[2]];
+      g.strokeStyle = "#9e9e9e88";
+      g.lineWidth = 1;
+      for (let i = 0; i < 8; i++) for (const bit of [1, 2, 4]) {
+        if (i & bit) continue;
+        const a = project(corner(i)), b = project(corner(i | bit));
+        if (!a || !b) continue;
+        g.beginPath(); g.moveTo(...a); g.lineTo(...b); g.stroke();
+      }
+      // The triad: the world axes as the camera turns them, in the image's lower-left corner.
+      const e = eye(), forward = norm(sub(state.target, e));
+      const right = norm(cross(forward, state.up)), down = cross(forward, right);
+      const o = [r.left + 34, r.top + r.height - 34];
+      [["x", [1, 0, 0], "#ef5350"], ["y", [0, 1, 0], "#66bb6a"], ["z", [0, 0, 1], "#42a5f5"]].forEach(([name, a, colour]) => {
+        const tip = [o[0] + 24 * dot(a, right), o[1] + 24 * dot(a, down)];
+        g.strokeStyle = g.fillStyle = colour;
+        g.lineWidth = 2;
+        g.beginPath(); g.moveTo(...o); g.lineTo(...tip); g.stroke();
+        g.font = "11px system-ui";
+        g.fillText(name, tip[0] + 3, tip[1] + 3);
+      });
+      // The scale bar: a round length (1, 2 or 5 x 10^k world units) near a fifth of the
+      // image's width, at the distance of the orbit's target.
+      const focal = 0.5 * hello.height / Math.tan(hello.camera.fov_y * Math.PI / 360);
+      const perPixel = dot(sub(state.target, e), forward) / focal / r.scale;
+      const want = 0.2 * r.width * perPixel, p10 = Math.pow(10, Math.floor(Math.log10(want)));
+      const length = [1, 2, 5, 10].map((k) => k * p10).filter((l) => l <= want).pop() || p10;
+      const px = length / perPixel, x0 = r.left + r.width - 16 - px, y0 = r.top + r.height - 16;
+      g.strokeStyle = g.fillStyle = "#e0e0e0";
+      g.lineWidth = 2;
+      g.beginPath(); g.moveTo(x0, y0 - 4); g.lineTo(x0, y0); g.lineTo(x0 + px, y0); g.lineTo(x0 + px, y0 - 4); g.stroke();
+      g.font = "11px system-ui";
+      g.fillText(`${fmt(length)} (scene units)`, x0, y0 - 7);
+    }
+    if (probeMark) {
+      const [x, y] = [r.left + probeMark[0] * r.width, r.top + probeMark[1] * r.height];
+      g.strokeStyle = "#ffeb3b";
+      g.lineWidth = 1.5;
+      g.beginPath(); g.arc(x, y, 6, 0, 2 * Math.PI); g.moveTo(x - 10, y); g.lineTo(x + 10, y); g.moveTo(x, y - 10); g.lineTo(x, y + 10); g.stroke();
+    }
+  }
+  window.addEventListener("resize", drawOverlay);
+  $("guides").onchange = drawOverlay;
+
+  // ---- probing: a click (no drag) on the image ----
+  function probeAt(clientX, clientY) {
+    const v = $("view").getBoundingClientRect(), r = imageRect();
+    const x = (clientX - v.left - r.left) / r.width, y = (clientY - v.top - r.top) / r.height;
+    if (!(x >= 0 && x <= 1 && y >= 0 && y <= 1)) return;
+    probeMark = [x, y];
+    drawOverlay();
+    send("probe", { type: "probe", x, y });
+  }
+  function showProbe(m) {
+    const h = m.hit;
+    $("probe").textContent = h
+      ? `at (${h.position.map(fmt).join(", ")}), ${fmt(h.distance)} from the camera\n` +
+        `voxel (${h.voxel.join(", ")}): value ${fmt(h.value)}\n` +
+        `filtered ${fmt(h.filtered)}, opacity ${fmt(h.opacity)}`
+      : "the ray meets no visible medium";
+  }
+
+  // ---- views: along each axis, and named views kept with the scene ----
+  let views = [];
+  function lookAlong(axis) {
+    // Looking along -axis from the +axis side, at the volume's centre, from the same distance;
+    // straight along the up axis is not a frame the camera can take, so 86 degrees.
+    const { up, e1, e2 } = frame();
+    state.target = state.centre.slice();
+    state.elevation = Math.max(-1.5, Math.min(1.5, Math.asin(Math.max(-1, Math.min(1, dot(axis, up))))));
+    if (Math.abs(dot(axis, up)) < 0.999) state.azimuth = Math.atan2(dot(axis, e2), dot(axis, e1));
+    sendCamera(false);
+  }
+  [["+x", [1, 0, 0]], ["-x", [-1, 0, 0]], ["+y", [0, 1, 0]], ["-y", [0, -1, 0]], ["+z", [0, 0, 1]], ["-z", [0, 0, -1]]].forEach(([name, axis]) => {
+    const b = document.createElement("button");
+    b.textContent = name;
+    b.title = `view from ${name}`;
+    b.onclick = () => lookAlong(axis);
+    $("axis-views").appendChild(b);
+  });
+  function showViews() {
+    const box = $("views");
+    box.innerHTML = "";
+    for (const v of views) {
+      const row = document.createElement("div");
+      const go = document.createElement("button");
+      go.textContent = v.name;
+      go.title = "go to this view";
+      go.onclick = () => { setFromEye(v.eye, v.target); sendCamera(false); };
+      const drop = document.createElement("button");
+      drop.textContent = "×";
+      drop.title = `forget ${v.name}`;
+      drop.onclick = () => send("view", { type: "view", name: v.name, remove: true });
+      row.append(go, drop);
+      box.appendChild(row);
+    }
+  }
+  $("view-keep").onclick = () => {
+    const name = $("view-name").value.trim();
+    if (!name) { showError("view name: expected a name", false); return; }
+    send("view", { type: "view", name });
+    $("view-name").value = "";
+  };
+
   // ---- camera: orbit (left drag), pan (right or shift drag), zoom (wheel, pinch) ----
   const view = $("view");
   const pointers = new Map();
@@ -313,7 +471,7 @@
   view.addEventListener("contextmenu", (e) => e.preventDefault());
   view.addEventListener("pointerdown", (e) => {
     view.setPointerCapture(e.pointerId);
-    pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey });
+    pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, x0: e.clientX, y0: e.clientY, moved: false, pan: e.button === 2 || e.shiftKey });
     if (pointers.size === 2) {
       const [a, b] = [...pointers.values()];
       pinch = Math.hypot(a.x - b.x, a.y - b.y);
@@ -324,6 +482,9 @@
     if (!p || !hello) return;
     const dx = e.clientX - p.x, dy = e.clientY - p.y;
     p.x = e.clientX; p.y = e.clientY;
+    // A press that stays within 3 pixels is a click (a probe), not a drag.
+    if (!p.moved && Math.hypot(e.clientX - p.x0, e.clientY - p.y0) <= 3) return;
+    p.moved = true;
     if (pointers.size === 2) {
       const [a, b] = [...pointers.values()];
       const d = Math.hypot(a.x - b.x, a.y - b.y);
@@ -342,9 +503,13 @@
     sendCamera(true);
   });
   const release = (e) => {
+    const p = pointers.get(e.pointerId);
+    const click = p && !p.moved && !p.pan && pointers.size === 1 && e.type === "pointerup";
     pointers.delete(e.pointerId);
     if (pointers.size < 2) pinch = null;
-    if (pointers.size === 0 && hello) sendCamera(false);
+    if (!hello || pointers.size > 0) return;
+    if (click) probeAt(e.clientX, e.clientY);
+    else if (p && p.moved) sendCamera(false);
   };
   view.addEventListener("pointerup", release);
   view.addEventListener("pointercancel", release);
@@ -431,6 +596,20 @@
     transfer.opacity.forEach(([u, o], i) => (i ? ctx.lineTo(u * w, (1 - o) * h) : ctx.moveTo(u * w, (1 - o) * h)));
     ctx.stroke();
     for (const [u, o] of transfer.opacity) ctx.fillRect(u * w - 3, (1 - o) * h - 3, 6, 6);
+  }
+  // The colour bar: the transfer function's colour over its window, the window's ends below.
+  let colours = [];
+  function drawColourBar() {
+    const c = $("colour-bar"), g = c.getContext("2d");
+    g.clearRect(0, 0, c.width, c.height);
+    if (!colours.length) return;
+    const grad = g.createLinearGradient(0, 0, c.width, 0);
+    colours.forEach((rgb, i) => grad.addColorStop(i / Math.max(colours.length - 1, 1),
+      `rgb(${rgb.map((v) => Math.round(255 * Math.pow(Math.max(0, Math.min(1, v)), 1 / 2.2))).join(",")})`));
+    g.fillStyle = grad;
+    g.fillRect(0, 0, c.width, c.height);
+    $("bar-lo").textContent = fmt(transfer.window[0]);
+    $("bar-hi").textContent = fmt(transfer.window[1]);
   }
   let dragging = -1;
   const at = (e) => {

@@ -10,6 +10,7 @@ use glam::Vec3;
 use render_base::Camera;
 use render_session::CacheChoice;
 use serde::Deserialize;
+use volume_pt::scene::ViewDesc;
 use volume_pt::{ClipBox, ClipPlane, Clipping, Colormap, Light, Lights, Scene, TransferFunction};
 
 /// The largest message the server reads (the WebSocket closes on a larger one).
@@ -59,6 +60,17 @@ pub enum ClientMessage {
         #[serde(default)]
         plane: Vec<ClipPlane>,
     },
+    /// Where the camera ray through image point (`x`, `y`) first meets visible medium, and the
+    /// data there (answered to this page alone with a `probe` message). `x` and `y` are
+    /// fractions of the image's width and height from its top-left corner.
+    Probe { x: f32, y: f32 },
+    /// Keep the camera in force as the view `name` (replacing one of that name), or with
+    /// `remove` forget that view. The views are saved with the scene (`[[view]]`).
+    View {
+        name: String,
+        #[serde(default)]
+        remove: bool,
+    },
     /// `nee`, `cache` (the Gaussian cache), `cache-rt` (its ray-traced lookup), `unbiased` (the
     /// unbiased Gaussian cache) or `nrc` (the neural cache, where the program has it).
     Method { method: String },
@@ -87,6 +99,8 @@ pub enum Change {
     Transfer(TransferFunction, TransferSettings),
     Lights(Lights, Vec<(Vec3, f32)>, f32),
     Clip(Clipping),
+    Probe { x: f32, y: f32 },
+    View { name: String, remove: bool },
     Method(Method),
     Denoise(bool),
     Split(bool),
@@ -207,6 +221,23 @@ pub struct SceneFacts {
     pub fov_y: f32,
     /// The scene's up (its camera table's `up`): the page orbits about it.
     pub up: Vec3,
+    /// What the page's data panel shows: the volume's file, size, spacing, type and memory.
+    pub data: DataFacts,
+}
+
+/// The volume as the page's data panel shows it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DataFacts {
+    /// The volume file's name (not its folder: the page is no place for the machine's paths).
+    pub file: String,
+    pub dims: [u32; 3],
+    /// World size of a voxel (the scene's units, as the file or the scene gave them).
+    pub spacing: [f32; 3],
+    /// How the voxels are stored: `uint8`, `int8`, `uint16`, `int16` or `float32`.
+    pub dtype: &'static str,
+    /// Bytes the voxels take, and the whole medium with its majorants.
+    pub voxel_bytes: usize,
+    pub medium_bytes: usize,
 }
 
 impl SceneFacts {
@@ -216,6 +247,23 @@ impl SceneFacts {
         let grid = medium.grid();
         let (min, max) = grid.range();
         Self {
+            data: DataFacts {
+                file: scene
+                    .volume_path
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                dims: grid.dims().to_array(),
+                spacing: medium.spacing().to_array(),
+                dtype: match grid.voxels() {
+                    volume_pt::grid::Voxels::U8(_) => "uint8",
+                    volume_pt::grid::Voxels::I8(_) => "int8",
+                    volume_pt::grid::Voxels::U16(_) => "uint16",
+                    volume_pt::grid::Voxels::I16(_) => "int16",
+                    volume_pt::grid::Voxels::F32(_) => "float32",
+                },
+                voxel_bytes: grid.bytes(),
+                medium_bytes: medium.memory_bytes(),
+            },
             centre: 0.5 * (lo + hi),
             bounds: [lo, hi],
             range: [min, max],
@@ -517,6 +565,16 @@ pub fn check(
             clipping.validate()?;
             Ok(Change::Clip(clipping))
         }
+        ClientMessage::Probe { x, y } => {
+            // Written so that NaN fails.
+            if !((0.0..=1.0).contains(&x) && (0.0..=1.0).contains(&y)) {
+                return Err(format!(
+                    "probe at ({x}, {y}): expected fractions of the image in [0, 1]"
+                ));
+            }
+            Ok(Change::Probe { x, y })
+        }
+        ClientMessage::View { name, remove } => Ok(Change::View { name, remove }),
         ClientMessage::Method { method } => Ok(Change::Method(Method::parse(&method)?)),
         ClientMessage::Denoise { on } => Ok(Change::Denoise(on)),
         ClientMessage::Split { on } => Ok(Change::Split(on)),
@@ -548,6 +606,10 @@ pub struct ViewState<'a> {
     pub lights: &'a LightSettings,
     /// What is cut away of the medium.
     pub clip: &'a Clipping,
+    /// The named views (bookmarks).
+    pub views: &'a [ViewDesc],
+    /// The transfer function in force (its colours make the page's colour bar).
+    pub tf: &'a TransferFunction,
     pub method: Method,
     pub show_lights: bool,
     /// The split view is on.
@@ -558,6 +620,20 @@ pub struct ViewState<'a> {
     pub denoiser: bool,
 }
 
+/// Samples of the colour bar: the transfer function's colour (its scattering albedo) at
+/// [`COLOUR_BAR_SAMPLES`] evenly spaced points of its window.
+pub fn colour_bar(tf: &TransferFunction) -> Vec<[f32; 3]> {
+    (0..COLOUR_BAR_SAMPLES)
+        .map(|k| {
+            tf.albedo_at(k as f32 / (COLOUR_BAR_SAMPLES - 1) as f32)
+                .to_array()
+        })
+        .collect()
+}
+
+/// How many colours the page's colour bar is drawn from.
+pub const COLOUR_BAR_SAMPLES: usize = 64;
+
 /// The greeting a page gets on connecting: the scene's facts and the view's whole state.
 pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
     let ViewState {
@@ -565,6 +641,8 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         transfer,
         lights,
         clip,
+        views,
+        tf,
         method,
         show_lights,
         split,
@@ -612,6 +690,9 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         })).collect::<Vec<_>>(),
         "environment": lights.environment,
         "clip": clip,
+        "views": views,
+        "colours": colour_bar(tf),
+        "data": facts.data,
         "show_lights": show_lights,
         "methods": Method::available(),
         "method": method.name(),
@@ -626,6 +707,22 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
 /// opacity curve sampled at `steps + 1` points.
 pub fn transfer_settings_of(tf: &TransferFunction, steps: usize) -> TransferSettings {
     let (lo, hi) = tf.window();
+    // The function's own control points where the page can edit them (inside the window, few
+    // enough); a curve defined beyond the window (a preset's) is sampled instead.
+    let own: Vec<[f32; 2]> = tf.opacity_points().map(|(u, o)| [u, o]).collect();
+    let editable = (2..=MAX_OPACITY_POINTS).contains(&own.len())
+        && own.first().is_some_and(|p| p[0] == 0.0)
+        && own.last().is_some_and(|p| p[0] == 1.0)
+        && own.windows(2).all(|w| w[0][0] < w[1][0])
+        && own.iter().all(|p| (0.0..=1.0).contains(&p[1]));
+    if editable {
+        return TransferSettings {
+            colormap: None,
+            window: [lo, hi],
+            density_scale: tf.density_scale(),
+            opacity: own,
+        };
+    }
     let opacity = (0..=steps)
         .map(|k| {
             let u = k as f32 / steps as f32;

@@ -11,7 +11,7 @@ use hdr_image::RgbImage;
 use std::path::{Path, PathBuf};
 use volume_pt::Scene;
 use volume_pt::scene::{
-    CameraDesc, EnvironmentDesc, LightDesc, RenderDesc, SceneFile, TfPoint, TransferDesc,
+    CameraDesc, EnvironmentDesc, LightDesc, RenderDesc, SceneFile, TfPoint, TransferDesc, ViewDesc,
     VolumeDesc,
 };
 
@@ -170,6 +170,8 @@ pub struct SaveRequest<'a> {
     pub lights: &'a LightSettings,
     pub spp: u32,
     pub session: &'a render_session::Session,
+    /// The named views (bookmarks) the page keeps.
+    pub views: &'a [ViewDesc],
 }
 
 /// Writes the image, the scene and the cache (see the module docs): into names reserved
@@ -262,6 +264,7 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
         },
         output: r.scene.output,
         clip: r.scene.media.medium.clipping().clone(),
+        views: r.views.to_vec(),
     };
     description
         .to_toml(&format!(

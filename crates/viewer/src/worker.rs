@@ -13,7 +13,7 @@
 
 use crate::protocol::{
     Change, ClientMessage, LightSettings, Method, SceneFacts, TransferSettings, ViewState, check,
-    hello, transfer_settings_of,
+    colour_bar, hello, transfer_settings_of,
 };
 use crate::save::{SaveRequest, save};
 use base64::Engine as _;
@@ -27,6 +27,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, watch};
 use volume_pt::Scene;
+use volume_pt::scene::ViewDesc;
 
 /// A frame as the clients get it.
 #[derive(Debug)]
@@ -120,6 +121,8 @@ pub struct Worker {
     /// The still view's last denoised image and the samples per pixel it was made at: shown
     /// until the next (see [`denoise_now`]).
     denoised: Option<(u32, RgbImage)>,
+    /// The named views (bookmarks), saved with the scene.
+    views: Vec<ViewDesc>,
 }
 
 impl Worker {
@@ -136,6 +139,7 @@ impl Worker {
         let lights = LightSettings::of(&facts);
         let target_spp = scene.settings.spp.max(1);
         let camera = scene.camera;
+        let views = scene.views.clone();
         let mut session = Session::new(scene, render_session::CacheChoice::None)?;
         // One sample per pixel a frame: an edit shows within one frame's time.
         session.edit(Edit::Spp(1))?;
@@ -162,7 +166,28 @@ impl Worker {
             last_frame: None,
             governor: PreviewGovernor::default(),
             denoised: None,
+            views,
         })
+    }
+
+    /// The camera in force as a named view: its eye, the point the page orbits (in front of
+    /// the camera, nearest the volume's centre) and the page's up.
+    fn view_of_camera(&self, name: String) -> ViewDesc {
+        let camera = &self.camera;
+        let (_, down, forward) = camera.axes();
+        let target = camera.position
+            + forward * (self.facts.centre - camera.position).dot(forward).max(1e-3);
+        let up = if self.facts.up.dot(forward).abs() < 0.999 {
+            self.facts.up
+        } else {
+            -down
+        };
+        ViewDesc {
+            name,
+            eye: camera.position.to_array(),
+            target: target.to_array(),
+            up: up.to_array(),
+        }
     }
 
     /// The view's whole state for a page, as a message of type `kind`: `hello` on connecting,
@@ -173,6 +198,8 @@ impl Worker {
             transfer: &self.transfer,
             lights: &self.lights,
             clip: self.session.scene().media.medium.clipping(),
+            views: &self.views,
+            tf: self.session.scene().media.medium.transfer_function(),
             method: self.method,
             show_lights: self.session.scene().settings.path.show_lights,
             split: self.split.is_some(),
@@ -268,13 +295,14 @@ impl Worker {
                     }
                     Command::Message { client, message } => {
                         // Every page shows the one view: a change one page made is pushed to
-                        // the others (a drag once its camera rests; a save or the levels
-                        // change nothing they show).
+                        // the others (a drag once its camera rests; a save, the levels or a
+                        // probe change nothing they show).
                         let shared = !matches!(
                             message,
                             ClientMessage::Camera { moving: true, .. }
                                 | ClientMessage::Save {}
                                 | ClientMessage::Levels {}
+                                | ClientMessage::Probe { .. }
                         );
                         let applied = check(message, &self.facts, &self.lights)
                             .and_then(|change| self.apply(change, client, &events));
@@ -377,9 +405,64 @@ impl Worker {
                 self.set_camera()?;
             }
             Change::Transfer(tf, settings) => {
+                let colours = colour_bar(&tf);
                 self.edit_all(Edit::TransferFunction(tf))?;
                 self.transfer = settings;
                 self.set_camera()?;
+                // Every page's colour bar, the editing page's too (the others get the state).
+                let _ = events.send(Event {
+                    to: Recipients::All,
+                    text: Arc::new(
+                        serde_json::json!({"type": "colours", "colours": colours}).to_string(),
+                    ),
+                });
+            }
+            Change::Probe { x, y } => {
+                let camera = self.camera;
+                let direction =
+                    camera.ray_direction(x * camera.width as f32, y * camera.height as f32);
+                let found = self
+                    .session
+                    .scene()
+                    .media
+                    .medium
+                    .probe(camera.position, direction);
+                let hit = found.map(|p| {
+                    serde_json::json!({
+                        "position": p.position.to_array(),
+                        "distance": p.distance,
+                        "voxel": p.voxel.to_array(),
+                        "value": p.value,
+                        "filtered": p.filtered,
+                        "opacity": p.opacity,
+                    })
+                });
+                let _ = events.send(Event {
+                    to: Recipients::One(client),
+                    text: Arc::new(
+                        serde_json::json!({"type": "probe", "x": x, "y": y, "hit": hit})
+                            .to_string(),
+                    ),
+                });
+            }
+            Change::View { name, remove } => {
+                let mut views = self.views.clone();
+                if remove {
+                    views.retain(|v| v.name != name);
+                } else {
+                    let view = self.view_of_camera(name);
+                    match views.iter_mut().find(|v| v.name == view.name) {
+                        Some(old) => *old = view,
+                        None => views.push(view),
+                    }
+                }
+                ViewDesc::validate_all(&views, &self.camera)?;
+                self.views = views;
+                // The page that asked is told the list too.
+                let _ = events.send(Event {
+                    to: Recipients::One(client),
+                    text: Arc::new(self.greeting("state")),
+                });
             }
             Change::Lights(lights, directions, environment) => {
                 self.edit_all(Edit::Lights(lights))?;
@@ -487,6 +570,7 @@ impl Worker {
                     lights: &self.lights,
                     spp: self.target_spp,
                     session: &self.session,
+                    views: &self.views,
                 })?;
                 let files: Vec<String> = saved
                     .files

@@ -89,6 +89,9 @@ struct Seen {
     saved: Vec<serde_json::Value>,
     /// The view's state sent after a refused edit.
     states: Vec<serde_json::Value>,
+    /// Answers to probes, and the colour bars sent after transfer-function edits.
+    probes: Vec<serde_json::Value>,
+    colours: Vec<serde_json::Value>,
 }
 
 async fn read_until(socket: &mut Socket, seen: &mut Seen, done: impl Fn(&Seen) -> bool) {
@@ -106,6 +109,8 @@ async fn read_until(socket: &mut Socket, seen: &mut Seen, done: impl Fn(&Seen) -
                     "error" => seen.errors.push(m["message"].as_str().unwrap().to_string()),
                     "saved" => seen.saved.push(m),
                     "state" => seen.states.push(m),
+                    "probe" => seen.probes.push(m),
+                    "colours" => seen.colours.push(m),
                     other => panic!("unknown message type {other}"),
                 }
             }
@@ -1069,4 +1074,119 @@ async fn clipping_from_the_page_changes_the_image_and_is_saved() {
     assert_eq!(saved.bounds.unwrap().max[1], 0.0);
     assert_eq!(saved.planes.len(), 1);
     assert_eq!(saved.planes[0].normal, [1.0, 0.0, 0.0]);
+}
+
+/// Probing and named views: a click's probe answers with the voxel lookup's value at the point
+/// where the camera's ray first meets visible medium (the medium's own probe along the same
+/// ray, computed here), a probe of the empty corner answers with no hit, a kept view is told
+/// back and saved as a `[[view]]` table that `--view` renders from, and a transfer edit sends
+/// every page its colour bar.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_probe_reports_the_voxel_value_and_views_are_kept_and_saved() {
+    let out = scratch("probe");
+    let v = start(&out, 4);
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, converged).await;
+    let hello = seen.hello.clone().unwrap();
+    assert_eq!(hello["data"]["dims"], serde_json::json!([64, 64, 64]));
+    assert_eq!(hello["data"]["dtype"], "uint8");
+    assert_eq!(hello["colours"].as_array().unwrap().len(), 64);
+    // The default scene, as the viewer has it (64x36).
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(64, 36).unwrap();
+    for (x, y, hit) in [(0.5f32, 0.5f32, true), (0.02, 0.03, false)] {
+        let probe = serde_json::json!({"type": "probe", "x": x, "y": y});
+        socket
+            .send(Message::Text(probe.to_string().into()))
+            .await
+            .unwrap();
+        let n = seen.probes.len();
+        read_until(&mut socket, &mut seen, |s| s.probes.len() > n).await;
+        let answer = &seen.probes[n]["hit"];
+        let camera = scene.camera;
+        let expected = scene.media.medium.probe(
+            camera.position,
+            camera.ray_direction(x * camera.width as f32, y * camera.height as f32),
+        );
+        assert_eq!(
+            expected.is_some(),
+            hit,
+            "the test's own expectation at ({x}, {y})"
+        );
+        match expected {
+            Some(p) => {
+                let voxel = p.voxel;
+                assert_eq!(answer["voxel"], serde_json::json!(voxel.to_array()));
+                let lookup = scene.media.medium.grid().voxel(voxel.x, voxel.y, voxel.z);
+                assert_eq!(answer["value"].as_f64(), Some(lookup as f64), "{answer}");
+                assert!(lookup > 0.0, "the centre ray meets data");
+            }
+            None => assert!(answer.is_null(), "{answer}"),
+        }
+    }
+    let bad = r#"{"type":"probe","x":1.5,"y":0.5}"#;
+    socket.send(Message::Text(bad.into())).await.unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.errors.is_empty()).await;
+    assert!(
+        seen.errors[0].contains("probe at (1.5, 0.5)"),
+        "{:?}",
+        seen.errors
+    );
+    // A kept view comes back in the state; a second name too; then one is forgotten.
+    let states_before = seen.states.len();
+    for name in ["front", "side"] {
+        let keep = serde_json::json!({"type": "view", "name": name});
+        socket
+            .send(Message::Text(keep.to_string().into()))
+            .await
+            .unwrap();
+    }
+    let forget = r#"{"type":"view","name":"side","remove":true}"#;
+    socket.send(Message::Text(forget.into())).await.unwrap();
+    // (The refused probe's state may come in between: look for two views, then one.)
+    let count = |m: &serde_json::Value| m["views"].as_array().map_or(0, |v| v.len());
+    let removed = |s: &Seen| {
+        let states = &s.states[states_before.min(s.states.len())..];
+        states
+            .iter()
+            .position(|m| count(m) == 2)
+            .is_some_and(|i| states[i..].iter().any(|m| count(m) == 1))
+    };
+    read_until(&mut socket, &mut seen, removed).await;
+    let views = seen.states.last().unwrap()["views"]
+        .as_array()
+        .unwrap()
+        .clone();
+    assert_eq!(views.len(), 1, "{views:?}");
+    assert_eq!(views[0]["name"], "front");
+    // A transfer edit: every page gets the colour bar.
+    let edit = r#"{"type":"transfer","colormap":"inferno","window":[0,255],"density_scale":0.6,"opacity":[[0,0],[1,1]]}"#;
+    socket.send(Message::Text(edit.into())).await.unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.colours.is_empty()).await;
+    assert_ne!(
+        seen.colours[0]["colours"], hello["colours"],
+        "inferno is not the scene's colours"
+    );
+    socket
+        .send(Message::Text(r#"{"type":"save"}"#.into()))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.saved.is_empty()).await;
+    v.stop();
+    let saved = out.join("view-0001.toml");
+    let mut reloaded = volume_pt::load_scene(&saved).unwrap();
+    assert_eq!(reloaded.views.len(), 1);
+    assert_eq!(reloaded.views[0].eye, scene.camera.position.to_array());
+    volume_pt::SceneOverrides {
+        view: Some("front".into()),
+        ..Default::default()
+    }
+    .apply(&mut reloaded)
+    .unwrap();
+    assert!(
+        (reloaded.camera.position - scene.camera.position).length() < 1e-3,
+        "--view front puts the camera where it was kept"
+    );
 }

@@ -201,6 +201,7 @@ pub fn scene_description(
             tonemap: ToneMap::Aces,
         },
         clip: Clipping::default(),
+        views: Vec::new(),
     };
     let comment = format!(
         "Made by `gscache render` for {} (colour map {colormap}): edit and render it as any \

@@ -7,6 +7,7 @@
 //! - [`medium`] and [`majorant`]: the placed, classified volume and its macrocell majorants;
 //!   [`clip`]: the box and planes that cut it.
 //! - [`tracking`]: delta tracking (free flights) and ratio tracking (transmittance).
+//! - [`probe`]: where a ray first meets visible medium, and the data there.
 //! - [`phase`], [`lights`]: phase functions; the emitter types (sphere, distant) and a
 //!   constant environment.
 //! - [`integrator`]: the `uniform` and `nee` path estimators.
@@ -31,6 +32,7 @@ pub mod lights;
 pub mod majorant;
 pub mod medium;
 pub mod phase;
+pub mod probe;
 pub mod render;
 pub mod sampling;
 pub mod scene;

@@ -143,6 +143,11 @@ impl Medium {
         self.filter
     }
 
+    /// World size of a voxel.
+    pub fn spacing(&self) -> Vec3 {
+        self.spacing
+    }
+
     /// World-space bounds of the volume's box.
     pub fn bounds(&self) -> (Vec3, Vec3) {
         (self.origin, self.origin + self.dims * self.spacing)

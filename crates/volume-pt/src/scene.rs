@@ -147,6 +147,70 @@ pub struct SceneFile {
     /// `[clip]`: a box and planes that cut the medium away (see [`crate::clip`]).
     #[serde(default, skip_serializing_if = "Clipping::is_empty")]
     pub clip: Clipping,
+    /// `[[view]]` tables: named camera positions (the viewer's bookmarks; `--view NAME`).
+    #[serde(default, rename = "view", skip_serializing_if = "Vec::is_empty")]
+    pub views: Vec<ViewDesc>,
+}
+
+/// The most `[[view]]` tables a scene may hold.
+pub const MAX_VIEWS: usize = 64;
+/// The longest view name, in characters.
+pub const MAX_VIEW_NAME: usize = 64;
+
+/// A named camera position: where the camera is, what it looks at and its up (the field of
+/// view and the image size are the scene's).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewDesc {
+    pub name: String,
+    pub eye: [f32; 3],
+    pub target: [f32; 3],
+    #[serde(default = "default_up")]
+    pub up: [f32; 3],
+}
+
+impl ViewDesc {
+    /// The scene's camera moved to this view (its field of view and size kept); an error
+    /// names the view and the fault.
+    pub fn camera(&self, scene_camera: &Camera) -> std::result::Result<Camera, String> {
+        Camera::look_at(
+            vec3(self.eye),
+            vec3(self.target),
+            vec3(self.up),
+            scene_camera.fov_y_degrees,
+            scene_camera.width,
+            scene_camera.height,
+        )
+        .map_err(|e| format!("view \"{}\": {e}", self.name))
+    }
+
+    /// Checks `views`: at most [`MAX_VIEWS`], each named (at most [`MAX_VIEW_NAME`]
+    /// characters, no two alike) and a camera that can be built.
+    pub fn validate_all(
+        views: &[ViewDesc],
+        scene_camera: &Camera,
+    ) -> std::result::Result<(), String> {
+        if views.len() > MAX_VIEWS {
+            return Err(format!(
+                "{} views: expected at most {MAX_VIEWS}",
+                views.len()
+            ));
+        }
+        for (i, v) in views.iter().enumerate() {
+            let chars = v.name.chars().count();
+            if chars == 0 || chars > MAX_VIEW_NAME || v.name.chars().any(char::is_control) {
+                return Err(format!(
+                    "view {i}: name {:?}: expected 1 to {MAX_VIEW_NAME} characters, none a control character",
+                    v.name
+                ));
+            }
+            if views[..i].iter().any(|w| w.name == v.name) {
+                return Err(format!("view {i}: a second view named {:?}", v.name));
+            }
+            v.camera(scene_camera)?;
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -358,6 +422,8 @@ pub struct Scene {
     /// `warning: `) about settings that are legal but likely mistakes.
     pub notes: Vec<String>,
     pub volume_path: PathBuf,
+    /// The scene's named views (`[[view]]`).
+    pub views: Vec<ViewDesc>,
 }
 
 /// Max depth from the scene-file convention (-1 = unlimited).
@@ -473,6 +539,9 @@ pub struct SceneOverrides {
     /// point on the plane, then the normal), repeatable (replaces the scene's planes).
     #[cfg_attr(feature = "clap", arg(long, value_name = "POINT,NORMAL", value_parser = parse_clip_plane))]
     pub clip_plane: Vec<ClipPlane>,
+    /// Render from the scene's view of this name (a `[[view]]` table: the viewer's bookmarks).
+    #[cfg_attr(feature = "clap", arg(long, value_name = "NAME"))]
+    pub view: Option<String>,
 }
 
 /// Six comma-separated numbers, named in errors as `what`.
@@ -543,6 +612,31 @@ impl SceneOverrides {
                 clipping.planes = self.clip_plane.clone();
             }
             scene.media.medium.set_clipping(clipping)?;
+        }
+        if let Some(name) = &self.view {
+            let view = scene
+                .views
+                .iter()
+                .find(|v| &v.name == name)
+                .ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "--view {name:?}: the scene has {}",
+                        if scene.views.is_empty() {
+                            "no [[view]] tables".to_string()
+                        } else {
+                            format!(
+                                "the views {}",
+                                scene
+                                    .views
+                                    .iter()
+                                    .map(|v| format!("{:?}", v.name))
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            )
+                        }
+                    ))
+                })?;
+            scene.camera = view.camera(&scene.camera).map_err(Error::Invalid)?;
         }
         if self.width.is_some() || self.height.is_some() {
             let camera = scene.camera;
@@ -711,6 +805,7 @@ pub fn build_scene_with_volume(
         c.height,
     )
     .map_err(|e| scene_err(format!("camera: {e}")))?;
+    ViewDesc::validate_all(&desc.views, &camera).map_err(scene_err)?;
     let r = &desc.render;
     let max_depth = max_depth_from(r.max_depth).map_err(scene_err)?;
     if r.spp == 0 {
@@ -766,5 +861,6 @@ pub fn build_scene_with_volume(
         output: desc.output,
         notes,
         volume_path,
+        views: desc.views,
     })
 }

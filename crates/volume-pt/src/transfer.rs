@@ -227,6 +227,11 @@ impl TransferFunction {
         Self::new(window, albedo, opacity, density_scale)
     }
 
+    /// The opacity curve's control points, `(position in the window (0..1), opacity)`.
+    pub fn opacity_points(&self) -> impl Iterator<Item = (f32, f32)> + '_ {
+        self.opacity.points()
+    }
+
     pub fn window(&self) -> (f32, f32) {
         self.window
     }

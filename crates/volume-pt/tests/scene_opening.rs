@@ -53,6 +53,7 @@ fn overrides_change_only_what_they_name() {
             max: [10.0, 20.0, 30.0],
         }),
         clip_plane: vec![],
+        view: None,
     }
     .apply(&mut scene)
     .unwrap();
@@ -118,6 +119,13 @@ fn a_bad_override_is_refused_by_name() {
             .unwrap_err()
             .contains("clip plane `0,0,0,1,x,0`")
     );
+    refused(
+        SceneOverrides {
+            view: Some("top".into()),
+            ..Default::default()
+        },
+        "--view \"top\": the scene has no [[view]] tables",
+    );
     let mut s = scene.clone();
     let e = SceneOverrides {
         width: Some(0),
@@ -127,4 +135,31 @@ fn a_bad_override_is_refused_by_name() {
     .unwrap_err()
     .to_string();
     assert!(e.starts_with("width/height:"), "{e}");
+}
+
+/// A scene's `[[view]]` tables are checked by name: a second view of one name, an empty name,
+/// and a view whose camera cannot be built (its up along its line of sight) are refused.
+#[test]
+fn bad_views_are_refused_by_name() {
+    use volume_pt::scene::ViewDesc;
+    let scene = open_scene(&data("scenes/default.toml"), Colormap::default())
+        .unwrap()
+        .scene;
+    let view = |name: &str, up: [f32; 3]| ViewDesc {
+        name: name.into(),
+        eye: [0.0, 0.0, 10.0],
+        target: [0.0; 3],
+        up,
+    };
+    let check = |views: &[ViewDesc]| ViewDesc::validate_all(views, &scene.camera);
+    assert!(check(&[view("a", [0.0, 1.0, 0.0]), view("b", [1.0, 0.0, 0.0])]).is_ok());
+    let twice = check(&[view("a", [0.0, 1.0, 0.0]), view("a", [1.0, 0.0, 0.0])]).unwrap_err();
+    assert!(twice.contains("a second view named \"a\""), "{twice}");
+    assert!(
+        check(&[view("", [0.0, 1.0, 0.0])])
+            .unwrap_err()
+            .contains("view 0: name")
+    );
+    let along = check(&[view("top", [0.0, 0.0, 1.0])]).unwrap_err();
+    assert!(along.starts_with("view \"top\":"), "{along}");
 }

@@ -105,6 +105,18 @@ normal = [1.0, -1.0, 0.25]
 [[clip.plane]]
 point = [0.25, 0.0, 0.0]
 normal = [0.0, 0.0, -1.0]
+
+[[view]]
+name = "front"
+eye = [0.0, -5.0, 0.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 0.0, 1.0]
+
+[[view]]
+name = "a view \"quoted\""
+eye = [3.0, 1.0, 2.0]
+target = [0.5, 0.5, 0.5]
+up = [0.0, 1.0, 0.0]
 "#;
 
 #[test]

@@ -159,6 +159,7 @@ impl Volume {
             loaded: LoadedVolume {
                 grid,
                 spacing: spacing.map(glam::Vec3::from_array),
+                units: None,
                 notes: Vec::new(),
             },
             name: PathBuf::from(format!("<numpy {dtype} array>")),

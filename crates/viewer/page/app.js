@@ -159,7 +159,7 @@
     const d = m.data, mb = (b) => `${(b / 1048576).toFixed(b < 10485760 ? 2 : 0)} MB`;
     $("data").textContent =
       `${d.file}\n${d.dims.join(" x ")} voxels, ${d.dtype}\n` +
-      `spacing ${d.spacing.map(fmt).join(" x ")}\nvalues ${fmt(m.range[0])} to ${fmt(m.range[1])}\n` +
+      `spacing ${d.spacing.map(fmt).join(" x ")}${d.units ? " " + d.units : " (no unit given)"}\nvalues ${fmt(m.range[0])} to ${fmt(m.range[1])}\n` +
       `memory: voxels ${mb(d.voxel_bytes)}, with majorants ${mb(d.medium_bytes)}`;
     buildClip();
     restore(m);
@@ -392,7 +392,7 @@
       g.lineWidth = 2;
       g.beginPath(); g.moveTo(x0, y0 - 4); g.lineTo(x0, y0); g.lineTo(x0 + px, y0); g.lineTo(x0 + px, y0 - 4); g.stroke();
       g.font = "11px system-ui";
-      g.fillText(`${fmt(length)} (scene units)`, x0, y0 - 7);
+      g.fillText(`${fmt(length)} ${hello.data.units || "(scene units)"}`, x0, y0 - 7);
     }
     if (probeMark) {
       const [x, y] = [r.left + probeMark[0] * r.width, r.top + probeMark[1] * r.height];

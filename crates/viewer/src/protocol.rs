@@ -233,6 +233,8 @@ pub struct DataFacts {
     pub dims: [u32; 3],
     /// World size of a voxel (the scene's units, as the file or the scene gave them).
     pub spacing: [f32; 3],
+    /// Their unit, where the scene or the file names one.
+    pub units: Option<String>,
     /// How the voxels are stored: `uint8`, `int8`, `uint16`, `int16` or `float32`.
     pub dtype: &'static str,
     /// Bytes the voxels take, and the whole medium with its majorants.
@@ -254,6 +256,7 @@ impl SceneFacts {
                     .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
                 dims: grid.dims().to_array(),
                 spacing: medium.spacing().to_array(),
+                units: scene.units.clone(),
                 dtype: match grid.voxels() {
                     volume_pt::grid::Voxels::U8(_) => "uint8",
                     volume_pt::grid::Voxels::I8(_) => "int8",

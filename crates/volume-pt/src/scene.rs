@@ -230,6 +230,11 @@ pub struct VolumeDesc {
     /// World size of a voxel; overrides the file's spacing; default the file's, else 1.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub spacing: Option<[f32; 3]>,
+    /// The unit of the spacing (and so of every world coordinate), shown by the viewer's
+    /// scale bar and data panel; default the file's (NRRD `space units`, NIfTI `xyzt_units`)
+    /// when the spacing is the file's too.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<String>,
     /// World position of the box's minimum corner; default: the box is centred on the origin.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub origin: Option<[f32; 3]>,
@@ -254,6 +259,7 @@ impl VolumeDesc {
             byte_order: ByteOrder::default(),
             header_bytes: 0,
             spacing: None,
+            units: None,
             origin: None,
             filter: Filter::default(),
             macrocell: DEFAULT_MACROCELL,
@@ -424,6 +430,8 @@ pub struct Scene {
     pub volume_path: PathBuf,
     /// The scene's named views (`[[view]]`).
     pub views: Vec<ViewDesc>,
+    /// The unit of world coordinates, where the scene or the volume file names one.
+    pub units: Option<String>,
 }
 
 /// Max depth from the scene-file convention (-1 = unlimited).
@@ -724,6 +732,19 @@ pub fn build_scene_with_volume(
     let v = &desc.volume;
     let grid = loaded.grid;
     let spacing = v.spacing.map(vec3).or(loaded.spacing).unwrap_or(Vec3::ONE);
+    // The file's unit goes with the file's spacing: a scene that sets its own spacing names
+    // its unit too, or has none.
+    let units = v
+        .units
+        .clone()
+        .or(loaded.units.filter(|_| v.spacing.is_none()));
+    if let Some(u) = &units
+        && (u.is_empty() || u.chars().count() > 16 || u.chars().any(char::is_control))
+    {
+        return Err(scene_err(format!(
+            "[volume] units {u:?}: expected 1 to 16 characters, none a control character"
+        )));
+    }
     let size = grid.dims().as_vec3() * spacing;
     let origin = v.origin.map(vec3).unwrap_or(-0.5 * size);
 
@@ -862,5 +883,6 @@ pub fn build_scene_with_volume(
         notes,
         volume_path,
         views: desc.views,
+        units,
     })
 }

@@ -139,3 +139,46 @@ fn shared_originals_match() {
         |v| v,
     );
 }
+
+/// The spacing's unit where a file names one: NRRD's `space units` (one unit for every axis,
+/// else none) and NIfTI's `xyzt_units` (byte 123 of the header: 2 is millimetres, 3
+/// micrometres); a file that names none has none.
+#[test]
+fn units_are_read_where_a_file_names_them() {
+    let d = data_dir();
+    let dir = std::env::temp_dir().join(format!("gscache-units-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let raw = std::path::absolute(d.join("volumes/neghip_64x64x64_uint8.raw")).unwrap();
+    for (units, expected) in [
+        (r#""mm" "mm" "mm""#, Some("mm")),
+        (r#""mm" "mm" "um""#, None),
+        (r#""" "" """#, None),
+    ] {
+        let header = dir.join("units.nhdr");
+        std::fs::write(
+            &header,
+            format!(
+                "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 64 64 64\nencoding: raw\n\
+                 space dimension: 3\nspace directions: (1,0,0) (0,1,0) (0,0,1)\n\
+                 space units: {units}\ndata file: {}\n",
+                raw.display()
+            ),
+        )
+        .unwrap();
+        assert_eq!(read(&header).units.as_deref(), expected, "{units}");
+    }
+    let mut nifti = std::fs::read(d.join("fixtures/hydrogen.nii")).unwrap();
+    assert_eq!(read(&d.join("fixtures/hydrogen.nii")).units, None);
+    for (code, expected) in [(2u8, "mm"), (3, "µm"), (10, "mm")] {
+        nifti[123] = code;
+        let path = dir.join("units.nii");
+        std::fs::write(&path, &nifti).unwrap();
+        assert_eq!(
+            read(&path).units.as_deref(),
+            Some(expected),
+            "xyzt_units {code}"
+        );
+    }
+    assert_eq!(read(&d.join("fixtures/headsq_gzip.nrrd")).units, None);
+    let _ = std::fs::remove_dir_all(&dir);
+}

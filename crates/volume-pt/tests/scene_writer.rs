@@ -47,6 +47,7 @@ dtype = "u16"
 byte_order = "big"
 header_bytes = 12
 spacing = [0.5, 0.25, 2.0]
+units = "µm"
 origin = [-1.0, 2.0, 3.5]
 filter = "nearest"
 macrocell = 4

@@ -148,6 +148,8 @@ pub struct LoadedVolume {
     pub grid: ScalarGrid,
     /// Voxel spacing stated by the file, if it states one.
     pub spacing: Option<Vec3>,
+    /// The unit of that spacing, where the file names one (`mm`, `um`, `m`...).
+    pub units: Option<String>,
     /// Things the file said that the renderer does not use (an origin, a rotation, ...).
     pub notes: Vec<String>,
 }

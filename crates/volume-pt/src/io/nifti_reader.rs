@@ -195,9 +195,17 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     let p = header.pixdim;
     let spacing = Vec3::new(p[1].abs(), p[2].abs(), p[3].abs());
     let spacing = (spacing.min_element() > 0.0 && spacing.is_finite()).then_some(spacing);
+    // NIfTI's xyzt_units: the spatial unit in its low three bits.
+    let units = match header.xyzt_units & 0x07 {
+        1 => Some("m".to_string()),
+        2 => Some("mm".to_string()),
+        3 => Some("µm".to_string()),
+        _ => None,
+    };
     Ok(LoadedVolume {
         grid: scaled_grid_for(path, dims, voxels, slope, inter)?,
         spacing,
+        units,
         notes,
     })
 }

@@ -104,6 +104,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
             return Ok(LoadedVolume {
                 grid: grid_for(path, dims, crate::grid::Voxels::F32(values))?,
                 spacing,
+                units: header.units(),
                 notes,
             });
         }
@@ -141,6 +142,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     Ok(LoadedVolume {
         grid: grid_for(path, dims, values)?,
         spacing,
+        units: header.units(),
         notes,
     })
 }
@@ -281,6 +283,18 @@ impl<'a> Header<'a> {
             ));
         }
         (spacing, notes)
+    }
+
+    /// The spacing's unit: `space units` when it names one unit for every axis (quoted
+    /// strings, at most 16 characters each, no control characters).
+    fn units(&self) -> Option<String> {
+        let field = self.field("space units")?;
+        let units: Vec<&str> = field.split('"').skip(1).step_by(2).map(str::trim).collect();
+        let first = *units.first()?;
+        let plausible = !first.is_empty()
+            && first.chars().count() <= 16
+            && !first.chars().any(char::is_control);
+        (plausible && units.iter().all(|u| *u == first)).then(|| first.to_string())
     }
 
     /// The data's bytes: the detached `data file` (beside the header) or what follows the

@@ -82,6 +82,7 @@ pub(super) fn read(path: &Path, layout: &RawLayout) -> Result<LoadedVolume> {
     Ok(LoadedVolume {
         grid: grid_for(path, dims, values)?,
         spacing: None,
+        units: None,
         notes: Vec::new(),
     })
 }

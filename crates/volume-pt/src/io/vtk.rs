@@ -168,6 +168,7 @@ pub(super) fn read(path: &Path) -> Result<LoadedVolume> {
     Ok(LoadedVolume {
         grid: grid_for(path, dims, values)?,
         spacing: Some(Vec3::from_array(spacing)),
+        units: None,
         notes,
     })
 }
@@ -234,6 +235,7 @@ fn read_compressed_xml(
     Ok(Some(LoadedVolume {
         grid: grid_for(path, size.dims, values)?,
         spacing: Some(Vec3::from_array(spacing)),
+        units: None,
         notes,
     }))
 }

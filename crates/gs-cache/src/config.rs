@@ -193,16 +193,6 @@ pub struct CacheConfig {
     /// an edit, or a fresh one, then costs variance instead of brightness (see `fallback.rs`).
     #[cfg_attr(feature = "clap", arg(long = "cache-fallback", action = clap::ArgAction::Set, default_value_t = DEFAULT.fallback))]
     pub fallback: bool,
-    /// Paths stop into a level (early or natural termination) only where, in the 3x3 cache
-    /// pixels around theirs, at least this fraction of the paths through each reached the
-    /// level's vertex over the last frames; elsewhere (thin halos, silhouettes, the volume's
-    /// border) they go on as plain path tracing (see `support.rs`). 0 reads the cache
-    /// everywhere, the default by measurement: 0.25-0.5 with `stopper_weights` halves what the
-    /// denoiser leaves of the cache's error on hydrogen and default in motion, but takes the
-    /// raw gain over NEE from 1.9-9.4x to 1.7-3.2x (docs/results/cache_error.md), so it is the
-    /// setting for a cache that will be denoised.
-    #[cfg_attr(feature = "clap", arg(long = "cache-min-coverage", default_value_t = DEFAULT.min_coverage))]
-    pub min_coverage: f32,
     /// In an image accumulated over frames of a still view (`GsCache::start_image`), the frames
     /// after which paths stop reading the cache and it stops training: from then on the frames
     /// are plain path tracing, at its speed, so the cache's bias in the accumulated image
@@ -245,6 +235,16 @@ pub struct CacheConfig {
     /// measured error and cost.
     #[cfg_attr(feature = "clap", arg(long = "cache-continuation-scale", default_value_t = DEFAULT.continuation_scale))]
     pub continuation_scale: f32,
+    /// Paths stop into a level (early or natural termination) only where, in the 3x3 cache
+    /// pixels around theirs, at least this fraction of the paths through each reached the
+    /// level's vertex over the last frames; elsewhere (thin halos, silhouettes, the volume's
+    /// border) they go on as plain path tracing (see `support.rs`). 0 reads the cache
+    /// everywhere, the default by measurement: 0.25-0.5 with `stopper_weights` halves what the
+    /// denoiser leaves of the cache's error on hydrogen and default in motion, but takes the
+    /// raw gain over NEE from 1.9-9.4x to 1.7-3.2x (docs/results/cache_error.md), so it is the
+    /// setting for a cache that will be denoised.
+    #[cfg_attr(feature = "clap", arg(long = "cache-min-coverage", default_value_t = DEFAULT.min_coverage))]
+    pub min_coverage: f32,
 }
 
 /// The defaults, as a constant so the command line's defaults are these very values.

@@ -12,7 +12,7 @@ fi
 # shellcheck disable=SC1091
 . "$venv/bin/activate"
 python -m pip install --quiet --disable-pip-version-check "maturin>=1.9,<2" "numpy>=1.21" \
-    "pytest>=7" "distributed>=2023.1" "nibabel>=4" "selenium>=4.20"
+    "pytest>=7" "distributed>=2023.1" "nibabel>=4" "selenium>=4.20" "ome-zarr>=0.10"
 # Intel Open Image Denoise for the denoising tests (its wheel ships the library): only where
 # asked (CI sets GSCACHE_REQUIRE_OIDN=1), since it is an 88 MB download; without it those
 # tests are skipped.

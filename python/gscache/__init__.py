@@ -3,7 +3,8 @@
 The renderer of the ``gscache`` program, from Python:
 
 - ``Volume.from_array`` (numpy, shape (nz, ny, nx); uint8, int8, uint16, int16 or float32,
-  kept in its own type) or ``Volume.read`` (raw, NRRD, VTK, NIfTI files);
+  kept in its own type) or ``Volume.read`` (raw, NRRD, VTK, NIfTI files, OME-Zarr stores with
+  ``level``, ``channel`` and ``time``);
 - ``Scene(volume, transfer=..., camera=..., lights=...)`` with the scene format's tables
   (docs/scene-format.md), or ``Scene.load("scene.toml")``;
 - ``render(scene, spp=...)`` -> float32 array (height, width, 3); Ctrl-C raises

@@ -167,16 +167,22 @@ impl Volume {
         })
     }
 
-    /// A volume read from a file (raw, NRRD, VTK, NIfTI), as a scene's `[volume]` table reads
-    /// it: `dims`, `dtype`, `byte_order` and `header_bytes` describe raw files.
+    /// A volume read from a file (raw, NRRD, VTK, NIfTI) or an OME-Zarr store, as a scene's
+    /// `[volume]` table reads it: `dims`, `dtype`, `byte_order` and `header_bytes` describe raw
+    /// files; `level`, `channel` and `time` pick an OME-Zarr store's resolution level (0, the
+    /// finest, by default), channel and time point.
     #[staticmethod]
-    #[pyo3(signature = (path, *, dims=None, dtype=None, byte_order=None, header_bytes=0))]
+    #[pyo3(signature = (path, *, dims=None, dtype=None, byte_order=None, header_bytes=0, level=None, channel=0, time=0))]
+    #[allow(clippy::too_many_arguments)]
     fn read(
         path: PathBuf,
         dims: Option<[u32; 3]>,
         dtype: Option<&str>,
         byte_order: Option<&str>,
         header_bytes: u64,
+        level: Option<u32>,
+        channel: u32,
+        time: u32,
     ) -> PyResult<Self> {
         fn named<T: serde::de::DeserializeOwned>(
             what: &str,
@@ -194,11 +200,26 @@ impl Volume {
             byte_order: named("byte_order", byte_order)?.unwrap_or_default(),
             header_bytes,
         };
-        let loaded = read_volume(&path, &ReadHints { format: None, raw }).map_err(crate::error)?;
+        let zarr = volume_pt::io::ZarrSelection {
+            level,
+            channel,
+            time,
+        };
+        let loaded = read_volume(
+            &path,
+            &ReadHints {
+                format: None,
+                raw,
+                zarr,
+            },
+        )
+        .map_err(crate::error)?;
         let size = std::fs::metadata(&path).map_err(crate::error)?.len();
+        let selected = [level.unwrap_or(0), channel, time];
         let identity = RenderKey::new()
             .part(path.to_string_lossy().as_bytes())
-            .part(&size.to_le_bytes());
+            .part(&size.to_le_bytes())
+            .part(format!("{selected:?}").as_bytes());
         Ok(Self {
             loaded,
             name: path,
@@ -241,6 +262,27 @@ impl Volume {
     #[getter]
     fn nbytes(&self) -> usize {
         self.loaded.grid.bytes()
+    }
+
+    /// The unit of the spacing, where the file names one (`mm`, `µm`...).
+    #[getter]
+    fn units(&self) -> Option<String> {
+        self.loaded.units.clone()
+    }
+
+    /// A copy of the voxels as stored (before a file's intensity scaling), shape (nz, ny, nx)
+    /// in their own type.
+    fn to_numpy<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        use numpy::{PyArray1, PyArrayMethods};
+        let (z, y, x) = self.shape();
+        let shape = [z as usize, y as usize, x as usize];
+        Ok(match self.loaded.grid.voxels() {
+            Voxels::U8(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
+            Voxels::I8(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
+            Voxels::U16(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
+            Voxels::I16(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
+            Voxels::F32(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
+        })
     }
 
     fn __repr__(&self) -> String {

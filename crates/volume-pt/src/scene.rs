@@ -227,6 +227,13 @@ pub struct VolumeDesc {
     pub byte_order: ByteOrder,
     #[serde(default, skip_serializing_if = "is_default")]
     pub header_bytes: u64,
+    /// OME-Zarr: the resolution level (0, the finest, by default), channel and time point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub level: Option<u32>,
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub channel: u32,
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub time: u32,
     /// World size of a voxel; overrides the file's spacing; default the file's, else 1.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub spacing: Option<[f32; 3]>,
@@ -258,6 +265,9 @@ impl VolumeDesc {
             dtype: None,
             byte_order: ByteOrder::default(),
             header_bytes: 0,
+            level: None,
+            channel: 0,
+            time: 0,
             spacing: None,
             units: None,
             origin: None,
@@ -708,6 +718,11 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
             dtype: v.dtype,
             byte_order: v.byte_order,
             header_bytes: v.header_bytes,
+        },
+        zarr: crate::io::ZarrSelection {
+            level: v.level,
+            channel: v.channel,
+            time: v.time,
         },
     };
     let loaded = read_volume(&volume_path, &hints)?;

@@ -1,4 +1,5 @@
-//! Reading volumes: raw, NRRD, VTK (legacy `.vtk` and XML `.vti`) and NIfTI (`.nii`, `.nii.gz`).
+//! Reading volumes: raw, NRRD, VTK (legacy `.vtk` and XML `.vti`), NIfTI (`.nii`, `.nii.gz`)
+//! and OME-Zarr stores (`.zarr` folders).
 //!
 //! Every reader gives the same thing, a [`LoadedVolume`]: voxels in their own type (see
 //! [`crate::grid::Voxels`]) in x-fastest order, the
@@ -8,6 +9,7 @@
 mod budget;
 mod nifti_reader;
 mod nrrd;
+mod ome_zarr;
 mod raw;
 mod vtk;
 
@@ -15,6 +17,7 @@ pub use budget::{
     MAX_TEXT_FILE_BYTES, VolumeSize, available_memory, check_volume_size, human_bytes,
     read_regular, read_text_file,
 };
+pub use ome_zarr::ZarrSelection;
 pub use raw::{RawLayout, parse_raw_file_name};
 
 use crate::error::{Error, Result};
@@ -114,6 +117,9 @@ pub enum Format {
     /// Legacy `.vtk` structured points or XML `.vti` image data.
     Vtk,
     Nifti,
+    /// An OME-Zarr store (a folder): NGFF 0.4 (Zarr v2) or 0.5 (Zarr v3).
+    #[serde(rename = "ome-zarr", alias = "zarr")]
+    OmeZarr,
 }
 
 impl Format {
@@ -128,6 +134,8 @@ impl Format {
             Some(Format::Vtk)
         } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
             Some(Format::Nifti)
+        } else if name.ends_with(".zarr") {
+            Some(Format::OmeZarr)
         } else {
             None
         }
@@ -140,6 +148,8 @@ impl Format {
 pub struct ReadHints {
     pub format: Option<Format>,
     pub raw: RawLayout,
+    /// The level, channel and time point of an OME-Zarr store.
+    pub zarr: ZarrSelection,
 }
 
 /// A volume as read from disk.
@@ -162,17 +172,21 @@ pub fn read_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
             return Err(Error::format(
                 path,
                 "unknown volume format: expected a .raw, .nrrd, .nhdr, .vtk, .vti, .nii or \
-                 .nii.gz file, or `format = ...` in the scene",
+                 .nii.gz file, a .zarr store, or `format = ...` in the scene",
             ));
         }
     };
-    // Refuse a missing file, a directory, a device or a FIFO before any reader opens it.
-    budget::open_regular(path)?;
+    // Refuse a missing file, a directory, a device or a FIFO before any reader opens it (an
+    // OME-Zarr store is a folder of small files, each read by zarrs).
+    if format != Format::OmeZarr {
+        budget::open_regular(path)?;
+    }
     match format {
         Format::Raw => raw::read(path, &hints.raw),
         Format::Nrrd => nrrd::read(path),
         Format::Vtk => vtk::read(path),
         Format::Nifti => nifti_reader::read(path),
+        Format::OmeZarr => ome_zarr::read(path, &hints.zarr),
     }
 }
 

@@ -1,0 +1,358 @@
+//! OME-Zarr (NGFF 0.4 on Zarr v2, 0.5 on Zarr v3): the multiscale image of a store folder,
+//! through `zarrs` (the arrays: chunks, sharding, blosc/gzip/zstd) and `ome_zarr_metadata`
+//! (the `multiscales` attributes: axes, datasets, coordinate transformations).
+//!
+//! One 3D volume is read whole: the level asked for (default 0, the finest), one channel and one
+//! time point (default the first of each), the spatial axes as stored. The store's last axis
+//! (x in OME's `z, y, x` order) is the grid's fastest, so no transpose is needed. The spacing is
+//! the level's `scale` (times the multiscale's own, where it has one) along the spatial axes,
+//! and the unit their `unit` where all three agree. A missing chunk reads as the array's fill
+//! value (as Zarr says); a chunk that cannot be decoded is an error naming the store, the array
+//! and the fault. The size is checked against the memory available before anything is read.
+
+use super::budget::{check_volume_size, human_bytes};
+use super::{DType, LoadedVolume, grid_for};
+use crate::error::{Error, Result};
+use crate::grid::Voxels;
+use glam::Vec3;
+use ome_zarr_metadata::AnyOmeFields;
+use ome_zarr_metadata::v0_4::{
+    Axis, AxisType, AxisUnit, CoordinateTransform, CoordinateTransformScale,
+};
+use std::path::Path;
+use std::sync::Arc;
+use zarrs::array::{Array, ArraySubset, data_type};
+use zarrs::filesystem::FilesystemStore;
+use zarrs::group::Group;
+
+/// Which part of a store to read.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ZarrSelection {
+    /// Resolution level (index into the multiscale's datasets); `None`: 0, the finest.
+    pub level: Option<u32>,
+    /// Channel index along a `channel` axis (ignored without one).
+    pub channel: u32,
+    /// Time-point index along a `time` axis (ignored without one).
+    pub time: u32,
+}
+
+/// The parts of one multiscale image the reader needs, whichever version wrote it.
+struct Multiscale {
+    axes: Vec<Axis>,
+    /// Per level: the dataset's path and its scale.
+    levels: Vec<(String, Option<Vec<f32>>)>,
+    /// The multiscale's own scale, applied after each level's.
+    scale: Option<Vec<f32>>,
+    version: String,
+    translated: bool,
+}
+
+/// The scale among `transforms` (`Ok(None)` without one); a scale given by a file is refused.
+fn scale_of(
+    transforms: &[CoordinateTransform],
+    bad: &dyn Fn(String) -> Error,
+) -> Result<Option<Vec<f32>>> {
+    let mut scale = None;
+    for t in transforms {
+        if let CoordinateTransform::Scale(s) = t {
+            match s {
+                CoordinateTransformScale::List { scale: v } => scale = Some(v.clone()),
+                CoordinateTransformScale::Path { path } => {
+                    return Err(bad(format!(
+                        "a scale given by the file {}: expected the scale as a list of numbers",
+                        path.display()
+                    )));
+                }
+            }
+        }
+    }
+    Ok(scale)
+}
+
+fn multiscale(fields: AnyOmeFields, bad: &dyn Fn(String) -> Error) -> Result<Multiscale> {
+    let translated = |ts: &[CoordinateTransform]| {
+        ts.iter()
+            .any(|t| matches!(t, CoordinateTransform::Translation(_)))
+    };
+    let none = || {
+        bad(
+            "the group's OME metadata has no `multiscales` image: expected an OME-Zarr image \
+             (a plate, a well or labels cannot be rendered as one volume)"
+                .into(),
+        )
+    };
+    let version = fields.version();
+    macro_rules! take {
+        ($image:expr) => {{
+            let image = $image;
+            let mut levels = Vec::with_capacity(image.datasets.len());
+            let mut moved = false;
+            for d in &image.datasets {
+                levels.push((
+                    d.path.clone(),
+                    scale_of(&d.coordinate_transformations, bad)?,
+                ));
+                moved |= translated(&d.coordinate_transformations);
+            }
+            let own = image.coordinate_transformations.clone().unwrap_or_default();
+            Multiscale {
+                axes: image.axes.clone(),
+                levels,
+                scale: scale_of(&own, bad)?,
+                version,
+                translated: moved || translated(&own),
+            }
+        }};
+    }
+    Ok(match fields {
+        AnyOmeFields::V0_4(f) => take!(
+            f.multiscales
+                .as_ref()
+                .and_then(|m| m.first())
+                .ok_or_else(none)?
+        ),
+        AnyOmeFields::V0_5(f) => take!(
+            f.multiscales
+                .as_ref()
+                .and_then(|m| m.first())
+                .ok_or_else(none)?
+        ),
+    })
+}
+
+/// The unit of the spatial axes where they all name the same one, abbreviated where common.
+fn spatial_unit(axes: &[&Axis]) -> Option<String> {
+    let names: Vec<String> = axes
+        .iter()
+        .map(|a| match &a.unit {
+            Some(AxisUnit::Space(u)) => serde_json::to_value(u)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_string)),
+            Some(AxisUnit::Custom(u)) => Some(u.clone()),
+            _ => None,
+        })
+        .collect::<Option<Vec<_>>>()?;
+    let first = names.first()?;
+    if names.iter().any(|n| n != first) {
+        return None;
+    }
+    Some(
+        match first.as_str() {
+            "micrometer" => "µm",
+            "millimeter" => "mm",
+            "nanometer" => "nm",
+            "centimeter" => "cm",
+            "meter" => "m",
+            "angstrom" => "Å",
+            other => other,
+        }
+        .to_string(),
+    )
+}
+
+/// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder).
+pub fn read(path: &Path, selection: &ZarrSelection) -> Result<LoadedVolume> {
+    let bad = |m: String| Error::format(path, m);
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_dir() {
+        return Err(bad("an OME-Zarr store is a folder: this is a file".into()));
+    }
+    let store = Arc::new(
+        FilesystemStore::new(path).map_err(|e| bad(format!("cannot open the store: {e}")))?,
+    );
+    let group = Group::open(store.clone(), "/").map_err(|e| {
+        bad(format!(
+            "not a Zarr group (no readable .zgroup or zarr.json): {e}"
+        ))
+    })?;
+    let attributes = serde_json::Value::Object(group.attributes().clone());
+    let fields: AnyOmeFields = serde_json::from_value(attributes)
+        .map_err(|e| bad(format!("the group's OME-Zarr metadata: {e}")))?;
+    let image = multiscale(fields, &bad)?;
+    let mut notes = vec![format!("OME-Zarr {}", image.version)];
+
+    // Axes: time and channel (at most one of each, fixed by the selection), three spatial.
+    let mut spatial = Vec::new();
+    let mut fixed = Vec::new();
+    for (i, axis) in image.axes.iter().enumerate() {
+        match axis.r#type.as_ref() {
+            Some(AxisType::Space) => spatial.push(i),
+            Some(AxisType::Time) => fixed.push((i, selection.time, "time")),
+            Some(AxisType::Channel) => fixed.push((i, selection.channel, "channel")),
+            // An axis without a type (or a custom one) is spatial when named as one.
+            _ if matches!(axis.name.as_str(), "x" | "y" | "z") => spatial.push(i),
+            _ => fixed.push((i, 0, "other")),
+        }
+    }
+    let names: Vec<&str> = image.axes.iter().map(|a| a.name.as_str()).collect();
+    if spatial.len() != 3 {
+        return Err(bad(format!(
+            "axes {names:?} have {} spatial axes: expected 3 (a 2D image is not a volume)",
+            spatial.len()
+        )));
+    }
+    if spatial.windows(2).any(|w| w[1] != w[0] + 1) || spatial[2] != image.axes.len() - 1 {
+        return Err(bad(format!(
+            "axes {names:?}: expected the three spatial axes last, as OME-Zarr orders them"
+        )));
+    }
+
+    // The level.
+    let level = selection.level.unwrap_or(0) as usize;
+    let Some((dataset, level_scale)) = image.levels.get(level) else {
+        return Err(bad(format!(
+            "level {level}: the image has {} levels (0 to {})",
+            image.levels.len(),
+            image.levels.len().saturating_sub(1)
+        )));
+    };
+    let array_path = format!("/{}", dataset.trim_matches('/'));
+    let array = Array::open(store, &array_path)
+        .map_err(|e| bad(format!("array `{dataset}` (level {level}): {e}")))?;
+    let shape = array.shape().to_vec();
+    if shape.len() != image.axes.len() {
+        return Err(bad(format!(
+            "array `{dataset}` has {} dimensions ({shape:?}) for {} axes {names:?}",
+            shape.len(),
+            image.axes.len()
+        )));
+    }
+    let mut ranges: Vec<std::ops::Range<u64>> = Vec::with_capacity(shape.len());
+    for (i, &n) in shape.iter().enumerate() {
+        match fixed.iter().find(|f| f.0 == i) {
+            Some(&(_, index, what)) => {
+                if u64::from(index) >= n {
+                    return Err(bad(format!(
+                        "{what} {index}: axis `{}` of array `{dataset}` has {n} (0 to {})",
+                        names[i],
+                        n.saturating_sub(1)
+                    )));
+                }
+                if n > 1 && what == "other" {
+                    notes.push(format!("axis `{}`: the first of {n} is read", names[i]));
+                }
+                ranges.push(u64::from(index)..u64::from(index) + 1);
+            }
+            None => ranges.push(0..n),
+        }
+    }
+    // Grid dims x, y, z: the last spatial axis is the fastest.
+    let to_i64 = |n: u64| i64::try_from(n).unwrap_or(i64::MAX);
+    let dims = [shape[spatial[2]], shape[spatial[1]], shape[spatial[0]]].map(to_i64);
+    let data_type = array.data_type();
+    let dtype = [
+        (data_type::uint8(), DType::U8),
+        (data_type::int8(), DType::I8),
+        (data_type::uint16(), DType::U16),
+        (data_type::int16(), DType::I16),
+        (data_type::uint32(), DType::U32),
+        (data_type::int32(), DType::I32),
+        (data_type::float32(), DType::F32),
+        (data_type::float64(), DType::F64),
+    ]
+    .into_iter()
+    .find(|(t, _)| t == data_type)
+    .map(|(_, d)| d)
+    .ok_or_else(|| {
+        bad(format!(
+            "array `{dataset}` holds {data_type}: expected uint8, int8, uint16, int16, uint32, int32, float32 or float64"
+        ))
+    })?;
+    let size = check_volume_size(path, dims, dtype)?;
+    notes.push(format!(
+        "level {level} of {} (`{dataset}`), {}x{}x{} {dtype}, {}",
+        image.levels.len(),
+        size.dims.x,
+        size.dims.y,
+        size.dims.z,
+        human_bytes(size.payload_bytes as u64)
+    ));
+
+    let subset = ArraySubset::new_with_ranges(&ranges);
+    let fault = |e: zarrs::array::ArrayError| bad(format!("array `{dataset}`: {e}"));
+    let voxels = match dtype {
+        DType::U8 => Voxels::U8(
+            array
+                .retrieve_array_subset::<Vec<u8>>(&subset)
+                .map_err(fault)?,
+        ),
+        DType::I8 => Voxels::I8(
+            array
+                .retrieve_array_subset::<Vec<i8>>(&subset)
+                .map_err(fault)?,
+        ),
+        DType::U16 => Voxels::U16(
+            array
+                .retrieve_array_subset::<Vec<u16>>(&subset)
+                .map_err(fault)?,
+        ),
+        DType::I16 => Voxels::I16(
+            array
+                .retrieve_array_subset::<Vec<i16>>(&subset)
+                .map_err(fault)?,
+        ),
+        DType::U32 => Voxels::F32(
+            array
+                .retrieve_array_subset::<Vec<u32>>(&subset)
+                .map_err(fault)?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+        ),
+        DType::I32 => Voxels::F32(
+            array
+                .retrieve_array_subset::<Vec<i32>>(&subset)
+                .map_err(fault)?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+        ),
+        DType::F32 => Voxels::F32(
+            array
+                .retrieve_array_subset::<Vec<f32>>(&subset)
+                .map_err(fault)?,
+        ),
+        DType::F64 => Voxels::F32(
+            array
+                .retrieve_array_subset::<Vec<f64>>(&subset)
+                .map_err(fault)?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+        ),
+    };
+
+    // Spacing along x, y, z: the level's scale times the multiscale's.
+    let factor = |s: &Option<Vec<f32>>, axis: usize| -> Result<f32> {
+        match s {
+            None => Ok(1.0),
+            Some(v) if v.len() == image.axes.len() => Ok(v[axis]),
+            Some(v) => Err(bad(format!(
+                "a scale of {} values for {} axes {names:?}",
+                v.len(),
+                image.axes.len()
+            ))),
+        }
+    };
+    let mut spacing = [0.0f32; 3];
+    for (k, &axis) in [spatial[2], spatial[1], spatial[0]].iter().enumerate() {
+        spacing[k] = factor(level_scale, axis)? * factor(&image.scale, axis)?;
+    }
+    let spacing = Vec3::from_array(spacing);
+    // Written so that NaN fails.
+    if !(spacing.min_element() > 0.0 && spacing.is_finite()) {
+        return Err(bad(format!(
+            "level {level}'s spacing {spacing}: expected finite sizes > 0"
+        )));
+    }
+    if image.translated {
+        notes.push("OME-Zarr translation is not applied: the scene places the volume".into());
+    }
+    let units = spatial_unit(&spatial.iter().map(|&i| &image.axes[i]).collect::<Vec<_>>());
+    Ok(LoadedVolume {
+        grid: grid_for(path, size.dims, voxels)?,
+        spacing: Some(spacing),
+        units,
+        notes,
+    })
+}

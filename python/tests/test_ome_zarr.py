@@ -1,0 +1,149 @@
+"""OME-Zarr stores written by the reference Python implementation (PyPI's `ome-zarr` and
+`zarr`), read by the program's reader: values, spacing, units, levels, channels and time points
+(issue 50), for OME-Zarr 0.4 (Zarr v2) and 0.5 (Zarr v3); a missing chunk is the fill value, a
+corrupt one an error naming it; `gscache render STORE` renders one with the automatic scene.
+Skipped where `ome-zarr` is not installed, unless GSCACHE_REQUIRE_OME_ZARR=1 (CI)."""
+
+import json
+import os
+import pathlib
+import warnings
+
+import numpy as np
+import pytest
+
+import gscache
+from conftest import run_program
+
+SHAPE = (2, 3, 20, 24, 28)  # t, c, z, y, x
+AXES = [
+    {"name": "t", "type": "time", "unit": "second"},
+    {"name": "c", "type": "channel"},
+    {"name": "z", "type": "space", "unit": "micrometer"},
+    {"name": "y", "type": "space", "unit": "micrometer"},
+    {"name": "x", "type": "space", "unit": "micrometer"},
+]
+# Level 0 at (z, y, x) = (2, 0.5, 0.25) micrometres; level 1 halves y and x.
+TRANSFORMS = [
+    [{"type": "scale", "scale": [1, 1, 2.0, 0.5, 0.25]}],
+    [{"type": "scale", "scale": [1, 1, 2.0, 1.0, 0.5]}],
+]
+
+
+def _writer():
+    try:
+        import zarr
+        from ome_zarr.format import FormatV04, FormatV05
+        from ome_zarr.io import parse_url
+        from ome_zarr.writer import write_multiscale
+    except ImportError:
+        if os.environ.get("GSCACHE_REQUIRE_OME_ZARR") == "1":
+            pytest.fail("needs ome-zarr (pip install ome-zarr) (GSCACHE_REQUIRE_OME_ZARR=1)")
+        pytest.skip("needs ome-zarr (pip install ome-zarr)")
+    return zarr, FormatV04, FormatV05, parse_url, write_multiscale
+
+
+@pytest.fixture(scope="module")
+def stores(tmp_path_factory):
+    """The same 5D uint16 image as OME-Zarr 0.4 and 0.5, two levels, chunks of 8^3."""
+    zarr, FormatV04, FormatV05, parse_url, write_multiscale = _writer()
+    data = np.random.default_rng(1).integers(1, 4000, size=SHAPE, dtype=np.uint16)
+    half = data[:, :, :, ::2, ::2].copy()
+    out = {}
+    base = tmp_path_factory.mktemp("ome")
+    for version, fmt in [("0.4", FormatV04()), ("0.5", FormatV05())]:
+        path = base / f"cells_{version}.ome.zarr"
+        store = parse_url(str(path), mode="w", fmt=fmt).store
+        root = zarr.group(store=store, zarr_format=3 if version == "0.5" else 2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            write_multiscale([data, half], root, fmt=fmt, axes=AXES,
+                             coordinate_transformations=TRANSFORMS,
+                             storage_options={"chunks": (1, 1, 8, 8, 8)})
+        out[version] = path
+    return data, half, out
+
+
+@pytest.mark.parametrize("version", ["0.4", "0.5"])
+def test_a_store_reads_with_its_values_spacing_units_levels_channels_and_times(stores, version):
+    data, half, paths = stores
+    path = str(paths[version])
+    v = gscache.Volume.read(path)
+    assert v.shape == (20, 24, 28) and v.dtype == "uint16"
+    assert v.spacing == [0.25, 0.5, 2.0], v.spacing  # x, y, z
+    assert v.units == "µm"
+    assert np.array_equal(v.to_numpy(), data[0, 0])
+    picked = gscache.Volume.read(path, channel=2, time=1)
+    assert np.array_equal(picked.to_numpy(), data[1, 2])
+    coarse = gscache.Volume.read(path, level=1, channel=1)
+    assert coarse.shape == (20, 12, 14)
+    assert coarse.spacing == [0.5, 1.0, 2.0]
+    assert np.array_equal(coarse.to_numpy(), half[0, 1])
+    with pytest.raises(gscache.GscacheError, match="channel 3: axis `c` of array `s0` has 3"):
+        gscache.Volume.read(path, channel=3)
+    with pytest.raises(gscache.GscacheError, match="level 2: the image has 2 levels"):
+        gscache.Volume.read(path, level=2)
+
+
+def _chunk_files(store: pathlib.Path):
+    """The level-0 chunk files of a store, largest first (full chunks, not edge ones)."""
+    files = [p for p in (store / "s0").rglob("*") if p.is_file()
+             and p.name not in (".zarray", ".zattrs", "zarr.json")]
+    return sorted(files, key=lambda p: -p.stat().st_size)
+
+
+@pytest.mark.parametrize("version", ["0.4", "0.5"])
+def test_a_missing_chunk_is_the_fill_value_and_a_corrupt_one_is_named(stores, version, tmp_path):
+    import shutil
+
+    data, _, paths = stores
+    store = tmp_path / "copy.ome.zarr"
+    shutil.copytree(paths[version], store)
+    # The chunk holding (t, c, z, y, x) = (0, 0, 0..8, 0..8, 0..8): Zarr v3 keys it
+    # `c/0/0/0/0/0`, v2 `0/0/0/0/0` (or `0.0.0.0.0` with the old separator).
+    level = store / "s0"
+    candidates = [level / "c/0/0/0/0/0", level / "0/0/0/0/0", level / "0.0.0.0.0"]
+    chunk = next((c for c in candidates if c.is_file()), None)
+    assert chunk is not None, sorted(str(p) for p in _chunk_files(store))[:4]
+    chunk.unlink()
+    v = gscache.Volume.read(str(store)).to_numpy()
+    assert (v[:8, :8, :8] == 0).all(), "a missing chunk reads as the fill value, 0"
+    assert np.array_equal(v[8:], data[0, 0, 8:]), "the rest is read as written"
+    # A truncated chunk: an error that names the array, not a silent zero.
+    victim = _chunk_files(store)[0]
+    victim.write_bytes(victim.read_bytes()[:5])
+    with pytest.raises(gscache.GscacheError, match="array `s0`"):
+        gscache.Volume.read(str(store))
+
+
+def test_bad_metadata_is_refused_by_name(stores, tmp_path):
+    import shutil
+
+    _, _, paths = stores
+    store = tmp_path / "bad.ome.zarr"
+    shutil.copytree(paths["0.5"], store)
+    meta = json.loads((store / "zarr.json").read_text())
+    meta["attributes"]["ome"]["multiscales"][0]["axes"] = AXES[:2] + AXES[3:]
+    (store / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(gscache.GscacheError, match="bad.ome.zarr"):
+        gscache.Volume.read(str(store))
+    (store / "zarr.json").write_text("{ not json")
+    with pytest.raises(gscache.GscacheError, match="not a Zarr group"):
+        gscache.Volume.read(str(store))
+    plain = tmp_path / "plain.zarr"
+    plain.mkdir()
+    with pytest.raises(gscache.GscacheError, match="plain.zarr"):
+        gscache.Volume.read(str(plain))
+
+
+def test_the_program_renders_a_store_with_the_automatic_scene(stores, program, tmp_path):
+    _, _, paths = stores
+    out = tmp_path / "cells.exr"
+    done = run_program(program, "render", str(paths["0.5"]), "--width", "48", "--height", "40",
+                       "--spp", "2", "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    image = gscache.read_exr(str(out))
+    assert np.isfinite(image).all() and image.mean() > 0.0
+    # From Python, the same choice.
+    scene = gscache.Scene.from_volume(str(paths["0.5"]))
+    assert np.isfinite(gscache.render(scene, spp=1)).all()

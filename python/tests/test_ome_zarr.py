@@ -147,3 +147,49 @@ def test_the_program_renders_a_store_with_the_automatic_scene(stores, program, t
     # From Python, the same choice.
     scene = gscache.Scene.from_volume(str(paths["0.5"]))
     assert np.isfinite(gscache.render(scene, spp=1)).all()
+
+
+def test_convert_writes_a_store_the_reference_reader_reads(repo, program, tmp_path):
+    """`gscache convert` of a NIfTI volume (millimetres) and a raw one, read back by PyPI's
+    ome-zarr: level 0 is the volume, level 1 the 2x2x2 block means (numpy's, rounded), the
+    scales double per level, the unit is the file's; the program reads its own store back to
+    the same voxels; an existing output is not replaced."""
+    _writer()
+    from ome_zarr.io import parse_url
+    from ome_zarr.reader import Reader
+
+    raw = np.fromfile(repo / "data/volumes/neghip_64x64x64_uint8.raw", dtype=np.uint8)
+    raw = raw.reshape(64, 64, 64)
+    store = tmp_path / "neghip.ome.zarr"
+    done = run_program(program, "convert", str(repo / "data/volumes/neghip_64x64x64_uint8.raw"),
+                       str(store), "--chunk", "16")
+    assert done.returncode == 0, done.stderr
+    node = list(Reader(parse_url(str(store)))())[0]
+    levels = [np.asarray(level) for level in node.data]
+    assert len(levels) == 3 and [lv.shape for lv in levels] == [(64, 64, 64), (32, 32, 32), (16, 16, 16)]
+    assert levels[0].dtype == np.uint8 and np.array_equal(levels[0], raw)
+    means = raw.reshape(32, 2, 32, 2, 32, 2).astype(np.float64).mean(axis=(1, 3, 5))
+    assert np.array_equal(levels[1], np.floor(means + 0.5).astype(np.uint8))
+    datasets = node.metadata["coordinateTransformations"]
+    assert [d[0]["scale"] for d in datasets] == [[1, 1, 1], [2, 2, 2], [4, 4, 4]]
+    assert np.array_equal(gscache.Volume.read(str(store)).to_numpy(), raw)
+    again = run_program(program, "convert", str(repo / "data/volumes/neghip_64x64x64_uint8.raw"),
+                        str(store))
+    assert again.returncode != 0 and "already exists" in again.stderr
+
+    # A NIfTI in millimetres (nibabel writes it): the unit and the spacing carry over.
+    import nibabel as nib
+    nii = tmp_path / "mm.nii"
+    image = nib.Nifti1Image(raw[:, :40, :50].T.copy(), np.diag([0.5, 0.75, 2.0, 1.0]))
+    image.header.set_xyzt_units("mm")
+    nib.save(image, str(nii))
+    store = tmp_path / "mm.ome.zarr"
+    done = run_program(program, "convert", str(nii), str(store))
+    assert done.returncode == 0, done.stderr
+    node = list(Reader(parse_url(str(store)))())[0]
+    axes = node.metadata["axes"]
+    assert [a["name"] for a in axes] == ["z", "y", "x"]
+    assert all(a.get("unit") == "millimeter" for a in axes), axes
+    assert node.metadata["coordinateTransformations"][0][0]["scale"] == [2.0, 0.75, 0.5]
+    v = gscache.Volume.read(str(store))
+    assert v.units == "mm" and v.spacing == [0.5, 0.75, 2.0]

@@ -182,3 +182,51 @@ fn units_are_read_where_a_file_names_them() {
     assert_eq!(read(&d.join("fixtures/headsq_gzip.nrrd")).units, None);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `write_ome_zarr` then the OME-Zarr reader: level 0 is the volume bit for bit in its own
+/// type, with its spacing and unit; the next level halves it and doubles the spacing; an
+/// existing store is refused, untouched. (PyPI's ome-zarr reads the same stores in the
+/// Python tests.)
+#[test]
+fn a_written_store_reads_back() {
+    use volume_pt::io::{StoreOptions, ZarrSelection, write_ome_zarr};
+    let d = data_dir();
+    let dir = std::env::temp_dir().join(format!("gscache-store-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut volume = read(&d.join("volumes/headsq_quarter_64x64x93_uint16.raw"));
+    volume.spacing = Some(Vec3::new(3.2, 3.2, 1.5));
+    volume.units = Some("mm".into());
+    let store = dir.join("headsq.ome.zarr");
+    let options = StoreOptions {
+        chunk: 32,
+        ..Default::default()
+    };
+    let written = write_ome_zarr(&volume, &store, &options).unwrap();
+    assert_eq!(written.levels.len(), 3, "{:?}", written.levels);
+    let back = read(&store);
+    assert_eq!(back.grid.voxels(), volume.grid.voxels());
+    assert_eq!(back.grid.dims(), volume.grid.dims());
+    assert_eq!(back.spacing, volume.spacing);
+    assert_eq!(back.units.as_deref(), Some("mm"));
+    let hints = ReadHints {
+        zarr: ZarrSelection {
+            level: Some(1),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let half = read_volume(&store, &hints).unwrap();
+    assert_eq!(half.grid.dims(), glam::UVec3::new(32, 32, 47));
+    assert_eq!(half.spacing, Some(Vec3::new(6.4, 6.4, 3.0)));
+    let refused = write_ome_zarr(&volume, &store, &options)
+        .unwrap_err()
+        .to_string();
+    assert!(refused.contains("already exists"), "{refused}");
+    assert_eq!(
+        read(&store).grid.voxels(),
+        volume.grid.voxels(),
+        "untouched"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

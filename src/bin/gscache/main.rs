@@ -2,6 +2,7 @@
 //!
 //! - `render`: path-trace a volume scene, optionally with the radiance cache, or one shard of it;
 //! - `merge`: join a sharded render's partial films into its image;
+//! - `convert`: write any volume the program reads as an OME-Zarr store;
 //! - `movie`: frames along a camera path into a folder and a video (the movie crate);
 //! - `view`: the render session in a browser (the viewer crate), for exploring a volume;
 //! - `splat render | fit | trace`: Gaussian clouds with the rasteriser or the ray tracer;
@@ -34,6 +35,7 @@ macro_rules! eprintln {
 mod bench;
 mod cache_flags;
 mod common;
+mod convert;
 mod denoising;
 mod experiment;
 mod merge;
@@ -63,6 +65,8 @@ enum Command {
     Render(Box<render::RenderArgs>),
     /// Merge the partial films of a sharded render (`render --shard`) into its image.
     Merge(merge::MergeArgs),
+    /// Write a volume (raw, NRRD, NIfTI, VTK/VTI, OME-Zarr) as an OME-Zarr 0.5 store.
+    Convert(convert::ConvertArgs),
     /// Render, fit or ray-trace 3D Gaussian clouds (3DGS PLY or .splat).
     #[command(subcommand)]
     Splat(splat::SplatCommand),
@@ -117,6 +121,7 @@ fn main() {
     let result = cli.global.start_threads().and_then(|()| match cli.command {
         Command::Render(a) => render::run(*a, &cli.global),
         Command::Merge(a) => merge::run(a),
+        Command::Convert(a) => convert::run(a, &cli.global),
         Command::Splat(c) => splat::run(c, &cli.global),
         Command::Experiment(a) => experiment::run(a, &cli.global),
         Command::Bench(a) => bench::run(a),

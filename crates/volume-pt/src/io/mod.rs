@@ -10,6 +10,7 @@ mod budget;
 mod nifti_reader;
 mod nrrd;
 mod ome_zarr;
+mod ome_zarr_write;
 mod raw;
 mod vtk;
 
@@ -18,6 +19,7 @@ pub use budget::{
     read_regular, read_text_file,
 };
 pub use ome_zarr::ZarrSelection;
+pub use ome_zarr_write::{StoreOptions, WrittenStore, write_ome_zarr};
 pub use raw::{RawLayout, parse_raw_file_name};
 
 use crate::error::{Error, Result};

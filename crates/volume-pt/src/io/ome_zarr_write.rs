@@ -1,0 +1,262 @@
+//! Making OME-Zarr stores (`gscache convert`): any volume the program reads, written as an
+//! OME-Zarr 0.5 multiscale image on Zarr v3 through `zarrs`, so raw, NRRD, NIfTI and VTK data
+//! can go where napari, Neuroglancer and the OME tools read.
+//!
+//! Level 0 is the volume as read (its own voxel type); each next level halves every axis (the
+//! mean of each 2x2x2 block, partial at odd edges), until the largest axis fits one chunk.
+//! Chunks are cubes (64 voxels a side by default), compressed with zstd. Axes `z`, `y`, `x`
+//! (x fastest, as the grid keeps it), the spacing as each level's `scale` (doubled per level),
+//! the unit where the volume names one NGFF knows. The store must not exist yet: nothing
+//! already on disk is replaced.
+
+use super::LoadedVolume;
+use crate::error::{Error, Result};
+use crate::grid::Voxels;
+use glam::UVec3;
+use std::path::Path;
+use std::sync::Arc;
+use zarrs::array::codec::ZstdCodec;
+use zarrs::array::{Array, ArrayBuilder, ArraySubset, DataType, Element, data_type};
+use zarrs::filesystem::FilesystemStore;
+use zarrs::group::GroupBuilder;
+
+/// How a store is written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StoreOptions {
+    /// Chunk side in voxels.
+    pub chunk: u32,
+    /// The most resolution levels (level 0 included).
+    pub max_levels: u32,
+    /// zstd's compression level.
+    pub zstd_level: i32,
+}
+
+impl Default for StoreOptions {
+    fn default() -> Self {
+        Self {
+            chunk: 64,
+            max_levels: 8,
+            zstd_level: 3,
+        }
+    }
+}
+
+/// What was written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WrittenStore {
+    /// Per level, its size in voxels (x, y, z).
+    pub levels: Vec<UVec3>,
+}
+
+/// NGFF's name for a unit the readers give (`None`: one NGFF does not list; left out).
+fn ngff_unit(units: &str) -> Option<&'static str> {
+    Some(match units {
+        "µm" | "um" | "micrometer" | "micron" => "micrometer",
+        "mm" | "millimeter" => "millimeter",
+        "nm" | "nanometer" => "nanometer",
+        "cm" | "centimeter" => "centimeter",
+        "m" | "meter" => "meter",
+        "Å" | "angstrom" => "angstrom",
+        _ => return None,
+    })
+}
+
+/// One level's voxels, half the size of `v` (dims `d`) on every axis: the mean of each 2x2x2
+/// block (fewer at odd edges), rounded to the nearest for integer types.
+fn halve<T: Copy>(
+    v: &[T],
+    d: UVec3,
+    to: impl Fn(T) -> f64,
+    from: impl Fn(f64) -> T,
+) -> (Vec<T>, UVec3) {
+    let h = (d + UVec3::ONE) / 2;
+    let (dx, dy) = (d.x as usize, d.y as usize);
+    let mut out = Vec::with_capacity(h.x as usize * h.y as usize * h.z as usize);
+    for z in 0..h.z {
+        for y in 0..h.y {
+            for x in 0..h.x {
+                let (mut sum, mut n) = (0.0f64, 0u32);
+                for k in (2 * z)..(2 * z + 2).min(d.z) {
+                    for j in (2 * y)..(2 * y + 2).min(d.y) {
+                        for i in (2 * x)..(2 * x + 2).min(d.x) {
+                            sum += to(v[(k as usize * dy + j as usize) * dx + i as usize]);
+                            n += 1;
+                        }
+                    }
+                }
+                out.push(from(sum / n as f64));
+            }
+        }
+    }
+    (out, h)
+}
+
+/// Where the levels go: the store, its path (for messages) and the options.
+struct Target<'a> {
+    store: &'a Arc<FilesystemStore>,
+    path: &'a Path,
+    options: &'a StoreOptions,
+}
+
+/// Writes every level of `values` (dims `d`) as arrays `s0`, `s1`, ... of `data_type`; returns
+/// the levels' dims. `to` and `from` take a voxel to and from f64 for the block means.
+fn write_levels<T: Element + Copy + Into<zarrs::array::builder::ArrayBuilderFillValue>>(
+    target: &Target<'_>,
+    values: &[T],
+    d: UVec3,
+    (data_type, fill): (DataType, T),
+    to: impl Fn(T) -> f64 + Copy,
+    from: impl Fn(f64) -> T + Copy,
+) -> Result<Vec<UVec3>> {
+    let Target {
+        store,
+        path,
+        options,
+    } = *target;
+    let bad = |m: String| Error::format(path, m);
+    let chunk = u64::from(options.chunk.max(1));
+    let mut dims = vec![d];
+    let mut level: Vec<T> = values.to_vec();
+    for k in 0..options.max_levels.max(1) {
+        let d = dims[k as usize];
+        let array: Array<FilesystemStore> = ArrayBuilder::new(
+            vec![u64::from(d.z), u64::from(d.y), u64::from(d.x)],
+            vec![
+                chunk.min(u64::from(d.z)),
+                chunk.min(u64::from(d.y)),
+                chunk.min(u64::from(d.x)),
+            ],
+            data_type.clone(),
+            fill,
+        )
+        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, false))])
+        .dimension_names(Some(["z", "y", "x"]))
+        .build(store.clone(), &format!("/s{k}"))
+        .map_err(|e| bad(format!("level {k}: {e}")))?;
+        array
+            .store_metadata()
+            .map_err(|e| bad(format!("level {k}'s metadata: {e}")))?;
+        array
+            .store_array_subset(
+                &ArraySubset::new_with_shape(array.shape().to_vec()),
+                &level[..],
+            )
+            .map_err(|e| bad(format!("level {k}'s chunks: {e}")))?;
+        if d.max_element() as u64 <= chunk || k + 1 == options.max_levels.max(1) {
+            break;
+        }
+        let (next, h) = halve(&level, d, to, from);
+        level = next;
+        dims.push(h);
+    }
+    Ok(dims)
+}
+
+/// Writes `volume` as an OME-Zarr 0.5 store at `path` (a folder that must not exist yet).
+pub fn write_ome_zarr(
+    volume: &LoadedVolume,
+    path: &Path,
+    options: &StoreOptions,
+) -> Result<WrittenStore> {
+    let bad = |m: String| Error::format(path, m);
+    if std::fs::symlink_metadata(path).is_ok() {
+        return Err(bad(
+            "already exists: choose a new name (nothing is replaced)".into(),
+        ));
+    }
+    if !(1..=4096).contains(&options.chunk) {
+        return Err(bad(format!(
+            "chunk {}: expected 1 to 4096 voxels a side",
+            options.chunk
+        )));
+    }
+    std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
+    let store = Arc::new(
+        FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
+    );
+    let d = volume.grid.dims();
+    let target = Target {
+        store: &store,
+        path,
+        options,
+    };
+    let round = |v: f64| v.round();
+    let levels = match volume.grid.voxels() {
+        Voxels::U8(v) => write_levels(&target, v, d, (data_type::uint8(), 0u8), f64::from, |m| {
+            round(m) as u8
+        })?,
+        Voxels::I8(v) => write_levels(&target, v, d, (data_type::int8(), 0i8), f64::from, |m| {
+            round(m) as i8
+        })?,
+        Voxels::U16(v) => {
+            write_levels(&target, v, d, (data_type::uint16(), 0u16), f64::from, |m| {
+                round(m) as u16
+            })?
+        }
+        Voxels::I16(v) => {
+            write_levels(&target, v, d, (data_type::int16(), 0i16), f64::from, |m| {
+                round(m) as i16
+            })?
+        }
+        Voxels::F32(v) => write_levels(
+            &target,
+            v,
+            d,
+            (data_type::float32(), 0f32),
+            f64::from,
+            |m| m as f32,
+        )?,
+    };
+    let spacing = volume.spacing.unwrap_or(glam::Vec3::ONE);
+    let unit = volume.units.as_deref().and_then(ngff_unit);
+    let axis = |name: &str| match unit {
+        Some(u) => serde_json::json!({"name": name, "type": "space", "unit": u}),
+        None => serde_json::json!({"name": name, "type": "space"}),
+    };
+    let datasets: Vec<serde_json::Value> = levels
+        .iter()
+        .enumerate()
+        .map(|(k, _)| {
+            let f = (1u64 << k) as f32;
+            serde_json::json!({
+                "path": format!("s{k}"),
+                "coordinateTransformations": [{
+                    "type": "scale",
+                    "scale": [spacing.z * f, spacing.y * f, spacing.x * f],
+                }],
+            })
+        })
+        .collect();
+    let ome = serde_json::json!({
+        "version": "0.5",
+        "multiscales": [{
+            "name": path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+            "axes": [axis("z"), axis("y"), axis("x")],
+            "datasets": datasets,
+            "type": "mean",
+            "metadata": {"description": "2x2x2 block means", "method": "gscache convert"},
+        }],
+    });
+    let mut attributes = serde_json::Map::new();
+    attributes.insert("ome".into(), ome);
+    GroupBuilder::new()
+        .attributes(attributes)
+        .build(store, "/")
+        .and_then(|g| g.store_metadata().map_err(Into::into))
+        .map_err(|e| bad(format!("the group's metadata: {e}")))?;
+    Ok(WrittenStore { levels })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn halving_takes_block_means_with_partial_edges() {
+        // 3x2x1: blocks {0, 1, 3, 4} and {2, 5}.
+        let v = [0u8, 1, 2, 3, 4, 5];
+        let (h, d) = halve(&v, UVec3::new(3, 2, 1), f64::from, |m| m.round() as u8);
+        assert_eq!(d, UVec3::new(2, 1, 1));
+        assert_eq!(h, vec![2, 4]); // (0+1+3+4)/4 = 2, (2+5)/2 = 3.5 -> 4
+    }
+}

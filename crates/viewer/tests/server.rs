@@ -1001,17 +1001,25 @@ async fn two_pages_are_told_each_others_changes() {
     v.stop();
 }
 
-/// Clipping from the page: the image changes, a bad clip is refused by name and the clipping
-/// in force is kept, a reconnecting page is told the clipping, and the saved scene holds it
-/// (and renders clipped: its medium's clipping is the one the page set).
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn clipping_from_the_page_changes_the_image_and_is_saved() {
-    let out = scratch("clip");
+/// A viewer of the default scene (`start`) saving into a scratch folder named `name`, and one
+/// page on it whose view has converged: the folder, the viewer, the page's socket, what it
+/// was sent and its greeting.
+async fn converged_page(name: &str) -> (PathBuf, Viewer, Socket, Seen, serde_json::Value) {
+    let out = scratch(name);
     let v = start(&out, 4);
     let mut socket = connect(&v, &token(&v)).await.unwrap();
     let mut seen = Seen::default();
     read_until(&mut socket, &mut seen, converged).await;
     let hello = seen.hello.clone().unwrap();
+    (out, v, socket, seen, hello)
+}
+
+/// Clipping from the page: the image changes, a bad clip is refused by name and the clipping
+/// in force is kept, a reconnecting page is told the clipping, and the saved scene holds it
+/// (and renders clipped: its medium's clipping is the one the page set).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clipping_from_the_page_changes_the_image_and_is_saved() {
+    let (out, v, mut socket, mut seen, hello) = converged_page("clip").await;
     assert_eq!(
         hello["clip"],
         serde_json::json!({}),
@@ -1083,12 +1091,7 @@ async fn clipping_from_the_page_changes_the_image_and_is_saved() {
 /// every page its colour bar.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_probe_reports_the_voxel_value_and_views_are_kept_and_saved() {
-    let out = scratch("probe");
-    let v = start(&out, 4);
-    let mut socket = connect(&v, &token(&v)).await.unwrap();
-    let mut seen = Seen::default();
-    read_until(&mut socket, &mut seen, converged).await;
-    let hello = seen.hello.clone().unwrap();
+    let (out, v, mut socket, mut seen, hello) = converged_page("probe").await;
     assert_eq!(hello["data"]["dims"], serde_json::json!([64, 64, 64]));
     assert_eq!(hello["data"]["dtype"], "uint8");
     assert_eq!(hello["colours"].as_array().unwrap().len(), 64);

@@ -21,7 +21,7 @@ use ome_zarr_metadata::v0_4::{
 };
 use std::path::Path;
 use std::sync::Arc;
-use zarrs::array::{Array, ArraySubset, data_type};
+use zarrs::array::{Array, ArrayError, ArraySubset, ElementOwned, data_type};
 use zarrs::filesystem::FilesystemStore;
 use zarrs::group::Group;
 
@@ -150,6 +150,29 @@ fn spatial_unit(axes: &[&Axis]) -> Option<String> {
     )
 }
 
+/// The voxels of `subset` in the array's own type.
+fn retrieve<T: ElementOwned>(
+    array: &Array<FilesystemStore>,
+    subset: &ArraySubset,
+    fault: &dyn Fn(ArrayError) -> Error,
+) -> Result<Vec<T>> {
+    array.retrieve_array_subset::<Vec<T>>(subset).map_err(fault)
+}
+
+/// The voxels of `subset`, each made an f32 by `widen` (the grid keeps 32- and 64-bit types
+/// as f32).
+fn widened<T: ElementOwned>(
+    array: &Array<FilesystemStore>,
+    subset: &ArraySubset,
+    fault: &dyn Fn(ArrayError) -> Error,
+    widen: impl Fn(T) -> f32,
+) -> Result<Vec<f32>> {
+    Ok(retrieve::<T>(array, subset, fault)?
+        .into_iter()
+        .map(widen)
+        .collect())
+}
+
 /// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder).
 pub fn read(path: &Path, selection: &ZarrSelection) -> Result<LoadedVolume> {
     let bad = |m: String| Error::format(path, m);
@@ -271,55 +294,14 @@ pub fn read(path: &Path, selection: &ZarrSelection) -> Result<LoadedVolume> {
     let subset = ArraySubset::new_with_ranges(&ranges);
     let fault = |e: zarrs::array::ArrayError| bad(format!("array `{dataset}`: {e}"));
     let voxels = match dtype {
-        DType::U8 => Voxels::U8(
-            array
-                .retrieve_array_subset::<Vec<u8>>(&subset)
-                .map_err(fault)?,
-        ),
-        DType::I8 => Voxels::I8(
-            array
-                .retrieve_array_subset::<Vec<i8>>(&subset)
-                .map_err(fault)?,
-        ),
-        DType::U16 => Voxels::U16(
-            array
-                .retrieve_array_subset::<Vec<u16>>(&subset)
-                .map_err(fault)?,
-        ),
-        DType::I16 => Voxels::I16(
-            array
-                .retrieve_array_subset::<Vec<i16>>(&subset)
-                .map_err(fault)?,
-        ),
-        DType::U32 => Voxels::F32(
-            array
-                .retrieve_array_subset::<Vec<u32>>(&subset)
-                .map_err(fault)?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-        ),
-        DType::I32 => Voxels::F32(
-            array
-                .retrieve_array_subset::<Vec<i32>>(&subset)
-                .map_err(fault)?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-        ),
-        DType::F32 => Voxels::F32(
-            array
-                .retrieve_array_subset::<Vec<f32>>(&subset)
-                .map_err(fault)?,
-        ),
-        DType::F64 => Voxels::F32(
-            array
-                .retrieve_array_subset::<Vec<f64>>(&subset)
-                .map_err(fault)?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-        ),
+        DType::U8 => Voxels::U8(retrieve(&array, &subset, &fault)?),
+        DType::I8 => Voxels::I8(retrieve(&array, &subset, &fault)?),
+        DType::U16 => Voxels::U16(retrieve(&array, &subset, &fault)?),
+        DType::I16 => Voxels::I16(retrieve(&array, &subset, &fault)?),
+        DType::U32 => Voxels::F32(widened(&array, &subset, &fault, |v: u32| v as f32)?),
+        DType::I32 => Voxels::F32(widened(&array, &subset, &fault, |v: i32| v as f32)?),
+        DType::F32 => Voxels::F32(retrieve(&array, &subset, &fault)?),
+        DType::F64 => Voxels::F32(widened(&array, &subset, &fault, |v: f64| v as f32)?),
     };
 
     // Spacing along x, y, z: the level's scale times the multiscale's.

@@ -272,6 +272,7 @@ def test_clipping_from_the_page_changes_the_image_and_the_saved_scene_renders_it
     d = browser
     d.get(viewer)
     first = settled(d)
+    d.find_element("css selector", "#clip-section summary").click()
     # The x axis kept from 0.5 of the box on, and a plane through the centre.
     slider = d.find_element("css selector", "[data-clip=x0]")
     d.execute_script("arguments[0].value = 0.5;"
@@ -289,9 +290,10 @@ def test_clipping_from_the_page_changes_the_image_and_the_saved_scene_renders_it
     saved = tomllib.loads(open(scene_file).read())
     assert saved["clip"]["box"]["min"][0] == 0.0, saved["clip"]  # the default box is centred
     assert len(saved["clip"]["plane"]) == 1, saved["clip"]
-    # A reloaded page shows the clipping in force.
+    # A reloaded page shows the clipping in force (its section open, as it is in use).
     d.refresh()
     wait(lambda: "spp" in d.find_element("id", "stats").text, "the reloaded page's first frame")
+    assert d.find_element("id", "clip-section").get_attribute("open") is not None
     assert d.find_element("id", "clip-plane").is_selected()
     assert float(d.find_element("css selector", "[data-clip=x0]").get_attribute("value")) == 0.5
     # The saved scene renders clipped: against the same scene with its clipping cleared, the
@@ -317,6 +319,7 @@ def test_the_page_probes_keeps_views_and_draws_its_guides(viewer, browser, repo)
     d = browser
     d.get(viewer)
     first = settled(d)
+    d.find_element("css selector", "#data-section summary").click()
     assert "neghip_64x64x64_uint8.raw" in d.find_element("id", "data").text
     assert "64 x 64 x 64 voxels, uint8" in d.find_element("id", "data").text
     # A click in the middle of the view (the volume's centre is there).

@@ -300,6 +300,8 @@
       : [[0, 0, 0], [1, 1, 1]];
     const planes = c.plane || [];
     clip.plane = planes.length > 0;
+    // The section shows itself while anything is cut away.
+    if (c.box || planes.length) $("clip-section").open = true;
     clip.extra = planes.slice(1);
     if (clip.plane) {
       const { up, e1, e2 } = frame();
@@ -411,6 +413,7 @@
     if (!(x >= 0 && x <= 1 && y >= 0 && y <= 1)) return;
     probeMark = [x, y];
     drawOverlay();
+    $("data-section").open = true;
     send("probe", { type: "probe", x, y });
   }
   function showProbe(m) {

@@ -120,6 +120,15 @@ async fn read_until(socket: &mut Socket, seen: &mut Seen, done: impl Fn(&Seen) -
     }
 }
 
+/// Asks the viewer to save and waits for its answer (the first save this page sees).
+async fn save_and_wait(socket: &mut Socket, seen: &mut Seen) {
+    socket
+        .send(Message::Text(r#"{"type":"save"}"#.into()))
+        .await
+        .unwrap();
+    read_until(socket, seen, |s| !s.saved.is_empty()).await;
+}
+
 /// The mean of a JPEG's pixels, per channel.
 fn mean_colour(jpeg: &[u8]) -> [f64; 3] {
     let img = image::load_from_memory(jpeg).unwrap().to_rgb8();
@@ -467,11 +476,7 @@ async fn the_still_view_converges_to_the_render() {
     let mut socket = connect(&v, &token(&v)).await.unwrap();
     let mut seen = Seen::default();
     read_until(&mut socket, &mut seen, converged).await;
-    socket
-        .send(Message::Text(r#"{"type":"save"}"#.into()))
-        .await
-        .unwrap();
-    read_until(&mut socket, &mut seen, |s| !s.saved.is_empty()).await;
+    save_and_wait(&mut socket, &mut seen).await;
     v.stop();
     let mean = |pixels: &[glam::Vec3]| {
         pixels.iter().map(|p| (p.x + p.y + p.z) as f64).sum::<f64>() / pixels.len() as f64
@@ -1071,11 +1076,7 @@ async fn clipping_from_the_page_changes_the_image_and_is_saved() {
         seen.states[0]["clip"]
     );
     drop(other);
-    socket
-        .send(Message::Text(r#"{"type":"save"}"#.into()))
-        .await
-        .unwrap();
-    read_until(&mut socket, &mut seen, |s| !s.saved.is_empty()).await;
+    save_and_wait(&mut socket, &mut seen).await;
     v.stop();
     let scene = volume_pt::load_scene(&out.join("view-0001.toml")).unwrap();
     let saved = scene.media.medium.clipping();
@@ -1172,11 +1173,7 @@ async fn a_probe_reports_the_voxel_value_and_views_are_kept_and_saved() {
         seen.colours[0]["colours"], hello["colours"],
         "inferno is not the scene's colours"
     );
-    socket
-        .send(Message::Text(r#"{"type":"save"}"#.into()))
-        .await
-        .unwrap();
-    read_until(&mut socket, &mut seen, |s| !s.saved.is_empty()).await;
+    save_and_wait(&mut socket, &mut seen).await;
     v.stop();
     let saved = out.join("view-0001.toml");
     let mut reloaded = volume_pt::load_scene(&saved).unwrap();

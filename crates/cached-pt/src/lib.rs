@@ -102,7 +102,9 @@ impl FrameCache for GsFrame<'_> {
             record.add_statistics(pixel.in_tile, &statistics);
         }
         record.add_samples(pixel.in_tile, path.0.samples());
-        record.add_path(pixel.in_tile, path.0.length());
+        if self.frame.counts_paths() {
+            record.add_path(pixel.in_tile, path.0.length());
+        }
     }
 }
 

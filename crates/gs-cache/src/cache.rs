@@ -152,6 +152,11 @@ impl CacheFrame {
                 .as_ref()
                 .is_none_or(|s| s.supported(level, bin))
     }
+    /// Whether the support test needs each path counted ([`crate::TileTargets::add_path`]);
+    /// without it the counts would be work for nothing.
+    pub fn counts_paths(&self) -> bool {
+        self.support.is_some()
+    }
     /// Per level, the fraction of cache pixels paths may stop into (1 with the fallback and the
     /// support test off, 0 once handed off).
     pub fn trusted_fractions(&self) -> Vec<f64> {

@@ -285,6 +285,9 @@ pub struct TileTargets {
     /// Per tile pixel, the paths through it (block 0) and per level those that reached its
     /// vertex (block `l + 1`), as [`TrainingTargets`] keeps them per bin.
     paths: Vec<u32>,
+    /// Whether any path was counted (only a cache with the support test asks renderers to):
+    /// tiles without counts skip the binning of `paths`.
+    counted: bool,
     /// Samples refused for a non-finite or too large value, or a bad weight.
     dropped: u64,
     /// The unbiased estimator's statistics per tile pixel, when gathered.
@@ -304,6 +307,7 @@ impl TileTargets {
             sums: vec![Vec3::ZERO; n],
             weights: vec![0.0; n],
             paths: vec![0; n + width as usize * height as usize],
+            counted: false,
             dropped: 0,
             statistics: None,
         }
@@ -313,6 +317,7 @@ impl TileTargets {
     /// ([`crate::CachedPath::length`] when it ended), for the support test's coverage.
     pub fn add_path(&mut self, in_tile: usize, length: usize) {
         let tile_pixels = self.width as usize * self.height as usize;
+        self.counted = true;
         for block in 0..=length.min(self.levels) {
             let k = block * tile_pixels + in_tile;
             self.paths[k] = self.paths[k].saturating_add(1);
@@ -438,14 +443,19 @@ impl TrainingTargets {
                 .sum::<u64>();
         }
         self.dropped += dropped;
-        // The path counts, block by block (block 0: every path; block l + 1: level l's).
-        for (block, counts) in self.paths.iter_mut().enumerate() {
+        // The path counts, block by block (block 0: every path; block l + 1: level l's), where
+        // a renderer counted them.
+        let counting = tiles.iter().any(|t| t.counted);
+        for (block, counts) in self.paths.iter_mut().enumerate().filter(|_| counting) {
             counts
                 .par_chunks_mut(cache_width)
                 .zip(rows.par_iter())
                 .for_each(|(counts, rows)| {
                     for y in rows.clone() {
-                        for tile in crossing[y as usize].iter().filter(|t| block <= t.levels) {
+                        for tile in crossing[y as usize]
+                            .iter()
+                            .filter(|t| t.counted && block <= t.levels)
+                        {
                             let tile_pixels = tile.width as usize * tile.height as usize;
                             let j = y as usize - tile.y0 as usize;
                             for i in 0..tile.width as usize {

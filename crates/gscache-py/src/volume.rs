@@ -170,9 +170,11 @@ impl Volume {
     /// A volume read from a file (raw, NRRD, VTK, NIfTI) or an OME-Zarr store, as a scene's
     /// `[volume]` table reads it: `dims`, `dtype`, `byte_order` and `header_bytes` describe raw
     /// files; `level`, `channel` and `time` pick an OME-Zarr store's resolution level (0, the
-    /// finest, by default), channel and time point.
+    /// finest, by default), channel and time point. `memory_budget` (bytes, or a size such as
+    /// `"4G"`) bounds the memory the voxels take: a store larger is streamed within it (default:
+    /// half the memory this process may use, or `GSCACHE_MEMORY_BUDGET`).
     #[staticmethod]
-    #[pyo3(signature = (path, *, dims=None, dtype=None, byte_order=None, header_bytes=0, level=None, channel=0, time=0))]
+    #[pyo3(signature = (path, *, dims=None, dtype=None, byte_order=None, header_bytes=0, level=None, channel=0, time=0, memory_budget=None))]
     #[allow(clippy::too_many_arguments)]
     fn read(
         path: PathBuf,
@@ -183,7 +185,19 @@ impl Volume {
         level: Option<u32>,
         channel: u32,
         time: u32,
+        memory_budget: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
+        let memory_budget = match memory_budget {
+            None => None,
+            Some(b) => Some(match b.extract::<u64>() {
+                Ok(n) if n > 0 => n,
+                _ => {
+                    let text: String = b.str()?.extract()?;
+                    volume_pt::io::parse_bytes(&text)
+                        .map_err(|e| crate::error(format!("memory_budget: {e}")))?
+                }
+            }),
+        };
         fn named<T: serde::de::DeserializeOwned>(
             what: &str,
             v: Option<&str>,
@@ -208,6 +222,7 @@ impl Volume {
         let loaded = read_volume(
             &path,
             &ReadHints {
+                memory_budget,
                 format: None,
                 raw,
                 zarr,
@@ -237,13 +252,7 @@ impl Volume {
     /// The type the voxels are kept in.
     #[getter]
     fn dtype(&self) -> &'static str {
-        match self.loaded.grid.voxels() {
-            Voxels::U8(_) => "uint8",
-            Voxels::I8(_) => "int8",
-            Voxels::U16(_) => "uint16",
-            Voxels::I16(_) => "int16",
-            Voxels::F32(_) => "float32",
-        }
+        self.loaded.grid.type_name()
     }
 
     /// The smallest and largest value (after the file's intensity scaling).
@@ -258,7 +267,14 @@ impl Volume {
         self.loaded.spacing.map(|s| s.to_array())
     }
 
-    /// Bytes the voxels take in memory.
+    /// Whether the voxels are streamed from their store within a memory budget (not all in
+    /// memory).
+    #[getter]
+    fn streamed(&self) -> bool {
+        self.loaded.grid.bricks().is_some()
+    }
+
+    /// Bytes the voxels take in memory (a streamed volume's budget).
     #[getter]
     fn nbytes(&self) -> usize {
         self.loaded.grid.bytes()
@@ -276,7 +292,14 @@ impl Volume {
         use numpy::{PyArray1, PyArrayMethods};
         let (z, y, x) = self.shape();
         let shape = [z as usize, y as usize, x as usize];
-        Ok(match self.loaded.grid.voxels() {
+        let Some(voxels) = self.loaded.grid.voxels() else {
+            return Err(crate::error(format!(
+                "{} is streamed (larger than the memory budget): to_numpy would copy all of it; \
+                 read a coarser level (level=...) or raise memory_budget",
+                self.name.display()
+            )));
+        };
+        Ok(match voxels {
             Voxels::U8(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
             Voxels::I8(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),
             Voxels::U16(v) => PyArray1::from_slice(py, v).reshape(shape)?.into_any(),

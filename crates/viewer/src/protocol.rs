@@ -257,13 +257,7 @@ impl SceneFacts {
                 dims: grid.dims().to_array(),
                 spacing: medium.spacing().to_array(),
                 units: scene.units.clone(),
-                dtype: match grid.voxels() {
-                    volume_pt::grid::Voxels::U8(_) => "uint8",
-                    volume_pt::grid::Voxels::I8(_) => "int8",
-                    volume_pt::grid::Voxels::U16(_) => "uint16",
-                    volume_pt::grid::Voxels::I16(_) => "int16",
-                    volume_pt::grid::Voxels::F32(_) => "float32",
-                },
+                dtype: grid.type_name(),
                 voxel_bytes: grid.bytes(),
                 medium_bytes: medium.memory_bytes(),
             },
@@ -281,22 +275,18 @@ impl SceneFacts {
     }
 }
 
-/// A histogram of about a million voxels spread over the box (every voxel of a smaller one).
+/// A histogram of about a million voxels spread over the box (every voxel of a smaller one;
+/// a streamed volume's from its survey).
 fn histogram(grid: &volume_pt::ScalarGrid, min: f32, max: f32) -> Vec<u64> {
-    let d = grid.dims();
-    let n = d.x as u64 * d.y as u64 * d.z as u64;
-    let stride = ((n as f64 / 1e6).cbrt().ceil() as usize).max(1);
     let mut bins = vec![0u64; HISTOGRAM_BINS];
     let width = (max - min).max(f32::MIN_POSITIVE);
-    for z in (0..d.z).step_by(stride) {
-        for y in (0..d.y).step_by(stride) {
-            for x in (0..d.x).step_by(stride) {
-                let v = grid.voxel(x, y, z);
-                if v.is_finite() {
-                    let u = ((v - min) / width).clamp(0.0, 1.0);
-                    bins[((u * HISTOGRAM_BINS as f32) as usize).min(HISTOGRAM_BINS - 1)] += 1;
-                }
-            }
+    let values = grid
+        .strided_values(volume_pt::grid::histogram_stride(grid.dims()))
+        .unwrap_or_default();
+    for v in values {
+        if v.is_finite() {
+            let u = ((v - min) / width).clamp(0.0, 1.0);
+            bins[((u * HISTOGRAM_BINS as f32) as usize).min(HISTOGRAM_BINS - 1)] += 1;
         }
     }
     bins

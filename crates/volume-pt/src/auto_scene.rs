@@ -39,9 +39,6 @@ use std::path::{Path, PathBuf};
 /// Optical depth at opacity 1 across the box's mean side.
 pub const OPTICAL_DEPTH_ACROSS: f32 = 40.0;
 
-/// Voxels sampled for the histogram: at most about this many.
-const HISTOGRAM_SAMPLES: u64 = 1 << 20;
-
 /// Bins of the histogram Otsu's threshold is taken on.
 const BINS: usize = 256;
 
@@ -56,21 +53,12 @@ pub struct VolumeStats {
 
 /// The percentiles and Otsu's threshold of `grid`'s values (see the module docs).
 pub fn volume_stats(grid: &ScalarGrid) -> VolumeStats {
-    let d = grid.dims();
-    let n = d.x as u64 * d.y as u64 * d.z as u64;
-    // A stride per axis so that about HISTOGRAM_SAMPLES voxels are read, spread over the box.
-    let stride = ((n as f64 / HISTOGRAM_SAMPLES as f64).cbrt().ceil() as u32).max(1);
-    let mut values = Vec::new();
-    for z in (0..d.z).step_by(stride as usize) {
-        for y in (0..d.y).step_by(stride as usize) {
-            for x in (0..d.x).step_by(stride as usize) {
-                let v = grid.voxel(x, y, z);
-                if v.is_finite() {
-                    values.push(v);
-                }
-            }
-        }
-    }
+    // About a million voxels, spread over the box (a streamed grid's come from its survey;
+    // one it cannot give leaves the default window).
+    let mut values = grid
+        .strided_values(crate::grid::histogram_stride(grid.dims()))
+        .unwrap_or_default();
+    values.retain(|v| v.is_finite());
     if values.is_empty() {
         return VolumeStats {
             window: (0.0, 1.0),

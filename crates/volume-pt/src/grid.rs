@@ -11,9 +11,15 @@
 //! applied once after interpolation: interpolation is linear, so this equals interpolating the
 //! scaled values, up to rounding. 32-bit integers and f64 are kept as f32 (integers above 2^24
 //! and f64 are rounded, as before).
+//!
+//! The voxels are either all in memory ([`Storage::Whole`]) or streamed from their store
+//! within a memory budget ([`Storage::Streamed`], see [`crate::bricks`]); both give the same
+//! value at every point, bit for bit.
 
+use crate::bricks::{Bricks, Survey};
 use crate::error::{Error, Result};
 use glam::{UVec3, Vec3};
+use std::sync::Arc;
 
 /// How the scalar is reconstructed between voxel centres.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
@@ -62,13 +68,46 @@ impl Voxels {
 
     /// Stored value `i` as f32 (exact for every stored type).
     #[inline]
-    fn get(&self, i: usize) -> f32 {
+    pub(crate) fn get(&self, i: usize) -> f32 {
         match self {
             Voxels::U8(v) => v[i].into(),
             Voxels::I8(v) => v[i].into(),
             Voxels::U16(v) => v[i].into(),
             Voxels::I16(v) => v[i].into(),
             Voxels::F32(v) => v[i],
+        }
+    }
+
+    /// The name of the stored type.
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            Voxels::U8(_) => "uint8",
+            Voxels::I8(_) => "int8",
+            Voxels::U16(_) => "uint16",
+            Voxels::I16(_) => "int16",
+            Voxels::F32(_) => "float32",
+        }
+    }
+
+    /// The box `lo .. lo + size` of a grid of `dims` holding these voxels, x fastest.
+    pub fn copy_box(&self, dims: UVec3, lo: UVec3, size: UVec3) -> Voxels {
+        fn copy<T: Copy>(v: &[T], dims: UVec3, lo: UVec3, size: UVec3) -> Vec<T> {
+            let mut out = Vec::with_capacity(size.x as usize * size.y as usize * size.z as usize);
+            for z in lo.z..lo.z + size.z {
+                for y in lo.y..lo.y + size.y {
+                    let start = lo.x as usize
+                        + dims.x as usize * (y as usize + dims.y as usize * z as usize);
+                    out.extend_from_slice(&v[start..start + size.x as usize]);
+                }
+            }
+            out
+        }
+        match self {
+            Voxels::U8(v) => Voxels::U8(copy(v, dims, lo, size)),
+            Voxels::I8(v) => Voxels::I8(copy(v, dims, lo, size)),
+            Voxels::U16(v) => Voxels::U16(copy(v, dims, lo, size)),
+            Voxels::I16(v) => Voxels::I16(copy(v, dims, lo, size)),
+            Voxels::F32(v) => Voxels::F32(copy(v, dims, lo, size)),
         }
     }
 
@@ -96,6 +135,15 @@ impl Voxels {
     }
 }
 
+/// Where a grid's voxels are.
+#[derive(Debug, Clone)]
+pub enum Storage {
+    /// All in memory.
+    Whole(Arc<Voxels>),
+    /// Paged in from a store within a memory budget.
+    Streamed(Arc<Bricks>),
+}
+
 /// A dense scalar grid, x fastest: voxel `(x, y, z)` is element `x + X * (y + Y * z)`.
 ///
 /// Cloning shares the voxels (they are never changed after construction): a render session, a
@@ -103,7 +151,7 @@ impl Voxels {
 #[derive(Debug, Clone)]
 pub struct ScalarGrid {
     dims: UVec3,
-    voxels: std::sync::Arc<Voxels>,
+    storage: Storage,
     /// value = scale * stored + offset.
     scale: f32,
     offset: f32,
@@ -145,20 +193,30 @@ impl ScalarGrid {
                 voxels.get(i as usize)
             ))
         })?;
-        let (a, b) = (scale * lo + offset, scale * hi + offset);
-        // Written so that NaN fails.
-        if !(scale.is_finite() && offset.is_finite() && a.is_finite() && b.is_finite()) {
-            return Err(Error::Invalid(format!(
-                "intensity scaling {scale} * v + {offset} is not finite over the voxels' range \
-                 [{lo}, {hi}]"
-            )));
-        }
         Ok(Self {
             dims,
-            voxels: std::sync::Arc::new(voxels),
+            storage: Storage::Whole(Arc::new(voxels)),
             scale,
             offset,
-            range: (a.min(b), a.max(b)),
+            range: scaled_range((lo, hi), scale, offset)?,
+        })
+    }
+
+    /// A grid streamed from `bricks`, whose values are `scale * stored + offset`. Surveys the
+    /// store (see [`crate::bricks`]) for the macrocell size a streamed grid of these dims uses
+    /// by default and the automatic scene's histogram stride, unless a kept survey is found.
+    pub fn streamed(bricks: Bricks, scale: f32, offset: f32) -> Result<Self> {
+        let dims = bricks.dims();
+        let survey = bricks.survey(
+            crate::bricks::streamed_macrocell(dims, crate::medium::DEFAULT_MACROCELL),
+            histogram_stride(dims),
+        )?;
+        Ok(Self {
+            dims,
+            range: scaled_range(survey.range, scale, offset)?,
+            storage: Storage::Streamed(Arc::new(bricks)),
+            scale,
+            offset,
         })
     }
 
@@ -166,19 +224,134 @@ impl ScalarGrid {
         self.dims
     }
 
-    /// The voxels as stored.
-    pub fn voxels(&self) -> &Voxels {
-        &self.voxels
+    /// The voxels as stored, when they are all in memory.
+    pub fn voxels(&self) -> Option<&Voxels> {
+        match &self.storage {
+            Storage::Whole(v) => Some(v),
+            Storage::Streamed(_) => None,
+        }
+    }
+
+    /// The streamed voxels, when the grid is streamed.
+    pub fn bricks(&self) -> Option<&Bricks> {
+        match &self.storage {
+            Storage::Whole(_) => None,
+            Storage::Streamed(b) => Some(b),
+        }
     }
 
     /// Every voxel's value as f32 (a copy: for tests and conversions, not for rendering).
     pub fn to_f32(&self) -> Vec<f32> {
-        (0..self.voxels.len()).map(|i| self.value_at(i)).collect()
+        let d = self.dims;
+        let mut out = Vec::with_capacity(d.x as usize * d.y as usize * d.z as usize);
+        for z in 0..d.z {
+            for y in 0..d.y {
+                out.extend((0..d.x).map(|x| self.voxel(x, y, z)));
+            }
+        }
+        out
     }
 
-    /// Bytes the voxels take in memory.
+    /// The stored type's name (`uint8`, `int16`, `float32`...).
+    pub fn type_name(&self) -> &'static str {
+        match &self.storage {
+            Storage::Whole(v) => v.type_name(),
+            Storage::Streamed(b) => b.type_name(),
+        }
+    }
+
+    /// Bytes a voxel takes in memory.
+    pub fn bytes_per_voxel(&self) -> usize {
+        match &self.storage {
+            Storage::Whole(v) => v.bytes_per_voxel(),
+            Storage::Streamed(b) => b.bytes_per_voxel(),
+        }
+    }
+
+    /// Bytes the voxels take in memory: all of them, or a streamed grid's budget.
     pub fn bytes(&self) -> usize {
-        self.voxels.len() * self.voxels.bytes_per_voxel()
+        match &self.storage {
+            Storage::Whole(v) => v.len() * v.bytes_per_voxel(),
+            Storage::Streamed(b) => usize::try_from(b.budget()).unwrap_or(usize::MAX),
+        }
+    }
+
+    /// The values at every `stride`-th voxel along each axis (in no particular order; a
+    /// streamed grid takes them from its survey).
+    pub fn strided_values(&self, stride: u32) -> Result<Vec<f32>> {
+        let stride = stride.max(1);
+        let d = self.dims;
+        match &self.storage {
+            Storage::Whole(_) => {
+                let mut values = Vec::new();
+                for z in (0..d.z).step_by(stride as usize) {
+                    for y in (0..d.y).step_by(stride as usize) {
+                        for x in (0..d.x).step_by(stride as usize) {
+                            values.push(self.voxel(x, y, z));
+                        }
+                    }
+                }
+                Ok(values)
+            }
+            Storage::Streamed(b) => {
+                let survey = b.survey(
+                    crate::bricks::streamed_macrocell(d, crate::medium::DEFAULT_MACROCELL),
+                    stride,
+                )?;
+                Ok(survey
+                    .sample
+                    .iter()
+                    .map(|&v| self.scale * v + self.offset)
+                    .collect())
+            }
+        }
+    }
+
+    /// Per macrocell of `cell_size` voxels (clamped to the grid), the range of values
+    /// interpolation can reach in it: its voxels and a one-voxel halo (see
+    /// [`crate::majorant::ValueRanges`]). A streamed grid surveys its store (once per size).
+    pub fn cell_ranges(&self, cell_size: u32) -> Result<Vec<(f32, f32)>> {
+        let dims = self.dims;
+        let cell_size = cell_size.clamp(1, dims.max_element());
+        let cells = UVec3::new(
+            dims.x.div_ceil(cell_size),
+            dims.y.div_ceil(cell_size),
+            dims.z.div_ceil(cell_size),
+        );
+        let count = cells.x as usize * cells.y as usize * cells.z as usize;
+        let scaled = |(lo, hi): (f32, f32)| {
+            let (a, b) = (self.scale * lo + self.offset, self.scale * hi + self.offset);
+            (a.min(b), a.max(b))
+        };
+        match &self.storage {
+            Storage::Whole(voxels) => {
+                use rayon::prelude::*;
+                Ok((0..count)
+                    .into_par_iter()
+                    .map(|i| {
+                        let (nx, ny) = (cells.x as usize, cells.y as usize);
+                        let c = UVec3::new(
+                            (i % nx) as u32,
+                            ((i / nx) % ny) as u32,
+                            (i / (nx * ny)) as u32,
+                        );
+                        // Voxels [c*B - 1, (c+1)*B] (inclusive) are reachable by interpolation
+                        // inside the cell.
+                        let lo = (c * cell_size).saturating_sub(UVec3::ONE);
+                        let hi = UVec3::new(
+                            (c.x + 1).saturating_mul(cell_size),
+                            (c.y + 1).saturating_mul(cell_size),
+                            (c.z + 1).saturating_mul(cell_size),
+                        );
+                        self.range_in(voxels, lo, hi)
+                    })
+                    .collect())
+            }
+            Storage::Streamed(b) => {
+                let survey: Arc<Survey> = b.survey(cell_size, histogram_stride(dims))?;
+                Ok(survey.cell_ranges.iter().map(|&r| scaled(r)).collect())
+            }
+        }
     }
 
     /// Smallest and largest voxel value.
@@ -187,14 +360,8 @@ impl ScalarGrid {
     }
 
     /// Smallest and largest value of the voxels in the box `lo..=hi` (inclusive, clamped to the
-    /// grid): one pass over each x-row in the stored type, for the majorant grid's ranges.
-    pub fn range_in(&self, lo: UVec3, hi: UVec3) -> (f32, f32) {
-        fn fold<T: Copy + Into<f32>>(row: &[T], r: (f32, f32)) -> (f32, f32) {
-            row.iter().fold(r, |(a, b), &v| {
-                let v = v.into();
-                (a.min(v), b.max(v))
-            })
-        }
+    /// grid) of an in-memory grid: one pass over each x-row in the stored type.
+    fn range_in(&self, voxels: &Voxels, lo: UVec3, hi: UVec3) -> (f32, f32) {
         let hi = hi.min(self.dims - 1);
         let (sy, sz) = (
             self.dims.x as usize,
@@ -205,13 +372,7 @@ impl ScalarGrid {
             for y in lo.y..=hi.y {
                 let start = lo.x as usize + sy * y as usize + sz * z as usize;
                 let rows = start..start + (hi.x - lo.x) as usize + 1;
-                r = match &*self.voxels {
-                    Voxels::U8(v) => fold(&v[rows], r),
-                    Voxels::I8(v) => fold(&v[rows], r),
-                    Voxels::U16(v) => fold(&v[rows], r),
-                    Voxels::I16(v) => fold(&v[rows], r),
-                    Voxels::F32(v) => fold(&v[rows], r),
-                };
+                r = fold_range(voxels, rows, r);
             }
         }
         let (a, b) = (
@@ -221,16 +382,17 @@ impl ScalarGrid {
         (a.min(b), a.max(b))
     }
 
-    #[inline]
-    fn value_at(&self, i: usize) -> f32 {
-        self.scale * self.voxels.get(i) + self.offset
-    }
-
+    /// The value of voxel `(x, y, z)` (inside the grid).
     #[inline]
     pub fn voxel(&self, x: u32, y: u32, z: u32) -> f32 {
-        self.value_at(
-            (x as usize) + self.dims.x as usize * (y as usize + self.dims.y as usize * z as usize),
-        )
+        let stored = match &self.storage {
+            Storage::Whole(v) => v.get(
+                (x as usize)
+                    + self.dims.x as usize * (y as usize + self.dims.y as usize * z as usize),
+            ),
+            Storage::Streamed(b) => b.stored(UVec3::new(x, y, z)),
+        };
+        self.scale * stored + self.offset
     }
 
     /// The scalar at index-space point `u` (voxel centres at `i + 0.5`).
@@ -258,47 +420,108 @@ impl ScalarGrid {
         let i0 = c.as_uvec3();
         let f = c - i0.as_vec3();
         let i1 = (i0 + 1).min(self.dims - 1);
-        let sy = self.dims.x as usize;
-        let sz = sy * self.dims.y as usize;
-        let corner = Corner {
-            base: i0.x as usize + sy * i0.y as usize + sz * i0.z as usize,
-            dx: (i1.x - i0.x) as usize,
-            dy: (i1.y - i0.y) as usize * sy,
-            dz: (i1.z - i0.z) as usize * sz,
+        let corners = match &self.storage {
+            Storage::Whole(voxels) => {
+                let sy = self.dims.x as usize;
+                let sz = sy * self.dims.y as usize;
+                let corner = Corner {
+                    base: i0.x as usize + sy * i0.y as usize + sz * i0.z as usize,
+                    dx: (i1.x - i0.x) as usize,
+                    dy: (i1.y - i0.y) as usize * sy,
+                    dz: (i1.z - i0.z) as usize * sz,
+                };
+                gather_voxels(voxels, corner)
+            }
+            Storage::Streamed(b) => b.corners(i0, i1),
         };
-        // One branch on the stored type per lookup; the eight loads are monomorphic.
-        let stored = match &*self.voxels {
-            Voxels::U8(v) => trilinear(v, corner, f),
-            Voxels::I8(v) => trilinear(v, corner, f),
-            Voxels::U16(v) => trilinear(v, corner, f),
-            Voxels::I16(v) => trilinear(v, corner, f),
-            Voxels::F32(v) => trilinear(v, corner, f),
-        };
-        self.scale * stored + self.offset
+        self.scale * blend(corners, f) + self.offset
+    }
+}
+
+/// The grid's value range from its stored one; refuses a scaling that is not finite there.
+fn scaled_range((lo, hi): (f32, f32), scale: f32, offset: f32) -> Result<(f32, f32)> {
+    let (a, b) = (scale * lo + offset, scale * hi + offset);
+    // Written so that NaN fails.
+    if !(scale.is_finite() && offset.is_finite() && a.is_finite() && b.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "intensity scaling {scale} * v + {offset} is not finite over the voxels' range \
+             [{lo}, {hi}]"
+        )));
+    }
+    Ok((a.min(b), a.max(b)))
+}
+
+/// The stride per axis at which about `1 << 20` voxels of a grid of `dims` are read: the
+/// automatic scene's histogram sample.
+pub fn histogram_stride(dims: UVec3) -> u32 {
+    const SAMPLES: f64 = (1u64 << 20) as f64;
+    let n = dims.x as f64 * dims.y as f64 * dims.z as f64;
+    ((n / SAMPLES).cbrt().ceil() as u32).max(1)
+}
+
+/// Smallest and largest of `r` and the stored values `rows` of `voxels`.
+pub(crate) fn fold_range(
+    voxels: &Voxels,
+    rows: std::ops::Range<usize>,
+    r: (f32, f32),
+) -> (f32, f32) {
+    fn fold<T: Copy + Into<f32>>(row: &[T], r: (f32, f32)) -> (f32, f32) {
+        row.iter().fold(r, |(a, b), &v| {
+            let v = v.into();
+            (a.min(v), b.max(v))
+        })
+    }
+    match voxels {
+        Voxels::U8(v) => fold(&v[rows], r),
+        Voxels::I8(v) => fold(&v[rows], r),
+        Voxels::U16(v) => fold(&v[rows], r),
+        Voxels::I16(v) => fold(&v[rows], r),
+        Voxels::F32(v) => fold(&v[rows], r),
     }
 }
 
 /// The first of a trilinear lookup's eight voxels and the steps to the others.
 #[derive(Clone, Copy)]
-struct Corner {
-    base: usize,
-    dx: usize,
-    dy: usize,
-    dz: usize,
+pub(crate) struct Corner {
+    pub base: usize,
+    pub dx: usize,
+    pub dy: usize,
+    pub dz: usize,
+}
+
+/// A trilinear lookup's eight stored values, in the order [`blend`] takes them. One branch on
+/// the stored type per lookup; the eight loads are monomorphic.
+#[inline(always)]
+pub(crate) fn gather_voxels(voxels: &Voxels, c: Corner) -> [f32; 8] {
+    match voxels {
+        Voxels::U8(v) => gather(v, c),
+        Voxels::I8(v) => gather(v, c),
+        Voxels::U16(v) => gather(v, c),
+        Voxels::I16(v) => gather(v, c),
+        Voxels::F32(v) => gather(v, c),
+    }
 }
 
 #[inline(always)]
-fn trilinear<T: Copy + Into<f32>>(v: &[T], c: Corner, f: Vec3) -> f32 {
+fn gather<T: Copy + Into<f32>>(v: &[T], c: Corner) -> [f32; 8] {
     let at = |k: usize| -> f32 { v[k].into() };
     let Corner { base, dx, dy, dz } = c;
-    let c000 = at(base);
-    let c100 = at(base + dx);
-    let c010 = at(base + dy);
-    let c110 = at(base + dx + dy);
-    let c001 = at(base + dz);
-    let c101 = at(base + dx + dz);
-    let c011 = at(base + dy + dz);
-    let c111 = at(base + dx + dy + dz);
+    [
+        at(base),
+        at(base + dx),
+        at(base + dy),
+        at(base + dx + dy),
+        at(base + dz),
+        at(base + dx + dz),
+        at(base + dy + dz),
+        at(base + dx + dy + dz),
+    ]
+}
+
+/// Trilinear interpolation of the eight corner values at fractions `f`.
+#[inline(always)]
+fn blend(c: [f32; 8], f: Vec3) -> f32 {
+    let [c000, c100, c010, c110, c001, c101, c011, c111] = c;
     let x00 = c000 + f.x * (c100 - c000);
     let x10 = c010 + f.x * (c110 - c010);
     let x01 = c001 + f.x * (c101 - c001);

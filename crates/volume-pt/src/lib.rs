@@ -2,7 +2,8 @@
 //! volumes (CT, MRI, simulation grids) seen through a transfer function.
 //!
 //! Read it in this order:
-//! - [`io`]: reading raw, NRRD, VTK and NIfTI volumes into a [`grid::ScalarGrid`].
+//! - [`io`]: reading raw, NRRD, VTK, NIfTI and OME-Zarr volumes into a [`grid::ScalarGrid`];
+//!   [`bricks`]: a volume larger than memory streamed from its store within a budget.
 //! - [`transfer`]: window, colour, opacity and density scale: scalar to medium.
 //! - [`medium`] and [`majorant`]: the placed, classified volume and its macrocell majorants;
 //!   [`clip`]: the box and planes that cut it.
@@ -20,6 +21,7 @@
 //! - [`sampling`]: counter-based random numbers and warps.
 
 pub mod auto_scene;
+pub mod bricks;
 pub mod cache;
 pub mod clip;
 pub mod colormap;

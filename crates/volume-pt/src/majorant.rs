@@ -27,41 +27,21 @@ pub struct ValueRanges {
 impl ValueRanges {
     /// Value ranges over macrocells of `cell_size` voxels; a `cell_size` at least as large as the
     /// grid gives one global cell (one global majorant).
-    pub fn build(grid: &ScalarGrid, cell_size: u32) -> Self {
+    pub fn build(grid: &ScalarGrid, cell_size: u32) -> crate::error::Result<Self> {
         let dims = grid.dims();
         // A cell larger than the grid is one global majorant; clamping keeps the arithmetic
-        // below from wrapping for any u32 a scene or flag gives.
+        // from wrapping for any u32 a scene or flag gives.
         let cell_size = cell_size.clamp(1, dims.max_element());
         let cells = UVec3::new(
             dims.x.div_ceil(cell_size),
             dims.y.div_ceil(cell_size),
             dims.z.div_ceil(cell_size),
         );
-        let cell_count = cells.x as usize * cells.y as usize * cells.z as usize;
-        let ranges: Vec<(f32, f32)> = (0..cell_count)
-            .into_par_iter()
-            .map(|i| {
-                let (nx, ny) = (cells.x as usize, cells.y as usize);
-                let c = UVec3::new(
-                    (i % nx) as u32,
-                    ((i / nx) % ny) as u32,
-                    (i / (nx * ny)) as u32,
-                );
-                // Voxels [c*B - 1, (c+1)*B] (inclusive) are reachable by interpolation inside the cell.
-                let lo = (c * cell_size).saturating_sub(UVec3::ONE);
-                let hi = UVec3::new(
-                    (c.x + 1).saturating_mul(cell_size),
-                    (c.y + 1).saturating_mul(cell_size),
-                    (c.z + 1).saturating_mul(cell_size),
-                );
-                grid.range_in(lo, hi)
-            })
-            .collect();
-        Self {
+        Ok(Self {
             cell_size,
             cells,
-            ranges,
-        }
+            ranges: grid.cell_ranges(cell_size)?,
+        })
     }
 
     pub fn cell_size(&self) -> u32 {

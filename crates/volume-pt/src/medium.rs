@@ -77,7 +77,7 @@ impl Medium {
                 1.0 / MAX_COORDINATE
             )));
         }
-        let ranges = ValueRanges::build(&grid, macrocell);
+        let ranges = ValueRanges::build(&grid, macrocell)?;
         let majorants = MajorantGrid::build(&ranges, &tf);
         Ok(Self {
             dims: grid.dims().as_vec3(),
@@ -124,10 +124,12 @@ impl Medium {
         self.tf = tf;
     }
 
-    /// Rebuilds the majorants over macrocells of `cell_size` voxels (reads the voxels).
-    pub fn set_macrocell_size(&mut self, cell_size: u32) {
-        self.ranges = ValueRanges::build(&self.grid, cell_size);
+    /// Rebuilds the majorants over macrocells of `cell_size` voxels (reads the voxels; a
+    /// streamed grid surveys its store, which can fail).
+    pub fn set_macrocell_size(&mut self, cell_size: u32) -> crate::Result<()> {
+        self.ranges = ValueRanges::build(&self.grid, cell_size)?;
         self.majorants = MajorantGrid::build(&self.ranges, &self.tf);
+        Ok(())
     }
 
     pub fn grid(&self) -> &ScalarGrid {

@@ -619,7 +619,7 @@ impl SceneOverrides {
     pub fn apply(&self, scene: &mut Scene) -> Result<()> {
         scene.settings = self.settings(scene.settings)?;
         if let Some(cells) = self.macrocell {
-            scene.media.medium.set_macrocell_size(cells);
+            scene.media.medium.set_macrocell_size(cells)?;
         }
         if self.clip_box.is_some() || !self.clip_plane.is_empty() {
             let mut clipping = scene.media.medium.clipping().clone();
@@ -712,6 +712,7 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
     let v = &desc.volume;
     let volume_path = base.join(&v.file);
     let hints = ReadHints {
+        memory_budget: None,
         format: v.format,
         raw: RawLayout {
             dims: v.dims.map(UVec3::from_array),
@@ -826,7 +827,14 @@ pub fn build_scene_with_volume(
         )));
     }
     let tf_density_scale = tf.density_scale();
-    let mut medium = Medium::new(grid, v.filter, origin, spacing, tf, v.macrocell)
+    // A streamed volume's default macrocells grow with it (see `bricks::streamed_macrocell`).
+    let macrocell = match grid.bricks() {
+        Some(_) if v.macrocell == DEFAULT_MACROCELL => {
+            crate::bricks::streamed_macrocell(grid.dims(), DEFAULT_MACROCELL)
+        }
+        _ => v.macrocell,
+    };
+    let mut medium = Medium::new(grid, v.filter, origin, spacing, tf, macrocell)
         .map_err(|e| scene_err(e.to_string()))?;
     medium
         .set_clipping(desc.clip.clone())

@@ -172,7 +172,7 @@ fn uniform_and_nee_agree_on_a_lit_volume() {
 fn majorant_grid_and_global_majorant_agree() {
     let (media, cam) = lit_neghip();
     let mut global = media.clone();
-    global.medium.set_macrocell_size(1 << 20);
+    global.medium.set_macrocell_size(1 << 20).unwrap();
     assert_eq!(global.medium.majorants().cell_count(), 1);
     let s = PathSettings {
         integrator: IntegratorKind::Nee,

@@ -210,6 +210,7 @@ fn a_written_store_reads_back() {
     assert_eq!(back.spacing, volume.spacing);
     assert_eq!(back.units.as_deref(), Some("mm"));
     let hints = ReadHints {
+        memory_budget: None,
         zarr: ZarrSelection {
             level: Some(1),
             ..Default::default()

@@ -34,6 +34,7 @@ pub struct ConvertArgs {
 
 pub fn run(a: ConvertArgs, global: &Global) -> Result<i32> {
     let hints = ReadHints {
+        memory_budget: None,
         zarr: ZarrSelection {
             level: a.level,
             channel: a.channel,

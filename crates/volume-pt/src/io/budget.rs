@@ -12,6 +12,7 @@ use crate::error::{Error, Result};
 use glam::UVec3;
 use std::io::Read;
 use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// A volume size that has passed the checks: its voxel and payload byte counts fit in memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -129,6 +130,31 @@ pub fn human_bytes(bytes: u64) -> String {
 /// Checks dims a file states (as the file's own integers, so negative or huge values are caught
 /// here, not wrapped by a cast) and the memory loading them would take.
 pub fn check_volume_size(path: &Path, dims: [i64; 3], dtype: DType) -> Result<VolumeSize> {
+    let (size, needed) = measure_volume(path, dims, dtype)?;
+    let available = available_memory();
+    if needed > available {
+        return Err(Error::format(
+            path,
+            format!(
+                "volume {}x{}x{} of {dtype} needs about {} to load ({} as read + {} as kept), \
+                 but this machine has {} available",
+                dims[0],
+                dims[1],
+                dims[2],
+                human_bytes(needed),
+                human_bytes(size.payload_bytes as u64),
+                human_bytes(size.voxels as u64 * dtype.bytes_in_memory() as u64),
+                human_bytes(available)
+            ),
+        ));
+    }
+    Ok(size)
+}
+
+/// Checks dims a file states as [`check_volume_size`] does, without comparing them with the
+/// memory available; also gives the bytes reading the volume whole would take (payload as read
+/// plus grid as kept).
+pub fn measure_volume(path: &Path, dims: [i64; 3], dtype: DType) -> Result<(VolumeSize, u64)> {
     let bad = |m: String| Error::format(path, m);
     let shown = format!("{}x{}x{}", dims[0], dims[1], dims[2]);
     let mut d = [0u32; 3];
@@ -156,22 +182,69 @@ pub fn check_volume_size(path: &Path, dims: [i64; 3], dtype: DType) -> Result<Vo
         .checked_mul(dtype.bytes_in_memory() as u64)
         .ok_or_else(too_many)?;
     let needed = kept.checked_add(payload).ok_or_else(too_many)?;
-    let available = available_memory();
-    if needed > available {
-        return Err(bad(format!(
-            "volume {shown} of {dtype} needs about {} to load ({} as read + {} as kept), but \
-             this machine has {} available",
-            human_bytes(needed),
-            human_bytes(payload),
-            human_bytes(kept),
-            human_bytes(available)
-        )));
+    Ok((
+        VolumeSize {
+            dims: UVec3::from_array(d),
+            voxels: usize::try_from(voxels).map_err(|_| too_many())?,
+            payload_bytes: usize::try_from(payload).map_err(|_| too_many())?,
+        },
+        needed,
+    ))
+}
+
+/// The process's memory budget for voxels set by [`set_memory_budget`]; 0: not set.
+static MEMORY_BUDGET: AtomicU64 = AtomicU64::new(0);
+
+/// Sets the bytes a volume's voxels may take in memory for the rest of this process (the
+/// program's `--memory-budget`); `None` returns to the default (see [`memory_budget`]).
+pub fn set_memory_budget(bytes: Option<u64>) {
+    MEMORY_BUDGET.store(bytes.unwrap_or(0), Ordering::Relaxed);
+}
+
+/// The bytes a volume's voxels may take in memory: what [`set_memory_budget`] set, else
+/// `GSCACHE_MEMORY_BUDGET` (as [`parse_bytes`] reads it), else half the memory this process
+/// may use ([`available_memory`], cgroup-aware). A store larger than it is streamed (see
+/// [`crate::bricks`]); other formats are read whole if they fit the memory available.
+pub fn memory_budget() -> Result<u64> {
+    match MEMORY_BUDGET.load(Ordering::Relaxed) {
+        0 => match std::env::var("GSCACHE_MEMORY_BUDGET") {
+            Ok(text) => parse_bytes(&text)
+                .map_err(|e| Error::Invalid(format!("GSCACHE_MEMORY_BUDGET={text:?}: {e}"))),
+            Err(_) => Ok(available_memory() / 2),
+        },
+        n => Ok(n),
     }
-    Ok(VolumeSize {
-        dims: UVec3::from_array(d),
-        voxels: usize::try_from(voxels).map_err(|_| too_many())?,
-        payload_bytes: usize::try_from(payload).map_err(|_| too_many())?,
-    })
+}
+
+/// A size in bytes: a number with an optional unit, `K`, `M`, `G`, `T` (powers of 1024, with or
+/// without `iB`/`B`), e.g. `4G`, `512 MiB`, `1.5GB`, `1000000`.
+pub fn parse_bytes(text: &str) -> std::result::Result<u64, String> {
+    let t = text.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("expected a size such as 4G or 512MiB, got {text:?}"))?;
+    let scale = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1u64,
+        "k" | "kb" | "kib" => 1 << 10,
+        "m" | "mb" | "mib" => 1 << 20,
+        "g" | "gb" | "gib" => 1 << 30,
+        "t" | "tb" | "tib" => 1 << 40,
+        other => {
+            return Err(format!(
+                "unknown unit {other:?} in {text:?}: expected K, M, G or T"
+            ));
+        }
+    };
+    let bytes = value * scale as f64;
+    // Written so that NaN fails.
+    if !(bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("{text:?}: expected a size of at least 1 byte"));
+    }
+    Ok(bytes as u64)
 }
 
 /// Opens `path` for reading, refusing anything that is not a regular file (a FIFO, a device such

@@ -16,7 +16,7 @@ mod vtk;
 
 pub use budget::{
     MAX_TEXT_FILE_BYTES, VolumeSize, available_memory, check_volume_size, human_bytes,
-    read_regular, read_text_file,
+    measure_volume, memory_budget, parse_bytes, read_regular, read_text_file, set_memory_budget,
 };
 pub use ome_zarr::ZarrSelection;
 pub use ome_zarr_write::{StoreOptions, WrittenStore, write_ome_zarr};
@@ -152,6 +152,9 @@ pub struct ReadHints {
     pub raw: RawLayout,
     /// The level, channel and time point of an OME-Zarr store.
     pub zarr: ZarrSelection,
+    /// Bytes the voxels may take in memory; a store larger is streamed within it. `None`: the
+    /// process's budget ([`memory_budget`]).
+    pub memory_budget: Option<u64>,
 }
 
 /// A volume as read from disk.
@@ -188,7 +191,13 @@ pub fn read_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
         Format::Nrrd => nrrd::read(path),
         Format::Vtk => vtk::read(path),
         Format::Nifti => nifti_reader::read(path),
-        Format::OmeZarr => ome_zarr::read(path, &hints.zarr),
+        Format::OmeZarr => {
+            let budget = match hints.memory_budget {
+                Some(b) => b,
+                None => memory_budget()?,
+            };
+            ome_zarr::read(path, &hints.zarr, budget)
+        }
     }
 }
 

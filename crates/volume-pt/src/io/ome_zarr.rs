@@ -2,7 +2,8 @@
 //! through `zarrs` (the arrays: chunks, sharding, blosc/gzip/zstd) and `ome_zarr_metadata`
 //! (the `multiscales` attributes: axes, datasets, coordinate transformations).
 //!
-//! One 3D volume is read whole: the level asked for (default 0, the finest), one channel and one
+//! One 3D volume is read, whole where it fits the memory budget, else streamed a chunk at a
+//! time within it (see [`crate::bricks`]): the level asked for (default 0, the finest), one channel and one
 //! time point (default the first of each), the spatial axes as stored. The store's last axis
 //! (x in OME's `z, y, x` order) is the grid's fastest, so no transpose is needed. The spacing is
 //! the level's `scale` (times the multiscale's own, where it has one) along the spatial axes,
@@ -10,18 +11,19 @@
 //! value (as Zarr says); a chunk that cannot be decoded is an error naming the store, the array
 //! and the fault. The size is checked against the memory available before anything is read.
 
-use super::budget::{check_volume_size, human_bytes};
+use super::budget::{check_volume_size, human_bytes, measure_volume};
 use super::{DType, LoadedVolume, grid_for};
+use crate::bricks::{BrickSource, Bricks};
 use crate::error::{Error, Result};
-use crate::grid::Voxels;
-use glam::Vec3;
+use crate::grid::{ScalarGrid, Voxels};
+use glam::{UVec3, Vec3};
 use ome_zarr_metadata::AnyOmeFields;
 use ome_zarr_metadata::v0_4::{
     Axis, AxisType, AxisUnit, CoordinateTransform, CoordinateTransformScale,
 };
 use std::path::Path;
 use std::sync::Arc;
-use zarrs::array::{Array, ArrayError, ArraySubset, ElementOwned, data_type};
+use zarrs::array::{Array, ArrayError, ArraySubset, CodecOptions, ElementOwned, data_type};
 use zarrs::filesystem::FilesystemStore;
 use zarrs::group::Group;
 
@@ -155,8 +157,11 @@ fn retrieve<T: ElementOwned>(
     array: &Array<FilesystemStore>,
     subset: &ArraySubset,
     fault: &dyn Fn(ArrayError) -> Error,
+    options: &CodecOptions,
 ) -> Result<Vec<T>> {
-    array.retrieve_array_subset::<Vec<T>>(subset).map_err(fault)
+    array
+        .retrieve_array_subset_opt::<Vec<T>>(subset, options)
+        .map_err(fault)
 }
 
 /// The voxels of `subset`, each made an f32 by `widen` (the grid keeps 32- and 64-bit types
@@ -165,16 +170,144 @@ fn widened<T: ElementOwned>(
     array: &Array<FilesystemStore>,
     subset: &ArraySubset,
     fault: &dyn Fn(ArrayError) -> Error,
+    options: &CodecOptions,
     widen: impl Fn(T) -> f32,
 ) -> Result<Vec<f32>> {
-    Ok(retrieve::<T>(array, subset, fault)?
+    Ok(retrieve::<T>(array, subset, fault, options)?
         .into_iter()
         .map(widen)
         .collect())
 }
 
-/// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder).
-pub fn read(path: &Path, selection: &ZarrSelection) -> Result<LoadedVolume> {
+/// The voxels of `subset` of an array of `dtype`, as the grid keeps them.
+fn read_subset(
+    array: &Array<FilesystemStore>,
+    subset: &ArraySubset,
+    dtype: DType,
+    fault: &dyn Fn(ArrayError) -> Error,
+    options: &CodecOptions,
+) -> Result<Voxels> {
+    let (a, s, f, o) = (array, subset, fault, options);
+    Ok(match dtype {
+        DType::U8 => Voxels::U8(retrieve(a, s, f, o)?),
+        DType::I8 => Voxels::I8(retrieve(a, s, f, o)?),
+        DType::U16 => Voxels::U16(retrieve(a, s, f, o)?),
+        DType::I16 => Voxels::I16(retrieve(a, s, f, o)?),
+        DType::U32 => Voxels::F32(widened(a, s, f, o, |v: u32| v as f32)?),
+        DType::I32 => Voxels::F32(widened(a, s, f, o, |v: i32| v as f32)?),
+        DType::F32 => Voxels::F32(retrieve(a, s, f, o)?),
+        DType::F64 => Voxels::F32(widened(a, s, f, o, |v: f64| v as f32)?),
+    })
+}
+
+/// The shape of the array's chunks, or of the inner chunks of its shards (the unit a read
+/// decodes).
+fn chunk_shape(array: &Array<FilesystemStore>, bad: &dyn Fn(String) -> Error) -> Result<Vec<u32>> {
+    use zarrs::array::ArrayShardedExt;
+    let origin = vec![0u64; array.dimensionality()];
+    let shape: Vec<u64> = match array.subchunk_shape() {
+        Some(inner) => inner.iter().map(|n| n.get()).collect(),
+        None => array
+            .chunk_shape(&origin)
+            .map_err(|e| bad(format!("the chunk grid: {e}")))?
+            .iter()
+            .map(|n| n.get())
+            .collect(),
+    };
+    Ok(shape
+        .into_iter()
+        .map(|n| u32::try_from(n).unwrap_or(u32::MAX))
+        .collect())
+}
+
+/// One array of a store, read a brick at a time (a [`BrickSource`]).
+#[derive(Debug)]
+struct ZarrBricks {
+    store: std::path::PathBuf,
+    dataset: String,
+    array: Arc<Array<FilesystemStore>>,
+    /// The array's subset for the whole volume (time and channel fixed); a brick narrows the
+    /// spatial ranges.
+    ranges: Vec<std::ops::Range<u64>>,
+    /// The array axes of z, y and x.
+    spatial: [usize; 3],
+    dtype: DType,
+    brick: UVec3,
+    selection: ZarrSelection,
+}
+
+impl BrickSource for ZarrBricks {
+    fn name(&self) -> String {
+        format!("{}: array `{}`", self.store.display(), self.dataset)
+    }
+
+    fn brick_size(&self) -> UVec3 {
+        self.brick
+    }
+
+    fn type_name(&self) -> &'static str {
+        match self.dtype {
+            DType::U8 => "uint8",
+            DType::I8 => "int8",
+            DType::U16 => "uint16",
+            DType::I16 => "int16",
+            DType::U32 | DType::I32 | DType::F32 | DType::F64 => "float32",
+        }
+    }
+
+    fn read(&self, lo: UVec3, size: UVec3) -> Result<Voxels> {
+        let mut ranges = self.ranges.clone();
+        let [z, y, x] = self.spatial;
+        let span = |l: u32, n: u32| u64::from(l)..u64::from(l) + u64::from(n);
+        ranges[z] = span(lo.z, size.z);
+        ranges[y] = span(lo.y, size.y);
+        ranges[x] = span(lo.x, size.x);
+        let subset = ArraySubset::new_with_ranges(&ranges);
+        let fault =
+            |e: ArrayError| Error::format(&self.store, format!("array `{}`: {e}", self.dataset));
+        // One brick is decoded on the calling thread: the render's threads are the
+        // parallelism, and a nested pool would run other bricks' work inside this one.
+        let options = CodecOptions::default().with_concurrent_target(1);
+        read_subset(&self.array, &subset, self.dtype, &fault, &options)
+    }
+
+    fn identity(&self) -> Option<String> {
+        let store = std::fs::canonicalize(&self.store).ok()?;
+        let folder = store.join(self.dataset.trim_matches('/'));
+        let (mut files, mut bytes, mut newest) = (0u64, 0u64, 0u128);
+        let mut stack = vec![folder];
+        while let Some(dir) = stack.pop() {
+            for entry in std::fs::read_dir(&dir).ok()? {
+                let entry = entry.ok()?;
+                let meta = entry.metadata().ok()?;
+                if meta.is_dir() {
+                    stack.push(entry.path());
+                } else {
+                    files += 1;
+                    bytes += meta.len();
+                    let modified = meta.modified().ok()?;
+                    let t = modified
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .ok()?
+                        .as_nanos();
+                    newest = newest.max(t);
+                }
+            }
+        }
+        Some(format!(
+            "ome-zarr {}|{}|{:?}|{} files, {bytes} bytes, newest {newest}",
+            store.display(),
+            self.dataset,
+            self.selection,
+            files
+        ))
+    }
+}
+
+/// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder): whole
+/// where reading it takes at most `budget` bytes, else streamed within `budget` (see
+/// [`crate::bricks`]).
+pub fn read(path: &Path, selection: &ZarrSelection, budget: u64) -> Result<LoadedVolume> {
     let bad = |m: String| Error::format(path, m);
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if !meta.is_dir() {
@@ -281,27 +414,49 @@ pub fn read(path: &Path, selection: &ZarrSelection) -> Result<LoadedVolume> {
             "array `{dataset}` holds {data_type}: expected uint8, int8, uint16, int16, uint32, int32, float32 or float64"
         ))
     })?;
-    let size = check_volume_size(path, dims, dtype)?;
+    let (size, needed) = measure_volume(path, dims, dtype)?;
+    let streamed = needed > budget;
     notes.push(format!(
-        "level {level} of {} (`{dataset}`), {}x{}x{} {dtype}, {}",
+        "level {level} of {} (`{dataset}`), {}x{}x{} {dtype}, {}{}",
         image.levels.len(),
         size.dims.x,
         size.dims.y,
         size.dims.z,
-        human_bytes(size.payload_bytes as u64)
+        human_bytes(size.payload_bytes as u64),
+        if streamed {
+            format!(
+                ", streamed within a memory budget of {}",
+                human_bytes(budget)
+            )
+        } else {
+            String::new()
+        }
     ));
 
-    let subset = ArraySubset::new_with_ranges(&ranges);
-    let fault = |e: zarrs::array::ArrayError| bad(format!("array `{dataset}`: {e}"));
-    let voxels = match dtype {
-        DType::U8 => Voxels::U8(retrieve(&array, &subset, &fault)?),
-        DType::I8 => Voxels::I8(retrieve(&array, &subset, &fault)?),
-        DType::U16 => Voxels::U16(retrieve(&array, &subset, &fault)?),
-        DType::I16 => Voxels::I16(retrieve(&array, &subset, &fault)?),
-        DType::U32 => Voxels::F32(widened(&array, &subset, &fault, |v: u32| v as f32)?),
-        DType::I32 => Voxels::F32(widened(&array, &subset, &fault, |v: i32| v as f32)?),
-        DType::F32 => Voxels::F32(retrieve(&array, &subset, &fault)?),
-        DType::F64 => Voxels::F32(widened(&array, &subset, &fault, |v: f64| v as f32)?),
+    let array = Arc::new(array);
+    let grid = if streamed {
+        let chunk = chunk_shape(&array, &bad)?;
+        let source = ZarrBricks {
+            store: path.to_path_buf(),
+            dataset: dataset.clone(),
+            array: array.clone(),
+            ranges: ranges.clone(),
+            spatial: [spatial[0], spatial[1], spatial[2]],
+            dtype,
+            brick: UVec3::new(chunk[spatial[2]], chunk[spatial[1]], chunk[spatial[0]]),
+            selection: *selection,
+        };
+        let bricks = Bricks::new(size.dims, Arc::new(source), dtype.bytes_in_memory(), budget)?;
+        ScalarGrid::streamed(bricks, 1.0, 0.0)?
+    } else {
+        check_volume_size(path, dims, dtype)?;
+        let subset = ArraySubset::new_with_ranges(&ranges);
+        let fault = |e: zarrs::array::ArrayError| bad(format!("array `{dataset}`: {e}"));
+        grid_for(
+            path,
+            size.dims,
+            read_subset(&array, &subset, dtype, &fault, &CodecOptions::default())?,
+        )?
     };
 
     // Spacing along x, y, z: the level's scale times the multiscale's.
@@ -332,7 +487,7 @@ pub fn read(path: &Path, selection: &ZarrSelection) -> Result<LoadedVolume> {
     }
     let units = spatial_unit(&spatial.iter().map(|&i| &image.axes[i]).collect::<Vec<_>>());
     Ok(LoadedVolume {
-        grid: grid_for(path, size.dims, voxels)?,
+        grid,
         spacing: Some(spacing),
         units,
         notes,

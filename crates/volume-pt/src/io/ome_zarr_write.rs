@@ -170,6 +170,17 @@ pub fn write_ome_zarr(
             options.chunk
         )));
     }
+    let Some(voxels) = volume.grid.voxels() else {
+        return Err(bad(format!(
+            "the volume is streamed from {} (larger than the memory budget): converting a \
+             streamed volume is not supported yet; raise --memory-budget to read it whole",
+            volume
+                .grid
+                .bricks()
+                .map(|b| b.source_name())
+                .unwrap_or_default()
+        )));
+    };
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
     let store = Arc::new(
         FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
@@ -181,7 +192,7 @@ pub fn write_ome_zarr(
         options,
     };
     let round = |v: f64| v.round();
-    let levels = match volume.grid.voxels() {
+    let levels = match voxels {
         Voxels::U8(v) => write_levels(&target, v, d, (data_type::uint8(), 0u8), f64::from, |m| {
             round(m) as u8
         })?,

@@ -161,7 +161,7 @@ pub fn run(args: &LargeArgs, data: &crate::bench::DataDirs) -> Result<()> {
     println!(
         "| neghip tiled {v}^3 (uint8) | {:.3} G | {} | {:.2} | {load:.2} | {} | {} | {}x{} | {} | {:.2} | {:.3} |",
         expected as f64 / 1e9,
-        medium.grid().voxels().bytes_per_voxel(),
+        medium.grid().bytes_per_voxel(),
         medium.memory_bytes() as f64 / 1e9,
         gb(after_load),
         gb(peak),

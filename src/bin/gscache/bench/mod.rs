@@ -240,9 +240,9 @@ fn run_pt(args: Args, data: &DataDirs) -> Result<()> {
         time_render(&scene, 1, 64);
         for integrator in [IntegratorKind::Uniform, IntegratorKind::Nee] {
             scene.settings.path.integrator = integrator;
-            scene.media.medium.set_macrocell_size(8);
+            scene.media.medium.set_macrocell_size(8)?;
             let (_, grid) = time_render(&scene, args.spp, args.size);
-            scene.media.medium.set_macrocell_size(1 << 20);
+            scene.media.medium.set_macrocell_size(1 << 20)?;
             let (_, global) = time_render(&scene, args.spp, args.size);
             println!(
                 "| {name} | {}x{}x{} | {integrator} | {:.3} | {:.3} | {:.2}x |",
@@ -254,7 +254,7 @@ fn run_pt(args: Args, data: &DataDirs) -> Result<()> {
                 grid / global
             );
         }
-        scene.media.medium.set_macrocell_size(8);
+        scene.media.medium.set_macrocell_size(8)?;
         scene.settings.path.integrator = IntegratorKind::Nee;
         loaded.push((name, scene));
     }

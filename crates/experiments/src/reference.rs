@@ -124,6 +124,7 @@ pub fn reference(
             ));
         }
     }
+    scene.media.medium.grid().check_streaming()?;
     let seconds = start.elapsed().as_secs_f64();
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, "cannot create", e))?;
     // Written atomically, so an interrupted run leaves no half file that a later run would take

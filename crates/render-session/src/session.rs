@@ -192,6 +192,7 @@ impl Session {
             Some(&mut self.film),
             control,
         )?;
+        self.scene.media.medium.grid().check_streaming()?;
         self.next_frame = k + 1;
         // A frame cancelled part way still counts if it reached the image: every pixel keeps
         // the mean of the samples it finished.

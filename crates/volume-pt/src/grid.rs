@@ -232,6 +232,18 @@ impl ScalarGrid {
         }
     }
 
+    /// Fails if a streamed grid could not read a brick while rendering (its voxels were taken as
+    /// 0, so whatever read them is wrong): the caller refuses that image with this error.
+    pub fn check_streaming(&self) -> Result<()> {
+        match self.bricks().and_then(|b| b.failure()) {
+            Some(failure) => Err(Error::Invalid(format!(
+                "a brick of the streamed volume could not be read, so the image is wrong: \
+                 {failure}"
+            ))),
+            None => Ok(()),
+        }
+    }
+
     /// The streamed voxels, when the grid is streamed.
     pub fn bricks(&self) -> Option<&Bricks> {
         match &self.storage {

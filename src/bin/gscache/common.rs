@@ -15,11 +15,18 @@ pub struct Global {
     /// No progress bar.
     #[arg(long, short, global = true)]
     pub quiet: bool,
+    /// Memory the volume's voxels may take (`4G`, `512M`...); an OME-Zarr store larger is
+    /// streamed from disk within it. Default: `GSCACHE_MEMORY_BUDGET`, else half the memory
+    /// this process may use.
+    #[arg(long, global = true, value_name = "SIZE", value_parser = volume_pt::io::parse_bytes)]
+    pub memory_budget: Option<u64>,
 }
 
 impl Global {
-    /// Starts the global thread pool with `--threads` workers, if given.
+    /// Starts the global thread pool with `--threads` workers, if given, and sets the
+    /// process's memory budget.
     pub fn start_threads(&self) -> Result<()> {
+        volume_pt::io::set_memory_budget(self.memory_budget);
         if let Some(t) = self.threads {
             rayon::ThreadPoolBuilder::new()
                 .num_threads(t.into())

@@ -499,6 +499,7 @@ fn render_shard(
         &Control::new(&cancel, &|n| bar.inc(n)),
     );
     bar.finish_and_clear();
+    scene.media.medium.grid().check_streaming()?;
     if stats.cancelled {
         eprintln!(
             "interrupted: shard {shard} not written (a partial must hold whole sample ranges); run it again"

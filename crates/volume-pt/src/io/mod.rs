@@ -19,7 +19,7 @@ pub use budget::{
     measure_volume, memory_budget, parse_bytes, read_regular, read_text_file, set_memory_budget,
 };
 pub use ome_zarr::ZarrSelection;
-pub use ome_zarr_write::{StoreOptions, WrittenStore, write_ome_zarr};
+pub use ome_zarr_write::{StoreOptions, WrittenStore, write_ome_zarr, write_store_by_chunks};
 pub use raw::{RawLayout, parse_raw_file_name};
 
 use crate::error::{Error, Result};

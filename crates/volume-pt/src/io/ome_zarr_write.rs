@@ -218,16 +218,35 @@ pub fn write_ome_zarr(
             |m| m as f32,
         )?,
     };
-    let spacing = volume.spacing.unwrap_or(glam::Vec3::ONE);
-    let unit = volume.units.as_deref().and_then(ngff_unit);
+    write_group(
+        &store,
+        path,
+        levels.len(),
+        volume.spacing.unwrap_or(glam::Vec3::ONE),
+        volume.units.as_deref(),
+        "2x2x2 block means",
+    )?;
+    Ok(WrittenStore { levels })
+}
+
+/// Writes the group's OME-Zarr 0.5 metadata: `levels` datasets `s0`, `s1`... whose scales
+/// double from `spacing`, the unit where NGFF names it.
+fn write_group(
+    store: &Arc<FilesystemStore>,
+    path: &Path,
+    levels: usize,
+    spacing: glam::Vec3,
+    units: Option<&str>,
+    description: &str,
+) -> Result<()> {
+    let bad = |m: String| Error::format(path, m);
+    let unit = units.and_then(ngff_unit);
     let axis = |name: &str| match unit {
         Some(u) => serde_json::json!({"name": name, "type": "space", "unit": u}),
         None => serde_json::json!({"name": name, "type": "space"}),
     };
-    let datasets: Vec<serde_json::Value> = levels
-        .iter()
-        .enumerate()
-        .map(|(k, _)| {
+    let datasets: Vec<serde_json::Value> = (0..levels)
+        .map(|k| {
             let f = (1u64 << k) as f32;
             serde_json::json!({
                 "path": format!("s{k}"),
@@ -245,17 +264,79 @@ pub fn write_ome_zarr(
             "axes": [axis("z"), axis("y"), axis("x")],
             "datasets": datasets,
             "type": "mean",
-            "metadata": {"description": "2x2x2 block means", "method": "gscache convert"},
+            "metadata": {"description": description, "method": "gscache"},
         }],
     });
     let mut attributes = serde_json::Map::new();
     attributes.insert("ome".into(), ome);
     GroupBuilder::new()
         .attributes(attributes)
-        .build(store, "/")
+        .build(store.clone(), "/")
         .and_then(|g| g.store_metadata().map_err(Into::into))
         .map_err(|e| bad(format!("the group's metadata: {e}")))?;
-    Ok(WrittenStore { levels })
+    Ok(())
+}
+
+/// Writes a one-level uint8 OME-Zarr 0.5 store of `dims` at `path` (which must not exist),
+/// chunk by chunk in parallel, each chunk's voxels (x fastest) made by `voxels(lo, size)`:
+/// a store of any size in the memory of a few chunks (the benchmark's procedural stores).
+pub fn write_store_by_chunks(
+    path: &Path,
+    dims: UVec3,
+    options: &StoreOptions,
+    spacing: glam::Vec3,
+    voxels: impl Fn(UVec3, UVec3) -> Vec<u8> + Sync,
+) -> Result<()> {
+    use rayon::prelude::*;
+    let bad = |m: String| Error::format(path, m);
+    if std::fs::symlink_metadata(path).is_ok() {
+        return Err(bad(
+            "already exists: choose a new name (nothing is replaced)".into(),
+        ));
+    }
+    std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
+    let store = Arc::new(
+        FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
+    );
+    let chunk = UVec3::splat(options.chunk.max(1)).min(dims);
+    let array: Array<FilesystemStore> = ArrayBuilder::new(
+        vec![u64::from(dims.z), u64::from(dims.y), u64::from(dims.x)],
+        vec![u64::from(chunk.z), u64::from(chunk.y), u64::from(chunk.x)],
+        data_type::uint8(),
+        0u8,
+    )
+    .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, false))])
+    .dimension_names(Some(["z", "y", "x"]))
+    .build(store.clone(), "/s0")
+    .map_err(|e| bad(format!("level 0: {e}")))?;
+    array
+        .store_metadata()
+        .map_err(|e| bad(format!("level 0's metadata: {e}")))?;
+    let counts = (dims + chunk - 1) / chunk;
+    let n = counts.x as u64 * counts.y as u64 * counts.z as u64;
+    (0..n).into_par_iter().try_for_each(|i| -> Result<()> {
+        let c = UVec3::new(
+            (i % counts.x as u64) as u32,
+            ((i / counts.x as u64) % counts.y as u64) as u32,
+            (i / (counts.x as u64 * counts.y as u64)) as u32,
+        );
+        let lo = c * chunk;
+        let size = chunk.min(dims - lo);
+        let data = voxels(lo, size);
+        let subset = ArraySubset::new_with_ranges(&[
+            u64::from(lo.z)..u64::from(lo.z + size.z),
+            u64::from(lo.y)..u64::from(lo.y + size.y),
+            u64::from(lo.x)..u64::from(lo.x + size.x),
+        ]);
+        array
+            .store_array_subset_opt(
+                &subset,
+                &data[..],
+                &zarrs::array::CodecOptions::default().with_concurrent_target(1),
+            )
+            .map_err(|e| bad(format!("chunk {c}: {e}")))
+    })?;
+    write_group(&store, path, 1, spacing, None, "procedural")
 }
 
 #[cfg(test)]

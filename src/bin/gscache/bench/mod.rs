@@ -16,6 +16,9 @@
 //!
 //! - `bench large`: the path tracer on a gigavoxel (a bundled volume tiled to 1024^3): load
 //!   time, peak memory, samples per second.
+//! - `bench stream`: the path tracer on an OME-Zarr store streamed within a memory budget
+//!   (a procedural store it makes once): time to first image, peak memory, and streamed
+//!   against read whole.
 //!
 //! The bundled data comes from `--data DIR` (a clone's `data/`), else `data/` in the current
 //! folder, else the source tree the program was built from; inputs that live in `shared/data`
@@ -25,6 +28,7 @@ mod cache_bench;
 mod large_bench;
 mod splat_bench;
 mod stability_bench;
+mod stream_bench;
 mod trace_bench;
 
 use anyhow::Result;
@@ -54,6 +58,8 @@ enum Sub {
     Stability(stability_bench::StabilityArgs),
     /// The path tracer on a gigavoxel volume: load time, peak memory, samples per second.
     Large(large_bench::LargeArgs),
+    /// The path tracer on an OME-Zarr store streamed within a memory budget.
+    Stream(stream_bench::StreamArgs),
     /// Error of EXR images against a reference EXR: relMSE and PSNR.
     Compare {
         reference: PathBuf,
@@ -158,6 +164,7 @@ pub fn run(cli: BenchArgs) -> Result<i32> {
         Some(Sub::Cache(a)) => &a.data,
         Some(Sub::Stability(a)) => &a.data,
         Some(Sub::Large(a)) => &a.data,
+        Some(Sub::Stream(a)) => &a.data,
         Some(Sub::Pt(a)) => &a.data,
         Some(Sub::Compare { .. }) | None => &cli.pt.data,
     };
@@ -168,6 +175,7 @@ pub fn run(cli: BenchArgs) -> Result<i32> {
         Some(Sub::Cache(a)) => cache_bench::run(&a, &data),
         Some(Sub::Stability(a)) => stability_bench::run(&a, &data),
         Some(Sub::Large(a)) => large_bench::run(&a, &data),
+        Some(Sub::Stream(a)) => stream_bench::run(&a, &data),
         Some(Sub::Pt(a)) => run_pt(a, &data),
         Some(Sub::Compare { .. }) => Ok(()),
         None => run_pt(cli.pt, &data),

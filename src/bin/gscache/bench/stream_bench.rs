@@ -1,0 +1,292 @@
+//! `gscache bench stream`: the path tracer on an OME-Zarr store streamed within a memory
+//! budget (see `volume_pt::bricks`).
+//!
+//! The store is made once by this tool (never by a test): the bundled neghip volume tiled to
+//! `--voxels` per axis, uint8, in 64^3 zstd chunks (each tile mirrored by a hash of its place,
+//! so chunks differ), written chunk by chunk so a store of any size takes the memory of a few
+//! chunks. The scene is `bench large`'s: the default scene's size and extinction per world
+//! unit around the tiled volume.
+//!
+//! Two tables:
+//! - **Large** (a store larger than the budget): time to open it (the survey that bounds the
+//!   majorants reads every chunk once; a later run finds it kept), time to the first image
+//!   (1 spp), then samples per second over `--spp`, peak resident memory (`VmHWM`), bricks
+//!   read and resident.
+//! - **`--compare`** (a store that fits): samples per second read whole, streamed warm (every
+//!   brick resident), streamed cold (the first image after opening with a kept survey: every
+//!   brick read while rendering) and streamed under a budget of an eighth of the volume, in
+//!   turns (whole, streamed, whole, streamed: the best of each), as ratios to read whole.
+
+use anyhow::{Context, Result, bail};
+use glam::UVec3;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use volume_pt::{Film, Scene, load_scene, render};
+
+#[derive(clap::Args, Debug)]
+pub struct StreamArgs {
+    #[command(flatten)]
+    pub data: crate::bench::DataArg,
+    /// Voxels along each axis of the generated store (a multiple of 64; 3264: 32.4 GiB).
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(64..=16384))]
+    voxels: u32,
+    /// Where the store and its scene are kept.
+    #[arg(long, default_value = "out/stream")]
+    dir: PathBuf,
+    /// Image width and height.
+    #[arg(long, default_value_t = 320, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    size: u32,
+    /// Samples per pixel of the timed render.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=65536))]
+    spp: u32,
+    /// Memory budget of the large table (`4G`, `512M`...).
+    #[arg(long, default_value = "4G", value_parser = volume_pt::io::parse_bytes)]
+    budget: u64,
+    /// Streamed against read whole, on a store that fits in memory.
+    #[arg(long)]
+    compare: bool,
+}
+
+const TILE: &str = "volumes/neghip_64x64x64_uint8.raw";
+const TILE_SIDE: u32 = 64;
+
+/// The chunk at `lo` (size `size`): the tile, mirrored along each axis by a hash of the chunk's
+/// place (chunks are tile-aligned).
+fn tiled_chunk(tile: &[u8], lo: UVec3, size: UVec3) -> Vec<u8> {
+    let s = TILE_SIDE as usize;
+    let c = lo / TILE_SIDE;
+    let h = render_base::hash::hash32(&[0x711e, c.x, c.y, c.z]);
+    let flip = |v: u32, bit: u32| -> usize {
+        if h >> bit & 1 == 1 {
+            s - 1 - v as usize
+        } else {
+            v as usize
+        }
+    };
+    let mut out = Vec::with_capacity((size.x * size.y * size.z) as usize);
+    for z in 0..size.z {
+        for y in 0..size.y {
+            for x in 0..size.x {
+                out.push(tile[flip(x, 0) + s * (flip(y, 1) + s * flip(z, 2))]);
+            }
+        }
+    }
+    out
+}
+
+fn peak_resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+fn gib(b: u64) -> String {
+    format!("{:.2}", b as f64 / (1u64 << 30) as f64)
+}
+
+/// Renders `spp` samples per pixel at `size`; (seconds, samples per second).
+fn time_render(scene: &Scene, size: u32, spp: u32) -> Result<(f64, f64)> {
+    let mut settings = scene.settings;
+    settings.spp = spp;
+    let mut film = Film::new(size, size);
+    let stats = render(
+        &scene.media,
+        &scene.camera.with_size(size, size)?,
+        &settings,
+        &mut film,
+        &volume_pt::Control::none(),
+    );
+    scene.media.medium.grid().check_streaming()?;
+    let image = film.image();
+    let mean = image.pixels().iter().map(|p| p.as_dvec3()).sum::<glam::DVec3>()
+        / image.pixels().len() as f64;
+    if !(mean.is_finite() && mean.max_element() > 0.0) {
+        bail!("the image's mean is {mean}: expected a finite, lit image");
+    }
+    Ok((stats.seconds, stats.samples_per_second()))
+}
+
+pub fn run(args: &StreamArgs, data: &crate::bench::DataDirs) -> Result<()> {
+    let v = args.voxels;
+    if !v.is_multiple_of(TILE_SIDE) {
+        bail!("--voxels {v} is not a multiple of the tile's {TILE_SIDE} voxels");
+    }
+    let tile_path = data.bundled.join(TILE);
+    let tile =
+        std::fs::read(&tile_path).with_context(|| format!("reading {}", tile_path.display()))?;
+    if tile.len() != (TILE_SIDE as usize).pow(3) {
+        bail!("{TILE}: {} bytes, expected {}", tile.len(), TILE_SIDE.pow(3));
+    }
+    std::fs::create_dir_all(&args.dir)
+        .with_context(|| format!("creating {}", args.dir.display()))?;
+    let store = std::path::absolute(args.dir.join(format!("neghip_tiled_{v}.ome.zarr")))?;
+    let voxel_bytes = (v as u64).pow(3);
+    let spacing = 1.0 / (v as f32 / TILE_SIDE as f32);
+    if !store.exists() {
+        let t = Instant::now();
+        let options = volume_pt::io::StoreOptions {
+            chunk: 64,
+            max_levels: 1,
+            zstd_level: 1,
+        };
+        volume_pt::io::write_store_by_chunks(
+            &store,
+            UVec3::splat(v),
+            &options,
+            glam::Vec3::splat(spacing),
+            |lo, size| tiled_chunk(&tile, lo, size),
+        )?;
+        eprintln!(
+            "wrote {} ({} GiB of voxels) in {:.1} s",
+            store.display(),
+            gib(voxel_bytes),
+            t.elapsed().as_secs_f64()
+        );
+    }
+    let scene_path = write_scene(&data.bundled, &args.dir, &store, v, args.size, args.spp)?;
+    println!(
+        "threads: {}; store {} ({v}^3 uint8, {} GiB of voxels, 64^3 zstd chunks)\n",
+        rayon::current_num_threads(),
+        store.display(),
+        gib(voxel_bytes)
+    );
+    if args.compare {
+        compare(&scene_path, voxel_bytes, args)
+    } else {
+        large(&scene_path, args)
+    }
+}
+
+fn write_scene(
+    bundled: &Path,
+    dir: &Path,
+    store: &Path,
+    v: u32,
+    size: u32,
+    spp: u32,
+) -> Result<PathBuf> {
+    let default_scene = bundled.join("scenes/default.toml");
+    let text = std::fs::read_to_string(&default_scene)
+        .with_context(|| format!("reading {}", default_scene.display()))?;
+    let mut scene: volume_pt::scene::SceneFile =
+        toml::from_str(&text).with_context(|| format!("{}", default_scene.display()))?;
+    let spacing = 1.0 / (v as f32 / TILE_SIDE as f32);
+    scene.volume = volume_pt::scene::VolumeDesc {
+        spacing: Some([spacing; 3]),
+        ..volume_pt::scene::VolumeDesc::file(store)
+    };
+    (scene.camera.width, scene.camera.height) = (size, size);
+    scene.render.spp = spp;
+    scene.render.show_lights = true;
+    let path = dir.join(format!("stream_{v}.toml"));
+    let comment = format!(
+        "Made by `gscache bench stream`: neghip tiled {0}x{0}x{0}, as an OME-Zarr store.",
+        v / TILE_SIDE
+    );
+    experiments::write_text(&path, &scene.to_toml(&comment)?)?;
+    Ok(path)
+}
+
+/// The large table: a store streamed within `--budget`.
+fn large(scene_path: &Path, args: &StreamArgs) -> Result<()> {
+    volume_pt::io::set_memory_budget(Some(args.budget));
+    let t = Instant::now();
+    let scene = load_scene(scene_path)?;
+    let open = t.elapsed().as_secs_f64();
+    let Some(bricks) = scene.media.medium.grid().bricks() else {
+        bail!(
+            "the store fits the budget of {} GiB and was read whole: use --compare, or a \
+             larger --voxels",
+            gib(args.budget)
+        );
+    };
+    let surveyed = bricks.loads() > 0;
+    let (first, _) = time_render(&scene, args.size, 1)?;
+    let to_first = t.elapsed().as_secs_f64();
+    let (seconds, sps) = time_render(&scene, args.size, args.spp)?;
+    let peak = peak_resident_bytes().unwrap_or(0);
+    println!(
+        "| budget GiB | open s ({}) | first image s (1 spp) | time to first image s | render s ({} spp, {}^2) | M samples/s | peak RSS GiB | bricks read | bricks resident GiB |",
+        if surveyed {
+            "survey read every chunk"
+        } else {
+            "kept survey"
+        },
+        args.spp,
+        args.size
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    println!(
+        "| {} | {open:.1} | {first:.2} | {to_first:.1} | {seconds:.2} | {:.3} | {} | {} of {} | {} |",
+        gib(args.budget),
+        sps / 1e6,
+        gib(peak),
+        bricks.loads(),
+        bricks.brick_count(),
+        gib(bricks.resident_bytes())
+    );
+    Ok(())
+}
+
+/// The compare table: read whole against streamed, on a store that fits.
+fn compare(scene_path: &Path, voxel_bytes: u64, args: &StreamArgs) -> Result<()> {
+    let loads = |scene: &Scene| scene.media.medium.grid().bricks().map_or(0, |b| b.loads());
+    let open = |budget: u64| -> Result<Scene> {
+        volume_pt::io::set_memory_budget(Some(budget));
+        Ok(load_scene(scene_path)?)
+    };
+    let whole = open(u64::MAX / 4)?;
+    if whole.media.medium.grid().bricks().is_some() {
+        bail!("the store was streamed with an unbounded budget");
+    }
+    // A budget under the whole read's (payload + kept) but above the voxels: streamed, and
+    // every brick stays resident after the survey.
+    let roomy = voxel_bytes + voxel_bytes / 2;
+    // The first opening surveys the store (and keeps the bricks, as they fit); the second
+    // finds the kept survey and starts with no brick resident: its first image is cold.
+    let warm_scene = open(roomy)?;
+    let cold_scene = open(roomy)?;
+    if loads(&cold_scene) > 0 {
+        bail!("the survey was not kept (is GSCACHE_CACHE_DIR=none?): no cold start to measure");
+    }
+    let cold = time_render(&cold_scene, args.size, args.spp)?;
+    // Warm: every brick resident (the first render reads what the survey did not keep).
+    time_render(&warm_scene, args.size, 1)?;
+    let tight_scene = open(voxel_bytes / 8)?;
+    time_render(&tight_scene, args.size, 1)?;
+    let (mut w, mut s, mut t) = (0.0f64, 0.0f64, 0.0f64);
+    for _ in 0..2 {
+        w = w.max(time_render(&whole, args.size, args.spp)?.1);
+        s = s.max(time_render(&warm_scene, args.size, args.spp)?.1);
+        t = t.max(time_render(&tight_scene, args.size, args.spp)?.1);
+    }
+    println!(
+        "| read | budget GiB | M samples/s ({} spp, {}^2) | against whole | bricks read |",
+        args.spp, args.size
+    );
+    println!("|---|---|---|---|---|");
+    println!("| whole | - | {:.3} | 1.00 | - |", w / 1e6);
+    println!(
+        "| streamed, warm | {} | {:.3} | {:.2} | {} |",
+        gib(roomy),
+        s / 1e6,
+        s / w,
+        loads(&warm_scene)
+    );
+    println!(
+        "| streamed, cold (first image, kept survey) | {} | {:.3} | {:.2} | {} |",
+        gib(roomy),
+        cold.1 / 1e6,
+        cold.1 / w,
+        loads(&cold_scene)
+    );
+    println!(
+        "| streamed, an eighth resident | {} | {:.3} | {:.2} | {} |",
+        gib(voxel_bytes / 8),
+        t / 1e6,
+        t / w,
+        loads(&tight_scene)
+    );
+    Ok(())
+}

@@ -33,9 +33,9 @@ def program() -> str:
     return str(REPO / "target" / "debug" / "gscache")
 
 
-def run_program(program: str, *args: str) -> subprocess.CompletedProcess:
+def run_program(program: str, *args: str, env=None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [program, "-q", *map(str, args)], capture_output=True, text=True, cwd=REPO
+        [program, "-q", *map(str, args)], capture_output=True, text=True, cwd=REPO, env=env
     )
 
 

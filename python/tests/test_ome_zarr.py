@@ -193,3 +193,34 @@ def test_convert_writes_a_store_the_reference_reader_reads(repo, program, tmp_pa
     assert node.metadata["coordinateTransformations"][0][0]["scale"] == [2.0, 0.75, 0.5]
     v = gscache.Volume.read(str(store))
     assert v.units == "mm" and v.spacing == [0.5, 0.75, 2.0]
+
+
+@pytest.mark.parametrize("version", ["0.4", "0.5"])
+def test_a_store_streamed_within_a_small_budget_renders_as_read_whole(stores, version, program,
+                                                                       tmp_path):
+    """A store written by the reference implementation, streamed within a budget of four of
+    its bricks (evicted and read again throughout), renders bit for bit the image of the store
+    read whole, from the program (`--memory-budget`) and from Python (`memory_budget=`)."""
+    _, _, paths = stores
+    path = str(paths[version])
+    # 16^3 bricks of uint16 (the 8^3 chunks grouped): 8 KiB each; four of them, under the
+    # 53 KB the whole level takes, so it streams.
+    budget = "32K"
+    env = dict(os.environ, GSCACHE_CACHE_DIR=str(tmp_path / "cache"))
+    images = {}
+    for name, extra in [("whole", []), ("streamed", ["--memory-budget", budget])]:
+        out = tmp_path / f"{name}.exr"
+        done = run_program(program, "--threads", "2", "render", path, "--width", "40",
+                           "--height", "32", "--spp", "2", "-o", str(out), *extra, env=env)
+        assert done.returncode == 0, done.stderr
+        images[name] = gscache.read_exr(str(out))
+    assert images["whole"].mean() > 0.0
+    assert np.array_equal(images["whole"], images["streamed"]), "the streamed render differs"
+
+    v = gscache.Volume.read(path, memory_budget=32 * 1024)
+    assert v.streamed and not gscache.Volume.read(path).streamed
+    assert v.nbytes == 32 * 1024
+    with pytest.raises(gscache.GscacheError, match="streamed"):
+        v.to_numpy()
+    with pytest.raises(gscache.GscacheError, match="memory_budget"):
+        gscache.Volume.read(path, memory_budget="lots")

@@ -58,6 +58,7 @@ fn _gscache(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<denoise::Denoiser>()?;
     m.add_class::<view::Viewer>()?;
     m.add_function(wrap_pyfunction!(view::_view, m)?)?;
+    m.add_function(wrap_pyfunction!(volume::set_memory_budget, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_image, m)?)?;
     m.add_function(wrap_pyfunction!(render::render_partial, m)?)?;
     m.add_function(wrap_pyfunction!(movie::movie, m)?)?;

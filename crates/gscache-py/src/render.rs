@@ -42,7 +42,11 @@ fn render_range(
         let control = control.keeping_every_pixel();
         render_samples(&s.media, &s.camera, settings, samples, &mut film, &control)
     })?;
-    s.media.medium.grid().check_streaming().map_err(crate::error)?;
+    s.media
+        .medium
+        .grid()
+        .check_streaming()
+        .map_err(crate::error)?;
     Ok((film, outcome.interrupted))
 }
 

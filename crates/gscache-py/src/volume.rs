@@ -187,17 +187,7 @@ impl Volume {
         time: u32,
         memory_budget: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
-        let memory_budget = match memory_budget {
-            None => None,
-            Some(b) => Some(match b.extract::<u64>() {
-                Ok(n) if n > 0 => n,
-                _ => {
-                    let text: String = b.str()?.extract()?;
-                    volume_pt::io::parse_bytes(&text)
-                        .map_err(|e| crate::error(format!("memory_budget: {e}")))?
-                }
-            }),
-        };
+        let memory_budget = memory_budget.map(budget_bytes).transpose()?;
         fn named<T: serde::de::DeserializeOwned>(
             what: &str,
             v: Option<&str>,
@@ -509,4 +499,27 @@ pub(crate) fn settings_with(
     }
     .settings(scene.scene.settings)
     .map_err(crate::error)
+}
+
+/// A memory budget given as a number of bytes or a size such as `"4G"`.
+fn budget_bytes(b: &Bound<'_, PyAny>) -> PyResult<u64> {
+    match b.extract::<u64>() {
+        Ok(n) if n > 0 => Ok(n),
+        _ => {
+            let text: String = b.str()?.extract()?;
+            volume_pt::io::parse_bytes(&text)
+                .map_err(|e| crate::error(format!("memory_budget: {e}")))
+        }
+    }
+}
+
+/// Sets the memory this process's volumes may take (bytes, or a size such as `"4G"`): an
+/// OME-Zarr store larger is streamed from disk within it, as the program's `--memory-budget`
+/// does; `None` returns to the default (`GSCACHE_MEMORY_BUDGET`, else half the memory the
+/// process may use). A Dask worker's recipe calls it before loading its scene.
+#[pyfunction]
+#[pyo3(signature = (budget))]
+pub fn set_memory_budget(budget: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+    volume_pt::io::set_memory_budget(budget.map(budget_bytes).transpose()?);
+    Ok(())
 }

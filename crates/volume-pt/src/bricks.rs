@@ -134,13 +134,13 @@ pub fn brick_edge(chunk: u32) -> u32 {
 }
 
 /// The macrocell edge a streamed grid of `dims` uses unless the scene names one: the in-memory
-/// default (8) or larger, so that the majorant grid stays under about 2^23 cells (64 MiB with
-/// its ranges) however large the volume.
+/// default (8) or larger, so that the majorant grid stays under about 2^24 cells (256 MiB with
+/// its ranges and the survey) however large the volume.
 pub fn streamed_macrocell(dims: UVec3, default: u32) -> u32 {
     let mut cell = default.max(1);
     let cells =
         |c: u32| dims.x.div_ceil(c) as u64 * dims.y.div_ceil(c) as u64 * dims.z.div_ceil(c) as u64;
-    while cells(cell) > 1 << 23 && cell < dims.max_element() {
+    while cells(cell) > 1 << 24 && cell < dims.max_element() {
         cell *= 2;
     }
     cell

@@ -23,6 +23,10 @@ pub struct ConvertArgs {
     /// chunk).
     #[arg(long, default_value_t = StoreOptions::default().max_levels, value_parser = clap::value_parser!(u32).range(1..=16))]
     max_levels: u32,
+    /// Shard side in voxels (a multiple of the chunk): chunks kept in one file a shard (Zarr
+    /// v3 sharding), for stores of many chunks; 0: a file a chunk.
+    #[arg(long, default_value_t = StoreOptions::default().shard)]
+    shard: u32,
     /// An OME-Zarr input's level, channel and time point.
     #[arg(long)]
     level: Option<u32>,
@@ -46,6 +50,7 @@ pub fn run(a: ConvertArgs, global: &Global) -> Result<i32> {
     let options = StoreOptions {
         chunk: a.chunk,
         max_levels: a.max_levels,
+        shard: a.shard,
         ..Default::default()
     };
     let written = write_ome_zarr(&volume, &a.output, &options)

@@ -29,6 +29,9 @@ pub struct StoreOptions {
     pub max_levels: u32,
     /// zstd's compression level.
     pub zstd_level: i32,
+    /// Shard side in voxels (a multiple of `chunk`): chunks are stored in shard files of this
+    /// size (Zarr v3 sharding: one file a shard, each chunk decoded alone); 0: a file a chunk.
+    pub shard: u32,
 }
 
 impl Default for StoreOptions {
@@ -37,7 +40,59 @@ impl Default for StoreOptions {
             chunk: 64,
             max_levels: 8,
             zstd_level: 3,
+            shard: 0,
         }
+    }
+}
+
+impl StoreOptions {
+    /// Checks the sizes, naming the store at `path` in the error.
+    fn check(&self, path: &Path) -> Result<()> {
+        let bad = |m: String| Error::format(path, m);
+        if !(1..=4096).contains(&self.chunk) {
+            return Err(bad(format!(
+                "chunk {}: expected 1 to 4096 voxels a side",
+                self.chunk
+            )));
+        }
+        if self.shard != 0 && (self.shard > 8192 || !self.shard.is_multiple_of(self.chunk)) {
+            return Err(bad(format!(
+                "shard {}: expected a multiple of the chunk ({}) up to 8192 voxels a side",
+                self.shard, self.chunk
+            )));
+        }
+        Ok(())
+    }
+
+    /// The array's chunk grid (the shards where sharded) and inner chunks, for a level of
+    /// `dims`.
+    fn grid(&self, dims: UVec3) -> (UVec3, Option<UVec3>) {
+        let chunk = UVec3::splat(self.chunk.max(1)).min(dims);
+        if self.shard == 0 {
+            (chunk, None)
+        } else {
+            let shard = UVec3::splat(self.shard).min((dims + chunk - 1) / chunk * chunk);
+            (shard, Some(chunk))
+        }
+    }
+
+    /// A builder for a level of `dims` with these chunks (and shards) and zstd.
+    fn builder<T: Into<zarrs::array::builder::ArrayBuilderFillValue>>(
+        &self,
+        dims: UVec3,
+        data_type: DataType,
+        fill: T,
+    ) -> ArrayBuilder {
+        let zyx = |v: UVec3| vec![u64::from(v.z), u64::from(v.y), u64::from(v.x)];
+        let (outer, inner) = self.grid(dims);
+        let mut builder = ArrayBuilder::new(zyx(dims), zyx(outer), data_type, fill);
+        builder
+            .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(self.zstd_level, false))])
+            .dimension_names(Some(["z", "y", "x"]));
+        if let Some(inner) = inner {
+            builder.subchunk_shape(zyx(inner));
+        }
+        builder
     }
 }
 
@@ -119,20 +174,10 @@ fn write_levels<T: Element + Copy + Into<zarrs::array::builder::ArrayBuilderFill
     let mut level: Vec<T> = values.to_vec();
     for k in 0..options.max_levels.max(1) {
         let d = dims[k as usize];
-        let array: Array<FilesystemStore> = ArrayBuilder::new(
-            vec![u64::from(d.z), u64::from(d.y), u64::from(d.x)],
-            vec![
-                chunk.min(u64::from(d.z)),
-                chunk.min(u64::from(d.y)),
-                chunk.min(u64::from(d.x)),
-            ],
-            data_type.clone(),
-            fill,
-        )
-        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, false))])
-        .dimension_names(Some(["z", "y", "x"]))
-        .build(store.clone(), &format!("/s{k}"))
-        .map_err(|e| bad(format!("level {k}: {e}")))?;
+        let array: Array<FilesystemStore> = options
+            .builder(d, data_type.clone(), fill)
+            .build(store.clone(), &format!("/s{k}"))
+            .map_err(|e| bad(format!("level {k}: {e}")))?;
         array
             .store_metadata()
             .map_err(|e| bad(format!("level {k}'s metadata: {e}")))?;
@@ -164,12 +209,7 @@ pub fn write_ome_zarr(
             "already exists: choose a new name (nothing is replaced)".into(),
         ));
     }
-    if !(1..=4096).contains(&options.chunk) {
-        return Err(bad(format!(
-            "chunk {}: expected 1 to 4096 voxels a side",
-            options.chunk
-        )));
-    }
+    options.check(path)?;
     let Some(voxels) = volume.grid.voxels() else {
         return Err(bad(format!(
             "the volume is streamed from {} (larger than the memory budget): converting a \
@@ -278,7 +318,8 @@ fn write_group(
 }
 
 /// Writes a one-level uint8 OME-Zarr 0.5 store of `dims` at `path` (which must not exist),
-/// chunk by chunk in parallel, each chunk's voxels (x fastest) made by `voxels(lo, size)`:
+/// chunk (or shard) by chunk in parallel, each one's voxels (x fastest) made by
+/// `voxels(lo, size)`:
 /// a store of any size in the memory of a few chunks (the benchmark's procedural stores).
 pub fn write_store_by_chunks(
     path: &Path,
@@ -294,21 +335,17 @@ pub fn write_store_by_chunks(
             "already exists: choose a new name (nothing is replaced)".into(),
         ));
     }
+    options.check(path)?;
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
     let store = Arc::new(
         FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
     );
-    let chunk = UVec3::splat(options.chunk.max(1)).min(dims);
-    let array: Array<FilesystemStore> = ArrayBuilder::new(
-        vec![u64::from(dims.z), u64::from(dims.y), u64::from(dims.x)],
-        vec![u64::from(chunk.z), u64::from(chunk.y), u64::from(chunk.x)],
-        data_type::uint8(),
-        0u8,
-    )
-    .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, false))])
-    .dimension_names(Some(["z", "y", "x"]))
-    .build(store.clone(), "/s0")
-    .map_err(|e| bad(format!("level 0: {e}")))?;
+    // Written a chunk (or a whole shard) at a time.
+    let (chunk, _) = options.grid(dims);
+    let array: Array<FilesystemStore> = options
+        .builder(dims, data_type::uint8(), 0u8)
+        .build(store.clone(), "/s0")
+        .map_err(|e| bad(format!("level 0: {e}")))?;
     array
         .store_metadata()
         .map_err(|e| bad(format!("level 0's metadata: {e}")))?;

@@ -2,9 +2,9 @@
 //! budget (see `volume_pt::bricks`).
 //!
 //! The store is made once by this tool (never by a test): the bundled neghip volume tiled to
-//! `--voxels` per axis, uint8, in 64^3 zstd chunks (each tile mirrored by a hash of its place,
-//! so chunks differ), written chunk by chunk so a store of any size takes the memory of a few
-//! chunks. The scene is `bench large`'s: the default scene's size and extinction per world
+//! `--voxels` per axis, uint8, in zstd chunks (default 32^3 in 256^3 shards; each tile
+//! mirrored by a hash of its place, so chunks differ), written a shard at a time so a store of
+//! any size takes the memory of a few shards. The scene is `bench large`'s: the default scene's size and extinction per world
 //! unit around the tiled volume.
 //!
 //! Two tables:
@@ -45,29 +45,37 @@ pub struct StreamArgs {
     /// Streamed against read whole, on a store that fits in memory.
     #[arg(long)]
     compare: bool,
+    /// Chunk side of a new store (the unit a read decodes).
+    #[arg(long, default_value_t = 32)]
+    chunk: u32,
+    /// Shard side of a new store (chunks kept in a file a shard); 0: a file a chunk.
+    #[arg(long, default_value_t = 256)]
+    shard: u32,
 }
 
 const TILE: &str = "volumes/neghip_64x64x64_uint8.raw";
 const TILE_SIDE: u32 = 64;
 
-/// The chunk at `lo` (size `size`): the tile, mirrored along each axis by a hash of the chunk's
-/// place (chunks are tile-aligned).
-fn tiled_chunk(tile: &[u8], lo: UVec3, size: UVec3) -> Vec<u8> {
+/// The voxels of the box at `lo` (size `size`), x fastest: the tile repeated, each copy
+/// mirrored along each axis by a hash of its place.
+fn tiled_box(tile: &[u8], lo: UVec3, size: UVec3) -> Vec<u8> {
     let s = TILE_SIDE as usize;
-    let c = lo / TILE_SIDE;
-    let h = render_base::hash::hash32(&[0x711e, c.x, c.y, c.z]);
-    let flip = |v: u32, bit: u32| -> usize {
-        if h >> bit & 1 == 1 {
-            s - 1 - v as usize
-        } else {
-            v as usize
-        }
-    };
     let mut out = Vec::with_capacity((size.x * size.y * size.z) as usize);
-    for z in 0..size.z {
-        for y in 0..size.y {
-            for x in 0..size.x {
-                out.push(tile[flip(x, 0) + s * (flip(y, 1) + s * flip(z, 2))]);
+    for z in lo.z..lo.z + size.z {
+        for y in lo.y..lo.y + size.y {
+            let mut x = lo.x;
+            while x < lo.x + size.x {
+                // One copy of the tile at a time along the row.
+                let c = UVec3::new(x, y, z) / TILE_SIDE;
+                let end = ((c.x + 1) * TILE_SIDE).min(lo.x + size.x);
+                let h = render_base::hash::hash32(&[0x711e, c.x, c.y, c.z]);
+                let flip = |v: u32, bit: u32| -> usize {
+                    let v = (v % TILE_SIDE) as usize;
+                    if h >> bit & 1 == 1 { s - 1 - v } else { v }
+                };
+                let row = s * (flip(y, 1) + s * flip(z, 2));
+                out.extend((x..end).map(|x| tile[row + flip(x, 0)]));
+                x = end;
             }
         }
     }
@@ -99,7 +107,11 @@ fn time_render(scene: &Scene, size: u32, spp: u32) -> Result<(f64, f64)> {
     );
     scene.media.medium.grid().check_streaming()?;
     let image = film.image();
-    let mean = image.pixels().iter().map(|p| p.as_dvec3()).sum::<glam::DVec3>()
+    let mean = image
+        .pixels()
+        .iter()
+        .map(|p| p.as_dvec3())
+        .sum::<glam::DVec3>()
         / image.pixels().len() as f64;
     if !(mean.is_finite() && mean.max_element() > 0.0) {
         bail!("the image's mean is {mean}: expected a finite, lit image");
@@ -116,26 +128,34 @@ pub fn run(args: &StreamArgs, data: &crate::bench::DataDirs) -> Result<()> {
     let tile =
         std::fs::read(&tile_path).with_context(|| format!("reading {}", tile_path.display()))?;
     if tile.len() != (TILE_SIDE as usize).pow(3) {
-        bail!("{TILE}: {} bytes, expected {}", tile.len(), TILE_SIDE.pow(3));
+        bail!(
+            "{TILE}: {} bytes, expected {}",
+            tile.len(),
+            TILE_SIDE.pow(3)
+        );
     }
     std::fs::create_dir_all(&args.dir)
         .with_context(|| format!("creating {}", args.dir.display()))?;
-    let store = std::path::absolute(args.dir.join(format!("neghip_tiled_{v}.ome.zarr")))?;
+    let store = std::path::absolute(args.dir.join(format!(
+        "neghip_tiled_{v}_c{}_s{}.ome.zarr",
+        args.chunk, args.shard
+    )))?;
     let voxel_bytes = (v as u64).pow(3);
     let spacing = 1.0 / (v as f32 / TILE_SIDE as f32);
     if !store.exists() {
         let t = Instant::now();
         let options = volume_pt::io::StoreOptions {
-            chunk: 64,
+            chunk: args.chunk,
             max_levels: 1,
             zstd_level: 1,
+            shard: args.shard,
         };
         volume_pt::io::write_store_by_chunks(
             &store,
             UVec3::splat(v),
             &options,
             glam::Vec3::splat(spacing),
-            |lo, size| tiled_chunk(&tile, lo, size),
+            |lo, size| tiled_box(&tile, lo, size),
         )?;
         eprintln!(
             "wrote {} ({} GiB of voxels) in {:.1} s",
@@ -146,10 +166,16 @@ pub fn run(args: &StreamArgs, data: &crate::bench::DataDirs) -> Result<()> {
     }
     let scene_path = write_scene(&data.bundled, &args.dir, &store, v, args.size, args.spp)?;
     println!(
-        "threads: {}; store {} ({v}^3 uint8, {} GiB of voxels, 64^3 zstd chunks)\n",
+        "threads: {}; store {} ({v}^3 uint8, {} GiB of voxels, {}^3 zstd chunks{})\n",
         rayon::current_num_threads(),
         store.display(),
-        gib(voxel_bytes)
+        gib(voxel_bytes),
+        args.chunk,
+        if args.shard > 0 {
+            format!(" in {}^3 shards", args.shard)
+        } else {
+            String::new()
+        }
     );
     if args.compare {
         compare(&scene_path, voxel_bytes, args)

@@ -176,6 +176,9 @@ enum Reader {
     PartialFilm,
     ExperimentShard,
     Exr,
+    /// An OME-Zarr store (a folder) with one of its files mutated: the case's name says which
+    /// (`group.zarr.json`, `array.zarr.json`, `chunk.zst`); read whole and streamed.
+    Store,
 }
 
 /// How a reader took a case.
@@ -274,6 +277,9 @@ fn seed_bytes(path: &Path, name: &str, scratch: &Path) -> Vec<u8> {
         "part.gspartial" => seed_partial().0,
         "shard.json" => seed_shard(scratch),
         "image.exr" => exr_seed(scratch),
+        "group.zarr.json" | "array.zarr.json" | "chunk.zst" => {
+            std::fs::read(template_store().join(store_part(name))).unwrap()
+        }
         _ => std::fs::read(path).unwrap(),
     }
 }
@@ -334,6 +340,23 @@ fn run_reader(reader: Reader, path: &Path, expected: &Expected) -> Result<Outcom
                 Ok(_) => Outcome::SilentWrong,
                 Err(_) => Outcome::Refused,
             },
+            Reader::Store => {
+                let whole = volume_pt::io::read_volume(&path, &Default::default()).is_ok();
+                // Streamed within a budget of a few bricks: the survey reads every chunk, and
+                // a lookup of every voxel reads them all again (a failure is recorded).
+                let hints = volume_pt::io::ReadHints {
+                    memory_budget: Some(96 * 1024),
+                    ..Default::default()
+                };
+                let streamed = match volume_pt::io::read_volume(&path, &hints) {
+                    Ok(v) => {
+                        let _ = v.grid.to_f32();
+                        v.grid.check_streaming().is_ok()
+                    }
+                    Err(_) => false,
+                };
+                read(whole || streamed)
+            }
             Reader::Exr => match hdr_image::RgbImage::read_exr(&path) {
                 Ok(img) => {
                     // What a kept reference is checked for before it is reused.
@@ -449,8 +472,62 @@ fn seeds() -> Vec<(PathBuf, Reader, String)> {
         Reader::Exr,
         "image.exr".into(),
     ));
+    // Made by `template_store`; the path only has to exist.
+    for part in ["group.zarr.json", "array.zarr.json", "chunk.zst"] {
+        out.push((data.join("scenes/default.toml"), Reader::Store, part.into()));
+    }
     out.retain(|(p, ..)| p.exists());
     out
+}
+
+/// A small OME-Zarr store the store seeds are taken from and staged in: neghip written by
+/// `gscache convert`'s writer in 16^3 chunks, two levels (made once a run).
+fn template_store() -> PathBuf {
+    static STORE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    STORE
+        .get_or_init(|| {
+            let dir =
+                std::env::temp_dir().join(format!("gscache-fuzz-store-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&dir);
+            std::fs::create_dir_all(&dir).unwrap();
+            let store = dir.join("cells.ome.zarr");
+            let volume = volume_pt::io::read_volume(
+                &repo().join("data/volumes/neghip_64x64x64_uint8.raw"),
+                &Default::default(),
+            )
+            .unwrap();
+            let options = volume_pt::io::StoreOptions {
+                chunk: 16,
+                max_levels: 2,
+                ..Default::default()
+            };
+            volume_pt::io::write_ome_zarr(&volume, &store, &options).unwrap();
+            store
+        })
+        .clone()
+}
+
+/// The file of a store a store seed's name stands for.
+fn store_part(name: &str) -> &'static str {
+    match name {
+        "group.zarr.json" => "zarr.json",
+        "array.zarr.json" => "s0/zarr.json",
+        _ => "s0/c/1/1/1",
+    }
+}
+
+/// Copies the folder `from` to `to`.
+fn copy_folder(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let target = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_folder(&p, &target);
+        } else {
+            std::fs::copy(&p, &target).unwrap();
+        }
+    }
 }
 
 /// Writes `bytes` as `name` in a fresh folder `dir`, with what a reader needs beside it: the
@@ -478,6 +555,13 @@ fn stage(dir: &Path, reader: Reader, name: &str, bytes: &[u8]) -> PathBuf {
             let path = scenes.join(name);
             std::fs::write(&path, bytes).unwrap();
             return path;
+        }
+        Reader::Store => {
+            // A corpus entry is a whole store; a fuzz case replaces one file of the template.
+            let store = dir.join("cells.ome.zarr");
+            copy_folder(&template_store(), &store);
+            std::fs::write(store.join(store_part(name)), bytes).unwrap();
+            return store;
         }
         Reader::Volume if name.ends_with(".nhdr") => {
             std::fs::copy(
@@ -549,8 +633,18 @@ fn the_regression_corpus_is_refused_cleanly() {
             continue;
         }
         count += 1;
-        let reader = reader_for_corpus_file(&name);
         let dir = std::env::temp_dir().join(format!("gscache-corpus-{}", std::process::id()));
+        if p.is_dir() {
+            // A hostile store, kept whole.
+            let _ = std::fs::remove_dir_all(&dir);
+            let staged = dir.join(&name);
+            copy_folder(&p, &staged);
+            if let Err(why) = run_reader(Reader::Store, &staged, &expected) {
+                failures.push(format!("{name}: {why}"));
+            }
+            continue;
+        }
+        let reader = reader_for_corpus_file(&name);
         let staged = stage(&dir, reader, &name, &std::fs::read(&p).unwrap());
         if let Err(why) = run_reader(reader, &staged, &expected) {
             failures.push(format!("{name}: {why}"));

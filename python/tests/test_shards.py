@@ -132,3 +132,45 @@ cache = {{ points = 1000, warmup = 3 }}
     one, merged = spp_rows(tmp_path / "one"), spp_rows(tmp_path / "merged")
     assert len(one) == 2 * 2 * 3
     assert one == merged
+
+
+def _store_recipe(scene_file, budget):
+    """A recipe that opens the scene (and through it the store) within `budget` on the
+    worker: nothing of the volume travels."""
+    def recipe():
+        gscache.set_memory_budget(budget)
+        return gscache.Scene.load(scene_file)
+    return recipe
+
+
+def _streamed_on_worker(store, budget):
+    import resource
+    gscache.set_memory_budget(budget)
+    v = gscache.Volume.read(store)
+    return v.streamed, v.nbytes, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def test_dask_workers_open_a_shared_store_within_their_budget(repo, program, tmp_path, client):
+    """Issue 50: a scene whose volume is an OME-Zarr store in a folder every worker reaches; each
+    worker opens the store itself and streams it within a budget of a few bricks; the merged
+    image is one process's render of the volume read whole, bit for bit."""
+    store = tmp_path / "neghip.ome.zarr"
+    done = run_program(program, "convert", str(repo / "data/volumes/neghip_64x64x64_uint8.raw"),
+                       str(store), "--chunk", "16", "--max-levels", "1")
+    assert done.returncode == 0, done.stderr
+    text = small_scene_file(repo, tmp_path).read_text()
+    raw = f"{repo}/data/volumes/neghip_64x64x64_uint8.raw"
+    assert raw in text
+    scene_file = tmp_path / "store.toml"
+    scene_file.write_text(text.replace(raw, str(store)))
+    whole = gscache.render(gscache.Scene.load(str(small_scene_file(repo, tmp_path))), spp=4)
+
+    from gscache import distributed as gd
+    budget = "48K"  # 16^3 bricks of 4 KiB: the page table, the ranges and four bricks
+    image = gd.render_sharded(client, _store_recipe(str(scene_file), budget), 4, spp=4,
+                              threads=1)
+    assert np.array_equal(bits(image), bits(whole))
+    for streamed, nbytes, _ in client.gather(
+            [client.submit(_streamed_on_worker, str(store), budget, pure=False,
+                           workers=[w]) for w in client.scheduler_info()["workers"]]):
+        assert streamed and nbytes == 48 * 1024

@@ -16,11 +16,12 @@
 //! grid's, so a streamed render is bit for bit the render of the volume read whole, whichever
 //! bricks were resident.
 //!
-//! **The budget.** Loading a brick adds its bytes to the resident total; past the budget, a
-//! clock sweep (second chance: a brick used since the last sweep is kept once more) empties
-//! slots until the total is 7/8 of the budget. A thread still reading an emptied brick keeps it
-//! alive through its reference until it moves on, so the bound is the budget plus a brick per
-//! thread.
+//! **The budget.** It bounds the streamed volume's memory: the page table and majorant
+//! structures take their share, the bricks the rest (the capacity). Loading a brick adds its
+//! bytes to the resident total; past the capacity, a clock sweep (second chance: a brick used
+//! since the last sweep is kept once more) empties slots until the total is 7/8 of it. A thread
+//! still reading an emptied brick keeps it alive through its reference until it moves on, so
+//! the bound is the capacity plus a brick per thread.
 //!
 //! **The survey.** Delta tracking needs, per macrocell, the range of every voxel interpolation
 //! can touch there (`majorant`); a mean-downsampled pyramid does not bound it. [`Bricks::survey`]
@@ -51,6 +52,11 @@ pub trait BrickSource: Send + Sync + std::fmt::Debug {
     /// The voxels of the box `lo .. lo + size` (inside the grid), x fastest, in the stored
     /// type (the same type for every brick).
     fn read(&self, lo: UVec3, size: UVec3) -> Result<Voxels>;
+    /// Whether the store holds no data for the box `lo .. lo + size` (its voxels are all the
+    /// fill value); `false` where it cannot tell cheaply.
+    fn is_absent(&self, _lo: UVec3, _size: UVec3) -> bool {
+        false
+    }
     /// A string that changes whenever the stored voxels may have changed (the files' sizes and
     /// modification times), and that names the data (store, array, selection); `None`: never
     /// cache this source's survey.
@@ -96,6 +102,9 @@ pub struct Bricks {
     used: Box<[AtomicBool]>,
     resident_bytes: AtomicU64,
     budget: u64,
+    /// The bytes bricks may take: the budget less the page table and the majorant structures
+    /// ([`fixed_bytes`]).
+    capacity: u64,
     bytes_per_voxel: usize,
     clock_hand: Mutex<usize>,
     loads: AtomicU64,
@@ -119,9 +128,10 @@ impl std::fmt::Debug for Bricks {
 const MIN_BRICK_EDGE: u32 = 16;
 /// The largest brick edge: a larger chunk is read in parts (each part decodes the chunk).
 const MAX_BRICK_EDGE: u32 = 256;
-/// Slots in the page table at most (8 bytes each plus a flag): past it the chunks are too small
-/// for the volume.
-const MAX_BRICKS: u64 = 1 << 26;
+/// Bricks a streamed volume may have at most (2^24: 512 GiB of uint8 in 32^3 chunks, 256 TiB in
+/// 256^3 ones): past it the chunks are too small for the volume, and a store that claims more
+/// is refused before its page table is allocated or its chunks listed.
+const MAX_BRICKS: u64 = 1 << 24;
 
 /// The brick edge for a chunk edge `chunk` (see [`MIN_BRICK_EDGE`], [`MAX_BRICK_EDGE`]).
 pub fn brick_edge(chunk: u32) -> u32 {
@@ -144,6 +154,37 @@ pub fn streamed_macrocell(dims: UVec3, default: u32) -> u32 {
         cell *= 2;
     }
     cell
+}
+
+/// Bricks that must fit at once: two a thread (a lookup's and the next), at least four.
+fn min_bricks() -> u64 {
+    (2 * rayon::current_num_threads() as u64).max(4)
+}
+
+/// Bytes of a streamed grid's memory besides its bricks: the page table (a slot and a flag a
+/// brick, and a reading's transient buffers) and the majorant structures at the default
+/// streamed macrocell (per cell: the survey's ranges, the grid's scaled copy, the majorants and
+/// controls, and the survey pass's accumulators: 40 bytes).
+fn fixed_bytes(dims: UVec3, bricks: u64) -> u64 {
+    let cell = streamed_macrocell(dims, crate::medium::DEFAULT_MACROCELL);
+    let cells =
+        dims.x.div_ceil(cell) as u64 * dims.y.div_ceil(cell) as u64 * dims.z.div_ceil(cell) as u64;
+    bricks * 73 + cells * 40
+}
+
+/// The smallest memory budget a grid of `dims` streamed in chunks of `chunk` voxels (x, y, z)
+/// of `bytes_per_voxel` takes: [`fixed_bytes`] and [`min_bricks`] bricks.
+pub fn min_budget(dims: UVec3, chunk: UVec3, bytes_per_voxel: usize) -> u64 {
+    let brick = UVec3::new(
+        brick_edge(chunk.x),
+        brick_edge(chunk.y),
+        brick_edge(chunk.z),
+    )
+    .min(dims.max(UVec3::ONE));
+    let counts = (dims + brick - 1) / brick;
+    let n = counts.x as u64 * counts.y as u64 * counts.z as u64;
+    let largest = brick.x as u64 * brick.y as u64 * brick.z as u64 * bytes_per_voxel as u64;
+    fixed_bytes(dims, n) + largest * min_bricks()
 }
 
 static NEXT_GRID_ID: AtomicU64 = AtomicU64::new(1);
@@ -194,22 +235,25 @@ impl Bricks {
                 brick.z
             )));
         }
-        let largest = brick.x as u64 * brick.y as u64 * brick.z as u64 * bytes_per_voxel as u64;
-        let threads = rayon::current_num_threads() as u64;
-        if budget < largest * (2 * threads).max(4) {
+        let needed = min_budget(dims, chunk, bytes_per_voxel);
+        if budget < needed {
             return Err(Error::Invalid(format!(
-                "{}: a memory budget of {} holds fewer than {} bricks of {} ({}x{}x{} voxels): \
-                 expected a budget of at least {}",
+                "{}: a memory budget of {} is too small for {}x{}x{} voxels in bricks of \
+                 {}x{}x{} (its page table, majorant ranges and {} bricks): expected a budget \
+                 of at least {}",
                 source.name(),
                 crate::io::human_bytes(budget),
-                (2 * threads).max(4),
-                crate::io::human_bytes(largest),
+                dims.x,
+                dims.y,
+                dims.z,
                 brick.x,
                 brick.y,
                 brick.z,
-                crate::io::human_bytes(largest * (2 * threads).max(4))
+                min_bricks(),
+                crate::io::human_bytes(needed)
             )));
         }
+        let capacity = budget - fixed_bytes(dims, n);
         let shift =
             (brick.x.is_power_of_two() && brick.y.is_power_of_two() && brick.z.is_power_of_two())
                 .then(|| {
@@ -230,6 +274,7 @@ impl Bricks {
             used: (0..n).map(|_| AtomicBool::new(false)).collect(),
             resident_bytes: AtomicU64::new(0),
             budget,
+            capacity,
             bytes_per_voxel,
             clock_hand: Mutex::new(0),
             loads: AtomicU64::new(0),
@@ -343,19 +388,19 @@ impl Bricks {
         }
         let bytes = (brick.voxels.len() * self.bytes_per_voxel) as u64;
         let total = self.resident_bytes.fetch_add(bytes, Ordering::Relaxed) + bytes;
-        if total > self.budget {
+        if total > self.capacity {
             self.evict();
         }
         brick
     }
 
-    /// Empties slots by the clock (second chance) until 7/8 of the budget is resident; a
+    /// Empties slots by the clock (second chance) until 7/8 of the capacity is resident; a
     /// thread that finds another sweeping leaves it to them.
     fn evict(&self) {
         let Ok(mut hand) = self.clock_hand.try_lock() else {
             return;
         };
-        let target = self.budget / 8 * 7;
+        let target = self.capacity / 8 * 7;
         let n = self.slots.len();
         for _ in 0..2 * n {
             if self.resident_bytes.load(Ordering::Relaxed) <= target {
@@ -527,8 +572,16 @@ impl Bricks {
         let samples: Vec<Vec<f32>> = (0..self.slots.len())
             .into_par_iter()
             .map(|index| -> Result<Vec<f32>> {
-                let brick = self.read_brick(index)?;
                 let (lo, size) = self.brick_box(index);
+                // A brick no chunk of the store holds is the fill value throughout: one voxel
+                // read gives it (a store that claims a huge array and holds little data is
+                // surveyed in time proportional to its bricks, not its voxels).
+                let brick = if self.source.is_absent(lo, size) {
+                    let one = self.source.read(lo, UVec3::ONE)?;
+                    Surveyed::Constant(one.get(0))
+                } else {
+                    Surveyed::Read(self.read_brick(index)?)
+                };
                 let hi = lo + size - 1;
                 // Cells whose reach [c*B - 1, (c+1)*B] meets this brick.
                 let first = (lo / cell_size).saturating_sub(UVec3::ONE);
@@ -543,7 +596,10 @@ impl Bricks {
                             if a.cmpgt(b).any() {
                                 continue;
                             }
-                            let (mn, mx) = brick_range(&brick, a - lo, b - lo);
+                            let (mn, mx) = match &brick {
+                                Surveyed::Read(brick) => brick_range(brick, a - lo, b - lo),
+                                Surveyed::Constant(v) => (*v, *v),
+                            };
                             let k = cx as usize
                                 + cells.x as usize * (cy as usize + cells.y as usize * cz as usize);
                             atomic_min(&lows[k], mn);
@@ -558,11 +614,16 @@ impl Bricks {
                 for z in (start(lo.z)..size.z as usize).step_by(s) {
                     for y in (start(lo.y)..sy).step_by(s) {
                         for x in (start(lo.x)..sx).step_by(s) {
-                            sample.push(brick.voxels.get(x + sx * (y + sy * z)));
+                            sample.push(match &brick {
+                                Surveyed::Read(brick) => brick.voxels.get(x + sx * (y + sy * z)),
+                                Surveyed::Constant(v) => *v,
+                            });
                         }
                     }
                 }
-                self.keep_if_room(index, brick);
+                if let Surveyed::Read(brick) = brick {
+                    self.keep_if_room(index, brick);
+                }
                 Ok(sample)
             })
             .collect::<Result<_>>()?;
@@ -594,7 +655,7 @@ impl Bricks {
     fn keep_if_room(&self, index: usize, brick: Brick) {
         let bytes = (brick.voxels.len() * self.bytes_per_voxel) as u64;
         let total = self.resident_bytes.fetch_add(bytes, Ordering::Relaxed) + bytes;
-        if total > self.budget / 8 * 7
+        if total > self.capacity / 8 * 7
             || self.slots[index]
                 .compare_and_swap(&None::<Arc<Brick>>, Some(Arc::new(brick)))
                 .is_some()
@@ -604,6 +665,13 @@ impl Bricks {
             self.loads.fetch_add(1, Ordering::Relaxed);
         }
     }
+}
+
+/// A brick as the survey saw it.
+enum Surveyed {
+    Read(Brick),
+    /// No chunk holds it: the fill value throughout.
+    Constant(f32),
 }
 
 /// Smallest and largest stored value in the box `a..=b` of a brick (local coordinates).

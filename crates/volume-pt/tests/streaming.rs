@@ -23,10 +23,10 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
-/// The smallest budget a streamed grid takes: `(2 x threads).max(4)` bricks of `brick` voxels.
-fn tight_budget(brick: UVec3, bytes_per_voxel: usize) -> u64 {
-    let bricks = (2 * rayon::current_num_threads()).max(4) as u64;
-    bricks * (brick.x * brick.y * brick.z) as u64 * bytes_per_voxel as u64
+/// The smallest budget a streamed grid takes: its fixed structures and `(2 x threads).max(4)`
+/// bricks.
+fn tight_budget(dims: UVec3, chunk: UVec3, bytes_per_voxel: usize) -> u64 {
+    volume_pt::bricks::min_budget(dims, chunk, bytes_per_voxel)
 }
 
 fn streamed(grid: &ScalarGrid, chunk: UVec3, budget: u64) -> ScalarGrid {
@@ -83,13 +83,7 @@ fn streamed_lookups_equal_the_whole_grid_bit_for_bit() {
             UVec3::new(5, 20, 7),
             UVec3::new(64, 4, 16),
         ] {
-            let edge = UVec3::new(
-                volume_pt::bricks::brick_edge(chunk.x),
-                volume_pt::bricks::brick_edge(chunk.y),
-                volume_pt::bricks::brick_edge(chunk.z),
-            )
-            .min(dims);
-            let budget = tight_budget(edge, whole.bytes_per_voxel());
+            let budget = tight_budget(dims, chunk, whole.bytes_per_voxel());
             let s = streamed(whole, chunk, budget);
             let what = format!("{} in chunks of {chunk}", whole.type_name());
             assert_eq!(s.range(), whole.range(), "{what}");
@@ -190,7 +184,7 @@ fn a_streamed_volume_renders_bit_for_bit_as_read_whole() {
     let reference = render(&default_scene_with(whole.clone()));
 
     let chunk = UVec3::splat(16);
-    let s = streamed(&whole, chunk, tight_budget(chunk, 1));
+    let s = streamed(&whole, chunk, tight_budget(whole.dims(), chunk, 1));
     let image = render(&default_scene_with(s.clone()));
     assert!(reference.iter().any(|&v| f32::from_bits(v) > 0.0));
     assert!(image == reference, "the streamed render differs");
@@ -217,7 +211,7 @@ fn a_streamed_volume_renders_bit_for_bit_as_read_whole() {
     };
     write_ome_zarr(&loaded, &store, &options).unwrap();
     let hints = ReadHints {
-        memory_budget: Some(tight_budget(chunk, 1)),
+        memory_budget: Some(tight_budget(whole.dims(), chunk, 1)),
         ..Default::default()
     };
     let from_store = read_volume(&store, &hints).unwrap();
@@ -278,7 +272,7 @@ fn unreadable_bricks_and_tiny_budgets_are_reported() {
     );
 
     let hints = ReadHints {
-        memory_budget: Some(tight_budget(UVec3::splat(16), 1)),
+        memory_budget: Some(tight_budget(dims, UVec3::splat(16), 1)),
         ..Default::default()
     };
     let v = read_volume(&store, &hints).unwrap();

@@ -13,7 +13,7 @@
 
 use super::budget::{check_volume_size, human_bytes, measure_volume};
 use super::{DType, LoadedVolume, grid_for};
-use crate::bricks::{BrickSource, Bricks};
+use crate::bricks::{BrickSource, Bricks, brick_edge};
 use crate::error::{Error, Result};
 use crate::grid::{ScalarGrid, Voxels};
 use glam::{UVec3, Vec3};
@@ -226,6 +226,8 @@ struct ZarrBricks {
     store: std::path::PathBuf,
     dataset: String,
     array: Arc<Array<FilesystemStore>>,
+    /// The array's files as listed when it was opened.
+    listing: Option<Listing>,
     /// The array's subset for the whole volume (time and channel fixed); a brick narrows the
     /// spatial ranges.
     ranges: Vec<std::ops::Range<u64>>,
@@ -271,37 +273,119 @@ impl BrickSource for ZarrBricks {
         read_subset(&self.array, &subset, self.dtype, &fault, &options)
     }
 
+    fn is_absent(&self, lo: UVec3, size: UVec3) -> bool {
+        let Some(listing) = &self.listing else {
+            return false;
+        };
+        let mut ranges = self.ranges.clone();
+        let [z, y, x] = self.spatial;
+        let span = |l: u32, n: u32| u64::from(l)..u64::from(l) + u64::from(n);
+        ranges[z] = span(lo.z, size.z);
+        ranges[y] = span(lo.y, size.y);
+        ranges[x] = span(lo.x, size.x);
+        let subset = ArraySubset::new_with_ranges(&ranges);
+        let Ok(Some(chunks)) = self.array.chunks_in_array_subset(&subset) else {
+            return false;
+        };
+        chunks.indices().iter().all(|indices| {
+            let key = self.array.chunk_key(&indices);
+            !listing.keys.contains(&key_hash(key.as_str()))
+        })
+    }
+
     fn identity(&self) -> Option<String> {
-        let store = std::fs::canonicalize(&self.store).ok()?;
-        let folder = store.join(self.dataset.trim_matches('/'));
-        let (mut files, mut bytes, mut newest) = (0u64, 0u64, 0u128);
-        let mut stack = vec![folder];
-        while let Some(dir) = stack.pop() {
-            for entry in std::fs::read_dir(&dir).ok()? {
-                let entry = entry.ok()?;
-                let meta = entry.metadata().ok()?;
-                if meta.is_dir() {
-                    stack.push(entry.path());
-                } else {
-                    files += 1;
-                    bytes += meta.len();
-                    let modified = meta.modified().ok()?;
-                    let t = modified
-                        .duration_since(std::time::UNIX_EPOCH)
-                        .ok()?
-                        .as_nanos();
-                    newest = newest.max(t);
-                }
-            }
-        }
+        let listing = self.listing.as_ref()?;
         Some(format!(
-            "ome-zarr {}|{}|{:?}|{} files, {bytes} bytes, newest {newest}",
-            store.display(),
+            "ome-zarr {}|{}|{:?}|{} files, {} bytes, newest {}",
+            listing.store.display(),
             self.dataset,
             self.selection,
-            files
+            listing.keys.len(),
+            listing.bytes,
+            listing.newest
         ))
     }
+}
+
+/// The files of one array of a store, listed once when it is opened: which chunk keys exist
+/// (a hash of each), and the sizes and times that identify its data.
+#[derive(Debug)]
+struct Listing {
+    store: std::path::PathBuf,
+    keys: std::collections::HashSet<u64>,
+    bytes: u64,
+    newest: u128,
+}
+
+fn key_hash(key: &str) -> u64 {
+    render_base::hash::fnv1a64(key.as_bytes(), render_base::hash::FNV_OFFSET)
+}
+
+/// Files a store must hold for each this many of the bricks it is streamed in before it is
+/// streamed: a store that claims far more than it holds (a few kilobytes claiming terabytes)
+/// is refused, where surveying it would take time for nothing.
+const MOST_BRICKS_PER_FILE: u64 = 4096;
+
+/// Refuses a volume of `dims` in bricks of `brick` with more than [`MOST_BRICKS_PER_FILE`]
+/// bricks for each file its array holds.
+fn check_plausible(
+    dims: UVec3,
+    brick: UVec3,
+    listing: &Listing,
+    bad: &dyn Fn(String) -> Error,
+) -> Result<()> {
+    let n = (dims + brick - 1) / brick;
+    let bricks = n.x as u64 * n.y as u64 * n.z as u64;
+    let files = listing.keys.len() as u64;
+    if bricks > MOST_BRICKS_PER_FILE * (files + 1) {
+        return Err(bad(format!(
+            "the array claims {}x{}x{} voxels ({bricks} bricks of {}x{}x{}) and holds {files} \
+             files: expected a store that holds a file for at least one brick in \
+             {MOST_BRICKS_PER_FILE} (refused rather than surveyed: a store this empty is more \
+             likely damaged than sparse)",
+            dims.x, dims.y, dims.z, brick.x, brick.y, brick.z
+        )));
+    }
+    Ok(())
+}
+
+/// Lists the files under `dataset` of the store at `store` (`None` where a folder or a file's
+/// metadata cannot be read: then nothing is taken as absent and no survey is kept).
+fn list_array(store: &Path, dataset: &str) -> Option<Listing> {
+    let store = std::fs::canonicalize(store).ok()?;
+    let mut listing = Listing {
+        store: store.clone(),
+        keys: Default::default(),
+        bytes: 0,
+        newest: 0,
+    };
+    let mut stack = vec![store.join(dataset.trim_matches('/'))];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).ok()? {
+            let entry = entry.ok()?;
+            let meta = entry.metadata().ok()?;
+            if meta.is_dir() {
+                stack.push(entry.path());
+                continue;
+            }
+            let path = entry.path();
+            let relative = path.strip_prefix(&store).ok()?;
+            let key: Vec<String> = relative
+                .components()
+                .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                .collect();
+            listing.keys.insert(key_hash(&key.join("/")));
+            listing.bytes += meta.len();
+            let t = meta
+                .modified()
+                .ok()?
+                .duration_since(std::time::UNIX_EPOCH)
+                .ok()?
+                .as_nanos();
+            listing.newest = listing.newest.max(t);
+        }
+    }
+    Some(listing)
 }
 
 /// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder): whole
@@ -341,6 +425,16 @@ pub fn read(path: &Path, selection: &ZarrSelection, budget: u64) -> Result<Loade
         }
     }
     let names: Vec<&str> = image.axes.iter().map(|a| a.name.as_str()).collect();
+    if let Some(twice) = names
+        .iter()
+        .enumerate()
+        .find(|(i, n)| names[..*i].contains(n))
+        .map(|(_, n)| n)
+    {
+        return Err(bad(format!(
+            "axes {names:?} name `{twice}` twice: expected each axis named once"
+        )));
+    }
     if spatial.len() != 3 {
         return Err(bad(format!(
             "axes {names:?} have {} spatial axes: expected 3 (a 2D image is not a volume)",
@@ -436,10 +530,20 @@ pub fn read(path: &Path, selection: &ZarrSelection, budget: u64) -> Result<Loade
     let array = Arc::new(array);
     let grid = if streamed {
         let chunk = chunk_shape(&array, &bad)?;
+        let listing = list_array(path, dataset);
+        if let Some(listing) = &listing {
+            let brick = UVec3::new(
+                brick_edge(chunk[spatial[2]]),
+                brick_edge(chunk[spatial[1]]),
+                brick_edge(chunk[spatial[0]]),
+            );
+            check_plausible(size.dims, brick, listing, &bad)?;
+        }
         let source = ZarrBricks {
             store: path.to_path_buf(),
             dataset: dataset.clone(),
             array: array.clone(),
+            listing,
             ranges: ranges.clone(),
             spatial: [spatial[0], spatial[1], spatial[2]],
             dtype,

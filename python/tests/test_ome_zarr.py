@@ -225,3 +225,57 @@ def test_a_store_streamed_within_a_small_budget_renders_as_read_whole(stores, ve
         v.to_numpy()
     with pytest.raises(gscache.GscacheError, match="memory_budget"):
         gscache.Volume.read(path, memory_budget="lots")
+
+
+def test_channels_render_together_from_a_scene(stores, program, tmp_path):
+    """Issue 50: a store's channels rendered together through `[[channel]]` tables (the
+    volume's own channel classified by `[transfer]`, two more by their window, colour and
+    opacity): the image differs from the first channel's alone, stays finite, and a channel
+    index past the store's axis is refused by name."""
+    _, _, paths = stores
+    base = f'''
+[volume]
+file = "{paths["0.5"]}"
+[transfer]
+window = [0, 4000]
+density_scale = 0.5
+points = [{{ value = 0.0, color = [0.2, 1.0, 0.2], opacity = 0.0 }},
+          {{ value = 1.0, color = [0.2, 1.0, 0.2], opacity = 1.0 }}]
+[environment]
+radiance = [1.0, 1.0, 1.0]
+[camera]
+eye = [40.0, 30.0, 60.0]
+target = [0.0, 0.0, 0.0]
+fov_y = 40.0
+width = 40
+height = 32
+[render]
+spp = 4
+'''
+    channels = '''
+[[channel]]
+index = 1
+window = [0, 4000]
+color = [1.0, 0.2, 1.0]
+[[channel]]
+index = 2
+window = [1000, 4000]
+color = [0.2, 0.6, 1.0]
+opacity = 0.5
+'''
+    images = {}
+    for name, text in [("one", base), ("three", base + channels)]:
+        scene = tmp_path / f"{name}.toml"
+        scene.write_text(text)
+        out = tmp_path / f"{name}.exr"
+        done = run_program(program, "render", str(scene), "-o", str(out))
+        assert done.returncode == 0, done.stderr
+        images[name] = gscache.read_exr(str(out))
+    assert np.isfinite(images["three"]).all()
+    assert not np.array_equal(images["one"], images["three"])
+    # The channels darken the background seen through the medium (more extinction).
+    assert images["three"].mean() < images["one"].mean()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(base + channels.replace("index = 2", "index = 3"))
+    done = run_program(program, "render", str(bad), "-o", str(tmp_path / "bad.exr"))
+    assert done.returncode != 0 and "channel 3" in done.stderr, done.stderr

@@ -265,6 +265,7 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
         output: r.scene.output,
         clip: r.scene.media.medium.clipping().clone(),
         views: r.views.to_vec(),
+        channels: r.scene.channels.clone(),
     };
     description
         .to_toml(&format!(

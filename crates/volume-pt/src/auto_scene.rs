@@ -190,6 +190,7 @@ pub fn scene_description(
         },
         clip: Clipping::default(),
         views: Vec::new(),
+        channels: Vec::new(),
     };
     let comment = format!(
         "Made by `gscache render` for {} (colour map {colormap}): edit and render it as any \

@@ -475,8 +475,9 @@ impl Bricks {
         Brick { voxels, size }
     }
 
-    /// The stored value of voxel `i` (inside the grid).
-    #[inline]
+    /// The stored value of voxel `i` (inside the grid). Not inlined into the grid's lookups:
+    /// an in-memory grid's hot path stays as small as it was before streaming existed.
+    #[inline(never)]
     pub fn stored(&self, i: UVec3) -> f32 {
         let (b, local) = self.locate(i);
         self.with_brick(self.flat(b), |brick| {
@@ -488,8 +489,9 @@ impl Bricks {
     }
 
     /// The stored values of the eight voxels of a trilinear lookup from `i0` to `i1` (each
-    /// coordinate of `i1` is that of `i0` or one more), in the in-memory grid's order.
-    #[inline]
+    /// coordinate of `i1` is that of `i0` or one more), in the in-memory grid's order. Not
+    /// inlined (see [`Bricks::stored`]).
+    #[inline(never)]
     pub fn corners(&self, i0: UVec3, i1: UVec3) -> [f32; 8] {
         let (b, local0) = self.locate(i0);
         let local1 = local0 + (i1 - i0);

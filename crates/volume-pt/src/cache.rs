@@ -176,7 +176,7 @@ pub fn sample_cache_points(medium: &Medium, n: usize, seed: u64) -> (Vec<Vec3>, 
                 };
                 let ray = medium.to_index_ray(o, d);
                 if let Some(hit) = free_flight(medium, &ray, 0.0, f32::INFINITY, &mut rng) {
-                    let albedo = medium.transfer_function().albedo(hit.value);
+                    let albedo = medium.albedo_with(hit.value, ray.at(hit.t));
                     out.push((o + d * hit.t, albedo));
                 }
             }

@@ -170,7 +170,7 @@ pub fn radiance_with<H: PathHooks>(
             first_hit = Some(FirstHit::Scattered(FirstEvent {
                 distance: t,
                 position: o + d * t,
-                albedo: medium.transfer_function().albedo(value),
+                albedo: medium.albedo_with(value, ray.at(t)),
             }));
         }
         if depth >= max_depth {
@@ -178,7 +178,7 @@ pub fn radiance_with<H: PathHooks>(
         }
         let x = o + d * t;
         let tf = medium.transfer_function();
-        let albedo = tf.albedo(value);
+        let albedo = medium.albedo_with(value, ray.at(t));
         beta *= albedo;
         depth += 1;
         if !(beta.max_element() > 0.0) {

@@ -103,6 +103,18 @@ impl MajorantGrid {
         }
     }
 
+    /// Adds `other`'s majorants and controls cell by cell (another channel's, over the same
+    /// cells).
+    pub fn add(&mut self, other: &MajorantGrid) {
+        debug_assert_eq!(self.cells, other.cells);
+        for (m, o) in self.majorants.iter_mut().zip(&other.majorants) {
+            *m += o;
+        }
+        for (c, o) in self.controls.iter_mut().zip(&other.controls) {
+            *c += o;
+        }
+    }
+
     /// The largest majorant of all cells.
     pub fn global_max(&self) -> f32 {
         self.majorants.iter().copied().fold(0.0, f32::max)

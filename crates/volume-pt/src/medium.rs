@@ -5,6 +5,14 @@
 //! `(i, j, k)` sits at `origin + (i + 0.5, j + 0.5, k + 0.5) * spacing`. Outside the box there is
 //! no medium. Rays are tracked in index space (`u = (x - origin) / spacing`) with the world
 //! distance `t` as parameter, so anisotropic spacing costs nothing in the inner loop.
+//!
+//! Channels: more grids of the same dims (an OME-Zarr image's `c` axis, or files of their own)
+//! may be rendered together with the first, each classified by its own transfer function, as
+//! microscopists' viewers composite them: extinctions add, and the scattering colour is the
+//! extinction-weighted mix of the channels' colours. Each channel's majorants come from its own
+//! value ranges and the cell's majorant is their sum (rounding is monotone, so the sum of
+//! bounds bounds the sum). A medium of one channel evaluates exactly what it did before
+//! channels existed.
 
 use crate::clip::{Clipping, IndexClip};
 use crate::grid::{Filter, ScalarGrid};
@@ -29,6 +37,26 @@ impl IndexRay {
     }
 }
 
+/// A channel rendered together with the first: its grid, classification and value ranges.
+#[derive(Debug, Clone)]
+pub struct Channel {
+    /// The channel's index in its image (for messages and the viewer).
+    pub index: u32,
+    grid: ScalarGrid,
+    tf: TransferFunction,
+    ranges: ValueRanges,
+}
+
+impl Channel {
+    pub fn grid(&self) -> &ScalarGrid {
+        &self.grid
+    }
+
+    pub fn transfer_function(&self) -> &TransferFunction {
+        &self.tf
+    }
+}
+
 /// Grid, placement, classification and majorants.
 #[derive(Debug, Clone)]
 pub struct Medium {
@@ -45,6 +73,8 @@ pub struct Medium {
     /// [`Medium::clip`] does exactly what it did before clipping existed).
     clipping: Clipping,
     index_clip: Option<IndexClip>,
+    /// Channels beyond the first (see the module docs); empty for most volumes.
+    channels: Vec<Channel>,
 }
 
 impl Medium {
@@ -91,7 +121,65 @@ impl Medium {
             majorants,
             clipping: Clipping::default(),
             index_clip: None,
+            channels: Vec::new(),
         })
+    }
+
+    /// Renders `grid` (the same dims as the first channel's) classified by `tf` together with
+    /// the channels already here; `index` names it. The majorants are rebuilt.
+    pub fn add_channel(
+        &mut self,
+        index: u32,
+        grid: ScalarGrid,
+        tf: TransferFunction,
+    ) -> crate::Result<()> {
+        if grid.dims() != self.grid.dims() {
+            return Err(crate::Error::Invalid(format!(
+                "channel {index} has {} voxels: expected the first channel's {}",
+                grid.dims(),
+                self.grid.dims()
+            )));
+        }
+        let ranges = ValueRanges::build(&grid, self.ranges.cell_size())?;
+        self.channels.push(Channel {
+            index,
+            grid,
+            tf,
+            ranges,
+        });
+        self.majorants = self.build_majorants();
+        Ok(())
+    }
+
+    /// The channels rendered together with the first.
+    pub fn channels(&self) -> &[Channel] {
+        &self.channels
+    }
+
+    /// Changes channel `k`'s transfer function (`k` counts the channels after the first).
+    pub fn set_channel_transfer_function(
+        &mut self,
+        k: usize,
+        tf: TransferFunction,
+    ) -> crate::Result<()> {
+        let Some(channel) = self.channels.get_mut(k) else {
+            return Err(crate::Error::Invalid(format!(
+                "channel {k}: the medium has {} channels after the first",
+                self.channels.len()
+            )));
+        };
+        channel.tf = tf;
+        self.majorants = self.build_majorants();
+        Ok(())
+    }
+
+    /// The majorants of every channel, summed per macrocell.
+    fn build_majorants(&self) -> MajorantGrid {
+        let mut m = MajorantGrid::build(&self.ranges, &self.tf);
+        for c in &self.channels {
+            m.add(&MajorantGrid::build(&c.ranges, &c.tf));
+        }
+        m
     }
 
     /// Cuts the medium to `clipping` (see [`crate::clip`]), replacing any earlier clipping; an
@@ -120,15 +208,18 @@ impl Medium {
 
     /// Changes the transfer function; the majorants are rebuilt from the stored value ranges.
     pub fn set_transfer_function(&mut self, tf: TransferFunction) {
-        self.majorants = MajorantGrid::build(&self.ranges, &tf);
         self.tf = tf;
+        self.majorants = self.build_majorants();
     }
 
     /// Rebuilds the majorants over macrocells of `cell_size` voxels (reads the voxels; a
     /// streamed grid surveys its store, which can fail).
     pub fn set_macrocell_size(&mut self, cell_size: u32) -> crate::Result<()> {
         self.ranges = ValueRanges::build(&self.grid, cell_size)?;
-        self.majorants = MajorantGrid::build(&self.ranges, &self.tf);
+        for c in &mut self.channels {
+            c.ranges = ValueRanges::build(&c.grid, cell_size)?;
+        }
+        self.majorants = self.build_majorants();
         Ok(())
     }
 
@@ -166,7 +257,7 @@ impl Medium {
     /// The parameter interval where the ray is inside the box and the kept region of the
     /// clipping ([`crate::clip`]), within `[t_min, t_max]`.
     /// Robust to direction components that are zero (rays parallel to, or grazing, a face).
-    #[inline]
+    #[inline(always)]
     pub fn clip(&self, r: &IndexRay, t_min: f32, t_max: f32) -> Option<(f32, f32)> {
         let mut t0 = t_min;
         let mut t1 = t_max;
@@ -206,7 +297,59 @@ impl Medium {
     /// Extinction per world unit at an index-space point.
     #[inline]
     pub fn extinction(&self, u: Vec3) -> f32 {
-        self.tf.extinction(self.value(u))
+        self.extinction_with(self.value(u), u)
+    }
+
+    /// Extinction per world unit at index-space point `u` whose first channel's value is
+    /// `value` (the other channels are looked up there).
+    #[inline(always)]
+    pub fn extinction_with(&self, value: f32, u: Vec3) -> f32 {
+        let first = self.tf.extinction(value);
+        if self.channels.is_empty() {
+            first
+        } else {
+            self.channels_extinction(first, u)
+        }
+    }
+
+    /// `first` plus the other channels' extinctions at `u`: kept out of line, so a medium of
+    /// one channel tracks with the code it had before channels existed.
+    #[inline(never)]
+    fn channels_extinction(&self, first: f32, u: Vec3) -> f32 {
+        self.channels.iter().fold(first, |sum, c| {
+            sum + c.tf.extinction(c.grid.sample(u, self.filter))
+        })
+    }
+
+    /// Single-scattering albedo at index-space point `u` whose first channel's value is
+    /// `value`: with several channels, their colours weighted by their extinctions.
+    #[inline(always)]
+    pub fn albedo_with(&self, value: f32, u: Vec3) -> Vec3 {
+        if self.channels.is_empty() {
+            self.tf.albedo(value)
+        } else {
+            self.channels_albedo(value, u)
+        }
+    }
+
+    /// [`Medium::albedo_with`] with several channels (out of line, as
+    /// [`Medium::channels_extinction`]).
+    #[inline(never)]
+    fn channels_albedo(&self, value: f32, u: Vec3) -> Vec3 {
+        let first = self.tf.extinction(value);
+        let (mut weighted, mut total) = (self.tf.albedo(value) * first, first);
+        for c in &self.channels {
+            let v = c.grid.sample(u, self.filter);
+            let sigma = c.tf.extinction(v);
+            weighted += c.tf.albedo(v) * sigma;
+            total += sigma;
+        }
+        // Written so that NaN takes the first channel's colour.
+        if total > 0.0 {
+            weighted / total
+        } else {
+            self.tf.albedo(value)
+        }
     }
 
     /// The feature-buffer normal at world point `x`: minus the world-space gradient of the
@@ -238,13 +381,20 @@ impl Medium {
     /// Single-scattering albedo at an index-space point.
     #[inline]
     pub fn albedo(&self, u: Vec3) -> Vec3 {
-        self.tf.albedo(self.value(u))
+        self.albedo_with(self.value(u), u)
     }
 
     /// Bytes held: the voxels, each macrocell's value range (two f32) and its majorant and
     /// control (two f32).
     pub fn memory_bytes(&self) -> usize {
         self.grid.bytes()
+            + self
+                .channels
+                .iter()
+                .map(|c| {
+                    c.grid.bytes() + self.majorants.cell_count() * 2 * std::mem::size_of::<f32>()
+                })
+                .sum::<usize>()
             + self.majorants.cell_count() * 2 * std::mem::size_of::<f32>()
             + self.majorants.bytes()
     }

@@ -59,7 +59,7 @@ impl Medium {
             }
             let u = ray.at(t);
             let filtered = self.value(u);
-            depth += tf.extinction(filtered) * step;
+            depth += self.extinction_with(filtered, u) * step;
             if depth >= needed {
                 let dims = self.grid().dims();
                 let voxel = u.floor().max(Vec3::ZERO).as_uvec3().min(dims - UVec3::ONE);

@@ -150,6 +150,53 @@ pub struct SceneFile {
     /// `[[view]]` tables: named camera positions (the viewer's bookmarks; `--view NAME`).
     #[serde(default, rename = "view", skip_serializing_if = "Vec::is_empty")]
     pub views: Vec<ViewDesc>,
+    /// `[[channel]]` tables: more channels rendered together with the volume's own (see
+    /// [`crate::medium`]).
+    #[serde(default, rename = "channel", skip_serializing_if = "Vec::is_empty")]
+    pub channels: Vec<ChannelDesc>,
+}
+
+/// The most `[[channel]]` tables a scene may hold.
+pub const MAX_CHANNELS: usize = 15;
+
+/// A channel rendered together with the volume's own, classified as microscopists' viewers
+/// do: a window, a colour and an opacity (rising linearly across the window from 0 to
+/// `opacity`). Extinctions add; the colour is the extinction-weighted mix.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelDesc {
+    /// The channel's index on the image's channel axis (an OME-Zarr store's `c`); 0 for a file
+    /// of one channel.
+    pub index: u32,
+    /// A file of its own (the same dims as the volume); default: the volume's file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<PathBuf>,
+    /// Data values mapped to no opacity and to `opacity`.
+    pub window: [f32; 2],
+    /// The channel's colour (single-scattering albedo), each component in [0, 1].
+    pub color: [f32; 3],
+    /// The opacity at the window's top.
+    #[serde(default = "full_opacity")]
+    pub opacity: f32,
+    /// Extinction per world unit at opacity 1; default: `[transfer]`'s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub density_scale: Option<f32>,
+}
+
+fn full_opacity() -> f32 {
+    1.0
+}
+
+impl ChannelDesc {
+    /// The channel's transfer function (`density_scale` where the table gives none).
+    pub fn transfer_function(&self, density_scale: f32) -> Result<TransferFunction> {
+        let c = Vec3::from_array(self.color);
+        TransferFunction::from_points(
+            (self.window[0], self.window[1]),
+            &[(0.0, c, 0.0), (1.0, c, self.opacity)],
+            self.density_scale.unwrap_or(density_scale),
+        )
+    }
 }
 
 /// The most `[[view]]` tables a scene may hold.
@@ -442,6 +489,9 @@ pub struct Scene {
     pub views: Vec<ViewDesc>,
     /// The unit of world coordinates, where the scene or the volume file names one.
     pub units: Option<String>,
+    /// The `[[channel]]` tables the medium's channels were made from (a channel's own file
+    /// made absolute), as a saved scene writes them back.
+    pub channels: Vec<ChannelDesc>,
 }
 
 /// Max depth from the scene-file convention (-1 = unlimited).
@@ -702,6 +752,10 @@ pub fn settings_fingerprint(settings: &RenderSettings, camera: &Camera, medium: 
     if !medium.clipping().is_empty() {
         text.push_str(&format!("|clip {:?}", medium.clipping()));
     }
+    // Likewise channels (a Python scene's are not in a file's text).
+    for c in medium.channels() {
+        text.push_str(&format!("|channel {} {:?}", c.index, c.transfer_function()));
+    }
     text
 }
 
@@ -711,7 +765,13 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
     let base = path.parent().unwrap_or(Path::new("."));
     let v = &desc.volume;
     let volume_path = base.join(&v.file);
-    let hints = ReadHints {
+    let loaded = read_volume(&volume_path, &read_hints(v, v.channel))?;
+    build_scene_with_volume(path, desc, loaded, volume_path)
+}
+
+/// How the `[volume]` table `v` says its file is read, at channel `channel`.
+fn read_hints(v: &VolumeDesc, channel: u32) -> ReadHints {
+    ReadHints {
         memory_budget: None,
         format: v.format,
         raw: RawLayout {
@@ -722,12 +782,10 @@ pub fn build_scene(path: &Path, desc: SceneFile) -> Result<Scene> {
         },
         zarr: crate::io::ZarrSelection {
             level: v.level,
-            channel: v.channel,
+            channel,
             time: v.time,
         },
-    };
-    let loaded = read_volume(&volume_path, &hints)?;
-    build_scene_with_volume(path, desc, loaded, volume_path)
+    }
 }
 
 /// Builds a scene from its description around a volume already in memory (a program's own
@@ -850,6 +908,52 @@ pub fn build_scene_with_volume(
     )
     .map_err(|e| scene_err(format!("camera: {e}")))?;
     ViewDesc::validate_all(&desc.views, &camera).map_err(scene_err)?;
+    if desc.channels.len() > MAX_CHANNELS {
+        return Err(scene_err(format!(
+            "{} [[channel]] tables: expected at most {MAX_CHANNELS}",
+            desc.channels.len()
+        )));
+    }
+    let mut channels = Vec::with_capacity(desc.channels.len());
+    for (k, c) in desc.channels.iter().enumerate() {
+        let what = format!("[[channel]] {k} (index {})", c.index);
+        let tf = c
+            .transfer_function(tf_density_scale)
+            .map_err(|e| scene_err(format!("{what}: {e}")))?;
+        let file = match &c.file {
+            Some(f) => base.join(f),
+            None if volume_path.exists() => volume_path.clone(),
+            None => {
+                return Err(scene_err(format!(
+                    "{what}: the volume is not a file ({}): expected `file = ...` in the table",
+                    volume_path.display()
+                )));
+            }
+        };
+        let index = if c.file.is_some()
+            && !crate::io::Format::from_path(&file).is_some_and(|f| f == crate::io::Format::OmeZarr)
+        {
+            0
+        } else {
+            c.index
+        };
+        let mut hints = read_hints(v, index);
+        if c.file.is_some() {
+            // The channel's own file says its format (its extension).
+            hints.format = None;
+        }
+        let grid = read_volume(&file, &hints)?.grid;
+        medium
+            .add_channel(c.index, grid, tf)
+            .map_err(|e| scene_err(format!("{what}: {e}")))?;
+        channels.push(ChannelDesc {
+            file: c
+                .file
+                .as_ref()
+                .map(|_| std::path::absolute(&file).unwrap_or(file.clone())),
+            ..c.clone()
+        });
+    }
     let r = &desc.render;
     let max_depth = max_depth_from(r.max_depth).map_err(scene_err)?;
     if r.spp == 0 {
@@ -907,5 +1011,6 @@ pub fn build_scene_with_volume(
         volume_path,
         views: desc.views,
         units,
+        channels,
     })
 }

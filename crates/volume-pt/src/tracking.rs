@@ -48,7 +48,6 @@ pub fn free_flight(
     t1: f32,
     rng: &mut SampleStream,
 ) -> Option<Collision> {
-    let tf = medium.transfer_function();
     let (t0, t1) = medium.clip(ray, t0, t1)?;
     for seg in medium.segments(ray, t0, t1) {
         // Written so that NaN majorants are skipped like empty cells.
@@ -61,8 +60,9 @@ pub fn free_flight(
             if !(t < seg.t1) {
                 break;
             }
-            let value = medium.value(ray.at(t));
-            if rng.next_f32() * seg.majorant < tf.extinction(value) {
+            let u = ray.at(t);
+            let value = medium.value(u);
+            if rng.next_f32() * seg.majorant < medium.extinction_with(value, u) {
                 return Some(Collision { t, value });
             }
         }

@@ -458,3 +458,127 @@ fn clipping_cuts_the_medium_exactly() {
         }
     }
 }
+
+/// Channels (OME-Zarr's `c` axis, rendered together): extinctions add and the colour is the
+/// extinction-weighted mix, as the closed forms say; every channel's majorant and control bound
+/// the summed extinction in every macrocell a ray crosses.
+#[test]
+fn channels_add_their_extinctions_and_mix_their_colours() {
+    let constant = |v: f32| ScalarGrid::new(UVec3::splat(4), vec![v; 64]).unwrap();
+    let flat = |colour: Vec3, sigma: f32| {
+        TransferFunction::from_points((0.0, 1.0), &[(0.0, colour, 1.0)], sigma).unwrap()
+    };
+    // Absorbing (black) channels of extinction 1.2 and 0.8 in a unit cube: exp(-2) through it.
+    let mut medium = homogeneous(1.2, Vec3::ZERO, 1.0, 8);
+    medium
+        .add_channel(1, constant(1.0), flat(Vec3::ZERO, 0.8))
+        .unwrap();
+    let (origin, dir) = (Vec3::new(0.1, -0.2, -5.0), Vec3::Z);
+    let p = (-2.0f64).exp();
+    let ray = medium.to_index_ray(origin, dir);
+    let t = transmittance(
+        &medium,
+        &ray,
+        0.0,
+        f32::INFINITY,
+        &mut SampleStream::new(1, 0, 0),
+    );
+    assert!(
+        (t as f64 - p).abs() <= 5e-4 * p,
+        "transmittance {t} against {p}"
+    );
+    let scene = scene(medium.clone(), Phase::Isotropic, lights_env(1.0));
+    for integrator in [IntegratorKind::Uniform, IntegratorKind::Nee] {
+        let settings = PathSettings {
+            integrator,
+            max_depth: None,
+            ..PathSettings::default()
+        };
+        let n = 200_000;
+        let (mean, _) = path_stats(&scene, &settings, origin, dir, n, 29);
+        // Bernoulli(p): standard error sqrt(p (1 - p) / n); one channel alone would give
+        // exp(-1.2) = 0.30 against 0.135, hundreds of standard errors away.
+        let se = (p * (1.0 - p) / n as f64).sqrt();
+        assert!(
+            (mean[0] - p).abs() <= Z * se,
+            "{integrator}: {} against {p} (se {se})",
+            mean[0]
+        );
+    }
+
+    // Colours: red at 1.2 and blue at 0.8 mix to (0.6, 0, 0.4).
+    let mut medium = homogeneous(1.2, Vec3::X, 1.0, 8);
+    medium
+        .add_channel(4, constant(1.0), flat(Vec3::Z, 0.8))
+        .unwrap();
+    let u = Vec3::splat(2.0);
+    assert!((medium.extinction(u) - 2.0).abs() < 1e-6);
+    let a = medium.albedo(u);
+    assert!(
+        (a - Vec3::new(0.6, 0.0, 0.4)).abs().max_element() < 1e-6,
+        "{a}"
+    );
+    assert_eq!(medium.channels()[0].index, 4);
+    // A channel of other dims is refused by name.
+    let e = medium
+        .add_channel(
+            5,
+            ScalarGrid::new(UVec3::splat(2), vec![0.0; 8]).unwrap(),
+            flat(Vec3::ONE, 1.0),
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("channel 5") && e.contains("expected the first channel's"),
+        "{e}"
+    );
+
+    // Heterogeneous channels: the summed extinction lies between every crossed cell's control
+    // and majorant.
+    let hash = |i: u32, k: u32| render_base::hash::unit_f32(render_base::hash::hash32(&[k, i]));
+    let noisy = |k: u32| {
+        ScalarGrid::new(UVec3::splat(12), (0..1728).map(|i| hash(i, k)).collect()).unwrap()
+    };
+    let ramp = |colour: Vec3, sigma: f32, lo: f32| {
+        TransferFunction::from_points((lo, 1.0), &[(0.0, colour, 0.0), (1.0, colour, 1.0)], sigma)
+            .unwrap()
+    };
+    let mut medium = Medium::new(
+        noisy(1),
+        Filter::Trilinear,
+        Vec3::splat(-0.5),
+        Vec3::splat(1.0 / 12.0),
+        ramp(Vec3::X, 3.0, 0.2),
+        4,
+    )
+    .unwrap();
+    medium
+        .add_channel(1, noisy(2), ramp(Vec3::Y, 2.0, 0.5))
+        .unwrap();
+    medium
+        .add_channel(2, noisy(3), ramp(Vec3::Z, 5.0, 0.7))
+        .unwrap();
+    let mut checked = 0;
+    for k in 0..2000u32 {
+        let o = Vec3::new(hash(k, 10) - 0.5, hash(k, 11) - 0.5, -2.0);
+        let d = (Vec3::new(hash(k, 12) - 0.5, hash(k, 13) - 0.5, 0.0) - o).normalize();
+        let ray = medium.to_index_ray(o, d);
+        let Some((t0, t1)) = medium.clip(&ray, 0.0, f32::INFINITY) else {
+            continue;
+        };
+        for seg in medium.segments(&ray, t0, t1) {
+            for j in 0..8 {
+                let t = seg.t0 + (seg.t1 - seg.t0) * (j as f32 + 0.5) / 8.0;
+                let sigma = medium.extinction(ray.at(t));
+                assert!(
+                    sigma <= seg.majorant && sigma >= seg.control,
+                    "extinction {sigma} outside [{}, {}]",
+                    seg.control,
+                    seg.majorant
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 10_000, "{checked} points checked");
+}

@@ -99,7 +99,10 @@ class Scene:
     ``radius``, ``radiance``), ``environment`` (RGB radiance), ``phase``, ``render`` (``spp``,
     ``max_depth``, ``integrator``, ``seed``, ``rr_start_depth``), ``output`` (``exposure``,
     ``tonemap``), ``clip`` (``box`` as ``{"min": [x, y, z], "max": [x, y, z]}`` and ``plane``
-    as a list of ``{"point": ..., "normal": ...}``, the side the normal points to cut away);
+    as a list of ``{"point": ..., "normal": ...}``, the side the normal points to cut away),
+    ``channels`` (each ``index``, ``window``, ``color``, optional ``opacity``,
+    ``density_scale`` and ``file``: more channels rendered together, as ``[[channel]]``
+    tables; from the volume's own file where it was read from one);
     ``spacing``, ``origin``, ``filter`` and ``macrocell`` place the volume as the ``[volume]``
     table does. Preset paths are relative to the working folder. The tables are
     parsed by the program's own code, so a mistake gets the program's message."""
@@ -116,6 +119,7 @@ class Scene:
         render: Optional[Mapping[str, Any]] = None,
         output: Optional[Mapping[str, Any]] = None,
         clip: Optional[Mapping[str, Any]] = None,
+        channels: Sequence[Mapping[str, Any]] = (),
         spacing: Optional[Sequence[float]] = None,
         origin: Optional[Sequence[float]] = None,
         filter: Optional[str] = None,
@@ -135,6 +139,8 @@ class Scene:
             "camera": dict(camera),
             "light": [dict(l) for l in lights],
         }
+        if channels:
+            tables["channel"] = [dict(c) for c in channels]
         if environment is not None:
             tables["environment"] = {"radiance": environment}
         for name, table in (

@@ -279,3 +279,26 @@ opacity = 0.5
     bad.write_text(base + channels.replace("index = 2", "index = 3"))
     done = run_program(program, "render", str(bad), "-o", str(tmp_path / "bad.exr"))
     assert done.returncode != 0 and "channel 3" in done.stderr, done.stderr
+
+
+def test_channels_from_python(stores):
+    """`Scene(volume, channels=[...])` over a store read from Python renders its channels
+    together, as the scene file's `[[channel]]` tables do; a numpy volume's channel needs a
+    file and is refused without one."""
+    _, _, paths = stores
+    volume = gscache.Volume.read(str(paths["0.5"]))
+    tables = dict(
+        transfer={"window": [0, 4000], "density_scale": 0.5,
+                  "points": [{"value": 0.0, "color": [0.2, 1.0, 0.2], "opacity": 0.0},
+                             {"value": 1.0, "color": [0.2, 1.0, 0.2], "opacity": 1.0}]},
+        camera={"eye": [40, 30, 60], "target": [0, 0, 0], "fov_y": 40, "width": 24, "height": 20},
+        environment=[1.0, 1.0, 1.0],
+    )
+    one = gscache.render(gscache.Scene(volume, **tables), spp=2)
+    two = gscache.render(gscache.Scene(volume, channels=[
+        {"index": 1, "window": [0, 4000], "color": [1.0, 0.2, 1.0]}], **tables), spp=2)
+    assert np.isfinite(two).all() and two.mean() < one.mean()
+    array = gscache.Volume.from_array(volume.to_numpy())
+    with pytest.raises(gscache.GscacheError, match="channel"):
+        gscache.Scene(array, channels=[{"index": 1, "window": [0, 1], "color": [1, 1, 1]}],
+                      **tables)

@@ -22,6 +22,9 @@ use volume_pt::{Clipping, Lights, PathSettings, SceneMedia, TransferFunction};
 pub enum Edit {
     Camera(Camera),
     TransferFunction(TransferFunction),
+    /// Channel `k`'s transfer function (`k` counts the channels after the first, volume-pt's
+    /// `Medium::channels`): the caches restart as after a transfer-function edit.
+    ChannelTransferFunction(usize, TransferFunction),
     /// The light spheres and the environment.
     Lights(Lights),
     /// The environment's radiance alone.

@@ -351,6 +351,14 @@ impl Session {
                 self.scene.media.medium.set_transfer_function(tf);
                 cache = self.cache.scene_changed();
             }
+            Edit::ChannelTransferFunction(k, tf) => {
+                self.scene
+                    .media
+                    .medium
+                    .set_channel_transfer_function(k, tf)
+                    .map_err(|e| SessionError::Invalid(e.to_string()))?;
+                cache = self.cache.scene_changed();
+            }
             Edit::Lights(mut lights) => {
                 // Checked as a scene file's lights are (and distant directions normalised).
                 for (i, light) in lights.lights.iter_mut().enumerate() {

@@ -222,12 +222,30 @@
       box.appendChild(div);
     });
     restoreClip(m);
+    restoreChannels(m);
     colours = m.colours;
     views = m.views;
     showViews();
     drawCurve();
     drawColourBar();
     drawOverlay();
+  }
+
+  // ---- channels: the scene's [[channel]] tables, each shown or hidden ----
+  function restoreChannels(m) {
+    const channels = m.channels || [];
+    $("channel-section").hidden = channels.length === 0;
+    const box = $("channels");
+    box.innerHTML = "";
+    channels.forEach((c, k) => {
+      const label = document.createElement("label");
+      const rgb = c.color.map((v) => Math.round(255 * Math.min(1, Math.max(0, v)))).join(",");
+      label.innerHTML = `<input type="checkbox" data-channel="${k}"${c.visible ? " checked" : ""}>
+        <span class="swatch" style="background: rgb(${rgb})"></span> channel ${c.index}`;
+      label.querySelector("input").onchange = (e) =>
+        send(`channel${k}`, { type: "channel", channel: k, visible: e.target.checked });
+      box.appendChild(label);
+    });
   }
 
   // ---- clipping: a box per axis as fractions of the volume's box, and one plane ----

@@ -83,6 +83,9 @@ pub enum ClientMessage {
     Train { on: bool },
     /// Whether the camera sees the light spheres (they light the volume either way).
     ShowLights { on: bool },
+    /// Show or hide channel `channel` (counting the scene's `[[channel]]` tables from 0): a
+    /// hidden channel takes no part in the medium until shown again.
+    Channel { channel: usize, visible: bool },
     /// A fresh cache of the same method.
     ResetCache {},
     /// Each Gaussian cache level as drawn from the camera (answered with a `levels` message).
@@ -106,6 +109,7 @@ pub enum Change {
     Split(bool),
     Train(bool),
     ShowLights(bool),
+    Channel { channel: usize, visible: bool },
     ResetCache,
     Levels,
     Save,
@@ -223,6 +227,20 @@ pub struct SceneFacts {
     pub up: Vec3,
     /// What the page's data panel shows: the volume's file, size, spacing, type and memory.
     pub data: DataFacts,
+    /// The channels rendered with the first (the scene's `[[channel]]` tables), as the scene
+    /// classified them.
+    pub channels: Vec<ChannelFacts>,
+}
+
+/// A channel rendered with the first, as the scene gave it.
+#[derive(Debug, Clone)]
+pub struct ChannelFacts {
+    /// Its index on the image's channel axis.
+    pub index: u32,
+    /// Its colour (the top of its window).
+    pub color: [f32; 3],
+    /// Its classification when shown.
+    pub transfer: TransferFunction,
 }
 
 /// The volume as the page's data panel shows it.
@@ -271,6 +289,15 @@ impl SceneFacts {
             height: scene.camera.height,
             fov_y: scene.camera.fov_y_degrees,
             up: scene.up,
+            channels: medium
+                .channels()
+                .iter()
+                .map(|c| ChannelFacts {
+                    index: c.index,
+                    color: c.transfer_function().albedo_at(1.0).to_array(),
+                    transfer: c.transfer_function().clone(),
+                })
+                .collect(),
         }
     }
 }
@@ -573,6 +600,16 @@ pub fn check(
         ClientMessage::Split { on } => Ok(Change::Split(on)),
         ClientMessage::Train { on } => Ok(Change::Train(on)),
         ClientMessage::ShowLights { on } => Ok(Change::ShowLights(on)),
+        ClientMessage::Channel { channel, visible } => {
+            let n = facts.channels.len();
+            if channel >= n {
+                return Err(format!(
+                    "channel {channel}: the scene has {n} [[channel]] table{}",
+                    if n == 1 { "" } else { "s" }
+                ));
+            }
+            Ok(Change::Channel { channel, visible })
+        }
         ClientMessage::ResetCache {} => Ok(Change::ResetCache),
         ClientMessage::Levels {} => Ok(Change::Levels),
         ClientMessage::Save {} => Ok(Change::Save),
@@ -611,6 +648,8 @@ pub struct ViewState<'a> {
     pub denoise: bool,
     /// Whether the denoiser is offered (its library was found).
     pub denoiser: bool,
+    /// Per `[[channel]]` table, whether it is shown.
+    pub channels_visible: &'a [bool],
 }
 
 /// Samples of the colour bar: the transfer function's colour (its scattering albedo) at
@@ -641,6 +680,7 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         split,
         denoise,
         denoiser,
+        channels_visible,
     } = *view;
     let (_, down, forward) = camera.axes();
     // The page orbits its target: the point in front of the camera nearest the volume's centre.
@@ -686,6 +726,11 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         "views": views,
         "colours": colour_bar(tf),
         "data": facts.data,
+        "channels": facts.channels.iter().zip(channels_visible).map(|(c, v)| serde_json::json!({
+            "index": c.index,
+            "color": c.color,
+            "visible": v,
+        })).collect::<Vec<_>>(),
         "show_lights": show_lights,
         "methods": Method::available(),
         "method": method.name(),

@@ -123,6 +123,8 @@ pub struct Worker {
     denoised: Option<(u32, RgbImage)>,
     /// The named views (bookmarks), saved with the scene.
     views: Vec<ViewDesc>,
+    /// Per `[[channel]]` table, whether it is shown (all are at first).
+    channels_visible: Vec<bool>,
 }
 
 impl Worker {
@@ -135,6 +137,7 @@ impl Worker {
         denoiser: denoise::OnDemand,
     ) -> crate::Result<Self> {
         let facts = SceneFacts::of(&scene);
+        let channels_visible = vec![true; facts.channels.len()];
         let transfer = transfer_settings_of(scene.media.medium.transfer_function(), 16);
         let lights = LightSettings::of(&facts);
         let target_spp = scene.settings.spp.max(1);
@@ -167,6 +170,7 @@ impl Worker {
             governor: PreviewGovernor::default(),
             denoised: None,
             views,
+            channels_visible,
         })
     }
 
@@ -205,6 +209,7 @@ impl Worker {
             split: self.split.is_some(),
             denoise: self.denoise_on,
             denoiser: self.denoiser.offered(),
+            channels_visible: &self.channels_visible,
         };
         let mut message = hello(&self.facts, &view);
         message["type"] = serde_json::Value::from(kind);
@@ -492,6 +497,17 @@ impl Worker {
                     .cache_mut()
                     .set_training(on)
                     .map_err(|e| e.to_string())?;
+            }
+            Change::Channel { channel, visible } => {
+                let shown = &self.facts.channels[channel].transfer;
+                let tf = if visible {
+                    shown.clone()
+                } else {
+                    shown.with_density_scale(0.0).map_err(|e| e.to_string())?
+                };
+                self.edit_all(Edit::ChannelTransferFunction(channel, tf))?;
+                self.channels_visible[channel] = visible;
+                self.set_camera()?;
             }
             Change::ShowLights(on) => {
                 let mut path = self.session.scene().settings.path;

@@ -1190,3 +1190,76 @@ async fn a_probe_reports_the_voxel_value_and_views_are_kept_and_saved() {
         "--view front puts the camera where it was kept"
     );
 }
+
+/// Channels from the page: the greeting lists the scene's channels; hiding one changes the
+/// image (its extinction leaves the medium), showing it again brings the first image's look
+/// back, and a channel the scene does not have is refused by name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn channels_are_shown_and_hidden_from_the_page() {
+    let out = scratch("channels");
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/scenes/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    scene.camera = scene.camera.with_size(64, 36).unwrap();
+    scene.settings.spp = 8;
+    // A second channel: the same voxels as a dark, dense haze over the upper half of the values.
+    let grid = scene.media.medium.grid().clone();
+    let haze = volume_pt::TransferFunction::from_points(
+        (0.0, 255.0),
+        &[
+            (0.0, glam::Vec3::splat(0.05), 0.0),
+            (1.0, glam::Vec3::splat(0.05), 1.0),
+        ],
+        0.6,
+    )
+    .unwrap();
+    scene.media.medium.add_channel(3, grid, haze).unwrap();
+    let options = ServeOptions {
+        port: 0,
+        output: out.clone(),
+        ..Default::default()
+    };
+    let v = serve(scene, text, file, options).unwrap();
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, converged).await;
+    let hello = seen.hello.clone().unwrap();
+    assert_eq!(hello["channels"][0]["index"], 3);
+    assert_eq!(hello["channels"][0]["visible"], true);
+    let shown = mean_colour(seen.frames.last().unwrap());
+    let mut toggle = async |visible: bool| {
+        let m = serde_json::json!({"type": "channel", "channel": 0, "visible": visible});
+        socket
+            .send(Message::Text(m.to_string().into()))
+            .await
+            .unwrap();
+        let before = seen.stats.len();
+        read_until(&mut socket, &mut seen, |s| {
+            s.stats.len() > before + 1 && converged(s)
+        })
+        .await;
+        mean_colour(seen.frames.last().unwrap())
+    };
+    let hidden = toggle(false).await;
+    let again = toggle(true).await;
+    let diff = |a: &[f64], b: &[f64]| (0..3).map(|c| (a[c] - b[c]).abs()).sum::<f64>();
+    assert!(
+        diff(&hidden, &shown) > 3.0,
+        "hidden {hidden:?} against shown {shown:?}"
+    );
+    assert!(
+        diff(&again, &shown) < 0.25 * diff(&hidden, &shown),
+        "shown again {again:?} against {shown:?}"
+    );
+    let bad = r#"{"type":"channel","channel":1,"visible":false}"#;
+    socket.send(Message::Text(bad.into())).await.unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.states.is_empty()).await;
+    assert!(
+        seen.errors
+            .iter()
+            .any(|e| e.contains("channel 1: the scene has 1 [[channel]] table")),
+        "{:?}",
+        seen.errors
+    );
+    v.stop();
+}

@@ -223,6 +223,7 @@
     });
     restoreClip(m);
     restoreChannels(m);
+    restoreTime(m);
     colours = m.colours;
     views = m.views;
     showViews();
@@ -232,6 +233,17 @@
   }
 
   // ---- channels: the scene's [[channel]] tables, each shown or hidden ----
+  function restoreTime(m) {
+    const n = m.time_points || 1;
+    $("time-section").hidden = n <= 1;
+    $("time").max = n - 1;
+    $("time").value = m.time || 0;
+    $("time-value").textContent = `${m.time || 0} of ${n}`;
+  }
+  $("time").oninput = (e) => { $("time-value").textContent = `${e.target.value} of ${+e.target.max + 1}`; };
+  // Sent when the slider is let go: each time point reads the volume again.
+  $("time").onchange = (e) => send("time", { type: "time", time: +e.target.value });
+
   function restoreChannels(m) {
     const channels = m.channels || [];
     $("channel-section").hidden = channels.length === 0;

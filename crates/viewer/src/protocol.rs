@@ -86,6 +86,9 @@ pub enum ClientMessage {
     /// Show or hide channel `channel` (counting the scene's `[[channel]]` tables from 0): a
     /// hidden channel takes no part in the medium until shown again.
     Channel { channel: usize, visible: bool },
+    /// Show time point `time` of a time series (a folder or pattern of files, an OME-Zarr
+    /// store's time axis): the volume is read again; the view's edits are kept.
+    Time { time: u32 },
     /// A fresh cache of the same method.
     ResetCache {},
     /// Each Gaussian cache level as drawn from the camera (answered with a `levels` message).
@@ -110,6 +113,7 @@ pub enum Change {
     Train(bool),
     ShowLights(bool),
     Channel { channel: usize, visible: bool },
+    Time(u32),
     ResetCache,
     Levels,
     Save,
@@ -230,6 +234,8 @@ pub struct SceneFacts {
     /// The channels rendered with the first (the scene's `[[channel]]` tables), as the scene
     /// classified them.
     pub channels: Vec<ChannelFacts>,
+    /// The volume's time points (1 for most volumes).
+    pub time_points: u32,
 }
 
 /// A channel rendered with the first, as the scene gave it.
@@ -289,6 +295,7 @@ impl SceneFacts {
             height: scene.camera.height,
             fov_y: scene.camera.fov_y_degrees,
             up: scene.up,
+            time_points: scene.time_points.max(1),
             channels: medium
                 .channels()
                 .iter()
@@ -610,6 +617,17 @@ pub fn check(
             }
             Ok(Change::Channel { channel, visible })
         }
+        ClientMessage::Time { time } => {
+            if time >= facts.time_points {
+                return Err(format!(
+                    "time {time}: the volume has {} time point{} (0 to {})",
+                    facts.time_points,
+                    if facts.time_points == 1 { "" } else { "s" },
+                    facts.time_points - 1
+                ));
+            }
+            Ok(Change::Time(time))
+        }
         ClientMessage::ResetCache {} => Ok(Change::ResetCache),
         ClientMessage::Levels {} => Ok(Change::Levels),
         ClientMessage::Save {} => Ok(Change::Save),
@@ -650,6 +668,8 @@ pub struct ViewState<'a> {
     pub denoiser: bool,
     /// Per `[[channel]]` table, whether it is shown.
     pub channels_visible: &'a [bool],
+    /// The time point shown.
+    pub time: u32,
 }
 
 /// Samples of the colour bar: the transfer function's colour (its scattering albedo) at
@@ -681,6 +701,7 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         denoise,
         denoiser,
         channels_visible,
+        time,
     } = *view;
     let (_, down, forward) = camera.axes();
     // The page orbits its target: the point in front of the camera nearest the volume's centre.
@@ -731,6 +752,8 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
             "color": c.color,
             "visible": v,
         })).collect::<Vec<_>>(),
+        "time": time,
+        "time_points": facts.time_points,
         "show_lights": show_lights,
         "methods": Method::available(),
         "method": method.name(),

@@ -172,6 +172,8 @@ pub struct SaveRequest<'a> {
     pub session: &'a render_session::Session,
     /// The named views (bookmarks) the page keeps.
     pub views: &'a [ViewDesc],
+    /// The time point shown.
+    pub time: u32,
 }
 
 /// Writes the image, the scene and the cache (see the module docs): into names reserved
@@ -223,6 +225,7 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
             .map_err(|e| format!("{}: {e}", r.scene_file.display()))?
             .volume
     };
+    volume.time = r.time;
     if volume.file.is_relative() {
         let anchor = r.scene_file.parent().unwrap_or(Path::new("."));
         let joined = anchor.join(&volume.file);

@@ -125,6 +125,8 @@ pub struct Worker {
     views: Vec<ViewDesc>,
     /// Per `[[channel]]` table, whether it is shown (all are at first).
     channels_visible: Vec<bool>,
+    /// The time point shown.
+    time: u32,
 }
 
 impl Worker {
@@ -138,6 +140,7 @@ impl Worker {
     ) -> crate::Result<Self> {
         let facts = SceneFacts::of(&scene);
         let channels_visible = vec![true; facts.channels.len()];
+        let time = scene.time;
         let transfer = transfer_settings_of(scene.media.medium.transfer_function(), 16);
         let lights = LightSettings::of(&facts);
         let target_spp = scene.settings.spp.max(1);
@@ -171,6 +174,7 @@ impl Worker {
             denoised: None,
             views,
             channels_visible,
+            time,
         })
     }
 
@@ -210,6 +214,7 @@ impl Worker {
             denoise: self.denoise_on,
             denoiser: self.denoiser.offered(),
             channels_visible: &self.channels_visible,
+            time: self.time,
         };
         let mut message = hello(&self.facts, &view);
         message["type"] = serde_json::Value::from(kind);
@@ -221,6 +226,39 @@ impl Worker {
     fn converged(&self) -> bool {
         self.watching == 0
             || (!self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp)
+    }
+
+    /// Reads time point `time` of the scene's volume (and its channels) and puts it in the
+    /// view, keeping the view's transfer functions, clipping, phase and lights.
+    fn show_time(&mut self, time: u32) -> Result<(), String> {
+        if self.scene_text.trim().is_empty() {
+            return Err("time: this scene has no scene file to read the volume again from".into());
+        }
+        let mut desc: volume_pt::scene::SceneFile = toml::from_str(&self.scene_text)
+            .map_err(|e| format!("{}: {e}", self.scene_file.display()))?;
+        desc.volume.time = time;
+        let next =
+            volume_pt::scene::build_scene(&self.scene_file, desc).map_err(|e| e.to_string())?;
+        let now = &self.session.scene().media;
+        let mut medium = next.media.medium;
+        medium.set_transfer_function(now.medium.transfer_function().clone());
+        medium
+            .set_clipping(now.medium.clipping().clone())
+            .map_err(|e| e.to_string())?;
+        for (k, c) in now.medium.channels().iter().enumerate() {
+            medium
+                .set_channel_transfer_function(k, c.transfer_function().clone())
+                .map_err(|e| e.to_string())?;
+        }
+        let media = volume_pt::SceneMedia {
+            medium,
+            phase: now.phase,
+            lights: now.lights.clone(),
+        };
+        self.edit_all(Edit::Volume {
+            media: Box::new(media),
+            path: next.volume_path,
+        })
     }
 
     /// Applies `edit` to the view's session and to the split view's, if on.
@@ -509,6 +547,11 @@ impl Worker {
                 self.channels_visible[channel] = visible;
                 self.set_camera()?;
             }
+            Change::Time(time) => {
+                self.show_time(time)?;
+                self.time = time;
+                self.set_camera()?;
+            }
             Change::ShowLights(on) => {
                 let mut path = self.session.scene().settings.path;
                 path.show_lights = on;
@@ -587,6 +630,7 @@ impl Worker {
                     spp: self.target_spp,
                     session: &self.session,
                     views: &self.views,
+                    time: self.time,
                 })?;
                 let files: Vec<String> = saved
                     .files

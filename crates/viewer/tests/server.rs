@@ -1263,3 +1263,71 @@ async fn channels_are_shown_and_hidden_from_the_page() {
     );
     v.stop();
 }
+
+/// A time series from the page: the greeting gives the count, a time point past it is refused
+/// by name, another time point is read and shown (its volume is empty here, so the image
+/// changes), and the saved scene names the time point shown.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_time_series_steps_from_the_page_and_saves_its_time() {
+    let out = scratch("time");
+    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data");
+    let frames = out.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    let neghip = std::fs::read(data.join("volumes/neghip_64x64x64_uint8.raw")).unwrap();
+    std::fs::write(frames.join("f0_64x64x64_uint8.raw"), &neghip).unwrap();
+    std::fs::write(
+        frames.join("f1_64x64x64_uint8.raw"),
+        vec![0u8; neghip.len()],
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(data.join("scenes/default.toml"))
+        .unwrap()
+        .replace("../volumes/neghip_64x64x64_uint8.raw", "frames");
+    let file = out.join("series.toml");
+    std::fs::write(&file, &text).unwrap();
+    let mut scene = volume_pt::load_scene(&file).unwrap();
+    assert_eq!((scene.time, scene.time_points), (0, 2));
+    scene.camera = scene.camera.with_size(64, 36).unwrap();
+    scene.settings.spp = 8;
+    let saves = out.join("saves");
+    std::fs::create_dir_all(&saves).unwrap();
+    let options = ServeOptions {
+        port: 0,
+        output: saves.clone(),
+        ..Default::default()
+    };
+    let v = serve(scene, text, file, options).unwrap();
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, converged).await;
+    let hello = seen.hello.clone().unwrap();
+    assert_eq!(
+        (hello["time"].clone(), hello["time_points"].clone()),
+        (0.into(), 2.into())
+    );
+    let first = mean_colour(seen.frames.last().unwrap());
+    let bad = r#"{"type":"time","time":2}"#;
+    socket.send(Message::Text(bad.into())).await.unwrap();
+    read_until(&mut socket, &mut seen, |s| !s.states.is_empty()).await;
+    assert!(
+        seen.errors
+            .iter()
+            .any(|e| e.contains("time 2: the volume has 2 time points")),
+        "{:?}",
+        seen.errors
+    );
+    let step = r#"{"type":"time","time":1}"#;
+    socket.send(Message::Text(step.into())).await.unwrap();
+    let before = seen.stats.len();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.len() > before + 1 && converged(s)
+    })
+    .await;
+    let empty = mean_colour(seen.frames.last().unwrap());
+    let diff = (0..3).map(|c| (empty[c] - first[c]).abs()).sum::<f64>();
+    assert!(diff > 3.0, "time 1 {empty:?} against time 0 {first:?}");
+    save_and_wait(&mut socket, &mut seen).await;
+    v.stop();
+    let saved = volume_pt::load_scene(&saves.join("view-0001.toml")).unwrap();
+    assert_eq!(saved.time, 1);
+}

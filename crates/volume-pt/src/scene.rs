@@ -492,6 +492,10 @@ pub struct Scene {
     /// The `[[channel]]` tables the medium's channels were made from (a channel's own file
     /// made absolute), as a saved scene writes them back.
     pub channels: Vec<ChannelDesc>,
+    /// The time point shown (`[volume] time`) and how many the volume has (a series' files,
+    /// an OME-Zarr store's time axis; 1 for most volumes).
+    pub time: u32,
+    pub time_points: u32,
 }
 
 /// Max depth from the scene-file convention (-1 = unlimited).
@@ -914,6 +918,13 @@ pub fn build_scene_with_volume(
             desc.channels.len()
         )));
     }
+    // A volume from a program's array (Python's `Volume.from_array`) has no file to count in.
+    let time_points = if volume_path.exists() || crate::io::is_series(&volume_path) {
+        crate::io::time_points(&volume_path, &read_hints(v, v.channel))
+            .map_err(|e| scene_err(e.to_string()))?
+    } else {
+        1
+    };
     let mut channels = Vec::with_capacity(desc.channels.len());
     for (k, c) in desc.channels.iter().enumerate() {
         let what = format!("[[channel]] {k} (index {})", c.index);
@@ -1012,5 +1023,7 @@ pub fn build_scene_with_volume(
         views: desc.views,
         units,
         channels,
+        time: v.time,
+        time_points,
     })
 }

@@ -231,3 +231,53 @@ fn a_written_store_reads_back() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A time series as a folder of volume files or a pattern: time points in natural order
+/// (`t2` before `t10`), the count reported, a time past the end refused with the count, and a
+/// folder's stray files of another format left out.
+#[test]
+fn a_folder_or_pattern_of_files_is_a_time_series() {
+    let dir = std::env::temp_dir().join(format!("volume-pt-series-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    for t in [1u8, 2, 10] {
+        std::fs::write(frames.join(format!("t{t}_4x3x2_uint8.raw")), vec![t; 24]).unwrap();
+    }
+    std::fs::write(frames.join("notes.txt"), "not a volume").unwrap();
+    let at = |path: &std::path::Path, t: u32| {
+        let hints = ReadHints {
+            zarr: volume_pt::io::ZarrSelection {
+                time: t,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        read_volume(path, &hints)
+    };
+    for series in [frames.clone(), frames.join("t*_4x3x2_uint8.raw")] {
+        assert_eq!(
+            volume_pt::io::time_points(&series, &ReadHints::default()).unwrap(),
+            3
+        );
+        for (t, value) in [(0, 1.0), (1, 2.0), (2, 10.0)] {
+            let v = at(&series, t).unwrap();
+            assert_eq!(v.grid.dims(), glam::UVec3::new(4, 3, 2));
+            assert_eq!(v.grid.voxel(3, 2, 1), value, "{} at {t}", series.display());
+            assert!(
+                v.notes
+                    .iter()
+                    .any(|n| n.contains(&format!("time point {t} of 3")))
+            );
+        }
+        let e = at(&series, 3).unwrap_err().to_string();
+        assert!(
+            e.contains("time 3: the series has 3 time points (0 to 2)"),
+            "{e}"
+        );
+    }
+    let none = dir.join("frames/none_*.raw");
+    let e = at(&none, 0).unwrap_err().to_string();
+    assert!(e.contains("no volume file"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -12,6 +12,7 @@ mod nrrd;
 mod ome_zarr;
 mod ome_zarr_write;
 mod raw;
+mod series;
 mod vtk;
 
 pub use budget::{
@@ -21,6 +22,7 @@ pub use budget::{
 pub use ome_zarr::ZarrSelection;
 pub use ome_zarr_write::{StoreOptions, WrittenStore, write_ome_zarr, write_store_by_chunks};
 pub use raw::{RawLayout, parse_raw_file_name};
+pub use series::{MAX_TIME_POINTS, is_series, series_files};
 
 use crate::error::{Error, Result};
 use crate::grid::{ScalarGrid, Voxels};
@@ -169,8 +171,53 @@ pub struct LoadedVolume {
     pub notes: Vec<String>,
 }
 
-/// Reads the volume at `path`, choosing the reader from `hints.format` or the file name.
+/// The number of time points of the volume at `path`: a series' files, an OME-Zarr store's time
+/// axis, else 1.
+pub fn time_points(path: &Path, hints: &ReadHints) -> Result<u32> {
+    if series::is_series(path) {
+        return Ok(series::series_files(path)?.len() as u32);
+    }
+    match hints.format.or_else(|| Format::from_path(path)) {
+        Some(Format::OmeZarr) => ome_zarr::time_points(path),
+        _ => Ok(1),
+    }
+}
+
+/// Reads the volume at `path`, choosing the reader from `hints.format` or the file name. A
+/// folder (not an OME-Zarr store) or a name with `*` is a time series: time point
+/// `hints.zarr.time` is read (see [`series_files`]).
 pub fn read_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
+    if series::is_series(path) {
+        let files = series::series_files(path)?;
+        let t = hints.zarr.time as usize;
+        let Some(file) = files.get(t) else {
+            return Err(Error::format(
+                path,
+                format!(
+                    "time {t}: the series has {} time points (0 to {})",
+                    files.len(),
+                    files.len() - 1
+                ),
+            ));
+        };
+        let mut one = hints.clone();
+        one.zarr.time = 0;
+        // One file of the series, read as a file (a name with `*` in it is not a pattern here).
+        let mut loaded = read_file_volume(file, &one)?;
+        loaded.notes.push(format!(
+            "time point {t} of {}: {}",
+            files.len(),
+            file.file_name()
+                .map(|n| n.to_string_lossy())
+                .unwrap_or_default()
+        ));
+        return Ok(loaded);
+    }
+    read_file_volume(path, hints)
+}
+
+/// [`read_volume`] of one file or store (never a series).
+fn read_file_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
     let format = match hints.format.or_else(|| Format::from_path(path)) {
         Some(f) => f,
         None => {

@@ -388,10 +388,8 @@ fn list_array(store: &Path, dataset: &str) -> Option<Listing> {
     Some(listing)
 }
 
-/// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder): whole
-/// where reading it takes at most `budget` bytes, else streamed within `budget` (see
-/// [`crate::bricks`]).
-pub fn read(path: &Path, selection: &ZarrSelection, budget: u64) -> Result<LoadedVolume> {
+/// The store at `path` and its first multiscale image's metadata.
+fn open_image(path: &Path) -> Result<(Arc<FilesystemStore>, Multiscale)> {
     let bad = |m: String| Error::format(path, m);
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if !meta.is_dir() {
@@ -409,6 +407,37 @@ pub fn read(path: &Path, selection: &ZarrSelection, budget: u64) -> Result<Loade
     let fields: AnyOmeFields = serde_json::from_value(attributes)
         .map_err(|e| bad(format!("the group's OME-Zarr metadata: {e}")))?;
     let image = multiscale(fields, &bad)?;
+    Ok((store, image))
+}
+
+/// The number of time points of the store at `path` (1 without a time axis).
+pub fn time_points(path: &Path) -> Result<u32> {
+    let bad = |m: String| Error::format(path, m);
+    let (store, image) = open_image(path)?;
+    let Some(axis) = image
+        .axes
+        .iter()
+        .position(|a| matches!(a.r#type, Some(AxisType::Time)))
+    else {
+        return Ok(1);
+    };
+    let Some((dataset, _)) = image.levels.first() else {
+        return Ok(1);
+    };
+    let array = Array::open(store, &format!("/{}", dataset.trim_matches('/')))
+        .map_err(|e| bad(format!("array `{dataset}` (level 0): {e}")))?;
+    Ok(array
+        .shape()
+        .get(axis)
+        .map_or(1, |&n| u32::try_from(n).unwrap_or(u32::MAX)))
+}
+
+/// Reads the volume `selection` names from the OME-Zarr store at `path` (a folder): whole
+/// where reading it takes at most `budget` bytes, else streamed within `budget` (see
+/// [`crate::bricks`]).
+pub fn read(path: &Path, selection: &ZarrSelection, budget: u64) -> Result<LoadedVolume> {
+    let bad = |m: String| Error::format(path, m);
+    let (store, image) = open_image(path)?;
     let mut notes = vec![format!("OME-Zarr {}", image.version)];
 
     // Axes: time and channel (at most one of each, fixed by the selection), three spatial.

@@ -475,6 +475,55 @@ impl Bricks {
         Brick { voxels, size }
     }
 
+    /// The voxels of the box `lo .. lo + size` (inside the grid), x fastest, read brick by
+    /// brick (for converting a streamed volume; a brick that cannot be read is an error).
+    pub fn copy_box(&self, lo: UVec3, size: UVec3) -> Result<Voxels> {
+        let hi = lo + size - 1;
+        let (first, _) = self.locate(lo);
+        let (last, _) = self.locate(hi);
+        let n = size.x as usize * size.y as usize * size.z as usize;
+        let mut parts: Vec<(UVec3, UVec3, Arc<Brick>)> = Vec::new();
+        for bz in first.z..=last.z {
+            for by in first.y..=last.y {
+                for bx in first.x..=last.x {
+                    let b = UVec3::new(bx, by, bz);
+                    let index = self.flat(b);
+                    let brick = match self.slots[index].load_full() {
+                        Some(brick) => brick,
+                        None => Arc::new(self.read_brick(index)?),
+                    };
+                    parts.push((b * self.brick, brick.size, brick));
+                }
+            }
+        }
+        // Gathered as f32 (exact for every stored type), then narrowed back to it.
+        let mut out = vec![0.0f32; n];
+        for (origin, bsize, brick) in &parts {
+            let a = lo.max(*origin);
+            let b = hi.min(*origin + *bsize - 1);
+            for z in a.z..=b.z {
+                for y in a.y..=b.y {
+                    for x in a.x..=b.x {
+                        let l = UVec3::new(x, y, z) - *origin;
+                        let k = l.x as usize
+                            + bsize.x as usize * (l.y as usize + bsize.y as usize * l.z as usize);
+                        let o = (x - lo.x) as usize
+                            + size.x as usize
+                                * ((y - lo.y) as usize + size.y as usize * (z - lo.z) as usize);
+                        out[o] = brick.voxels.get(k);
+                    }
+                }
+            }
+        }
+        Ok(match self.type_name() {
+            "uint8" => Voxels::U8(out.into_iter().map(|v| v as u8).collect()),
+            "int8" => Voxels::I8(out.into_iter().map(|v| v as i8).collect()),
+            "uint16" => Voxels::U16(out.into_iter().map(|v| v as u16).collect()),
+            "int16" => Voxels::I16(out.into_iter().map(|v| v as i16).collect()),
+            _ => Voxels::F32(out),
+        })
+    }
+
     /// The stored value of voxel `i` (inside the grid). Not inlined into the grid's lookups:
     /// an in-memory grid's hot path stays as small as it was before streaming existed.
     #[inline(never)]

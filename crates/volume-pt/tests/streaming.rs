@@ -195,6 +195,22 @@ fn a_streamed_volume_renders_bit_for_bit_as_read_whole() {
         bricks.loads()
     );
 
+    // Straight from the raw file, a row of a brick at a time.
+    let raw_hints = ReadHints {
+        memory_budget: Some(tight_budget(whole.dims(), UVec3::new(64, 32, 32), 1)),
+        ..Default::default()
+    };
+    let raw = read_volume(
+        &repo().join("data/volumes/neghip_64x64x64_uint8.raw"),
+        &raw_hints,
+    )
+    .unwrap();
+    assert!(raw.grid.bricks().is_some(), "{:?}", raw.notes);
+    assert!(
+        render(&default_scene_with(raw.grid)) == reference,
+        "the raw file streamed"
+    );
+
     // Through an OME-Zarr store.
     let dir = scratch("store");
     let store = dir.join("neghip.ome.zarr");
@@ -310,4 +326,62 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
         }
     }
     out
+}
+
+/// `convert` of a streamed volume (a raw file larger than the budget, a store larger than it)
+/// writes a store a chunk at a time: read back whole it is the volume, and its level 1 is the
+/// level 1 the in-memory writer makes (the same 2x2x2 block means).
+#[test]
+fn a_streamed_volume_converts_to_the_same_store() {
+    own_cache_folder();
+    let dir = scratch("convert");
+    let raw_path = repo().join("data/volumes/neghip_64x64x64_uint8.raw");
+    let whole = read_volume(&raw_path, &ReadHints::default()).unwrap();
+    let options = StoreOptions {
+        chunk: 16,
+        max_levels: 3,
+        ..Default::default()
+    };
+    let reference = dir.join("whole.ome.zarr");
+    write_ome_zarr(&whole, &reference, &options).unwrap();
+    let hints = ReadHints {
+        memory_budget: Some(tight_budget(whole.grid.dims(), UVec3::new(64, 32, 32), 1)),
+        ..Default::default()
+    };
+    let streamed = read_volume(&raw_path, &hints).unwrap();
+    assert!(streamed.grid.bricks().is_some());
+    let from_raw = dir.join("from_raw.ome.zarr");
+    write_ome_zarr(&streamed, &from_raw, &options).unwrap();
+    // And from that store, streamed within a few of its 16^3 bricks.
+    let store_hints = ReadHints {
+        memory_budget: Some(tight_budget(whole.grid.dims(), UVec3::splat(16), 1)),
+        ..Default::default()
+    };
+    let streamed_store = read_volume(&from_raw, &store_hints).unwrap();
+    assert!(streamed_store.grid.bricks().is_some());
+    let from_store = dir.join("from_store.ome.zarr");
+    write_ome_zarr(&streamed_store, &from_store, &options).unwrap();
+    for level in [0u32, 1, 2] {
+        let at = |p: &Path| {
+            let h = ReadHints {
+                zarr: volume_pt::io::ZarrSelection {
+                    level: Some(level),
+                    ..Default::default()
+                },
+                ..Default::default()
+            };
+            read_volume(p, &h).unwrap().grid.to_f32()
+        };
+        let expected = at(&reference);
+        assert_eq!(at(&from_raw), expected, "level {level} from the raw file");
+        assert_eq!(at(&from_store), expected, "level {level} from the store");
+    }
+    assert_eq!(
+        read_volume(&from_store, &ReadHints::default())
+            .unwrap()
+            .grid
+            .to_f32(),
+        whole.grid.to_f32()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,6 +1,8 @@
 //! `gscache convert VOLUME OUT.ome.zarr`: any volume the program reads (raw, NRRD, NIfTI,
 //! VTK/VTI, a level of an OME-Zarr store), written as an OME-Zarr 0.5 multiscale store that
-//! napari, Neuroglancer and the OME tools read (volume-pt's `io::write_ome_zarr`).
+//! napari, Neuroglancer and the OME tools read (volume-pt's `io::write_ome_zarr`). A raw file
+//! or a store larger than `--memory-budget` is streamed: the store is written a chunk (or a
+//! shard) at a time, each level from the one before it, in the memory of a few chunks.
 
 use crate::common::Global;
 use anyhow::{Context, Result};

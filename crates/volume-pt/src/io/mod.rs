@@ -234,17 +234,19 @@ fn read_file_volume(path: &Path, hints: &ReadHints) -> Result<LoadedVolume> {
         budget::open_regular(path)?;
     }
     match format {
-        Format::Raw => raw::read(path, &hints.raw),
+        Format::Raw => raw::read(path, &hints.raw, budget(hints)?),
         Format::Nrrd => nrrd::read(path),
         Format::Vtk => vtk::read(path),
         Format::Nifti => nifti_reader::read(path),
-        Format::OmeZarr => {
-            let budget = match hints.memory_budget {
-                Some(b) => b,
-                None => memory_budget()?,
-            };
-            ome_zarr::read(path, &hints.zarr, budget)
-        }
+        Format::OmeZarr => ome_zarr::read(path, &hints.zarr, budget(hints)?),
+    }
+}
+
+/// The memory budget `hints` give, else the process's.
+fn budget(hints: &ReadHints) -> Result<u64> {
+    match hints.memory_budget {
+        Some(b) => Ok(b),
+        None => memory_budget(),
     }
 }
 

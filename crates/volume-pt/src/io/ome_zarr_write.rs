@@ -6,8 +6,14 @@
 //! mean of each 2x2x2 block, partial at odd edges), until the largest axis fits one chunk.
 //! Chunks are cubes (64 voxels a side by default), compressed with zstd. Axes `z`, `y`, `x`
 //! (x fastest, as the grid keeps it), the spacing as each level's `scale` (doubled per level),
-//! the unit where the volume names one NGFF knows. The store must not exist yet: nothing
-//! already on disk is replaced.
+//! the unit where the volume names one NGFF knows. Optionally the chunks are kept in shards
+//! (Zarr v3 sharding: a file a shard, each chunk decoded alone). The store must not exist
+//! yet: nothing already on disk is replaced.
+//!
+//! Every level is written a chunk (or shard) at a time in parallel, level 0 from the volume
+//! (in memory, or streamed from its file or store: `crate::bricks`), each further level from
+//! the level just written, read back: a volume of any size converts in the memory of a few
+//! chunks, to the same store the whole volume would give.
 
 use super::LoadedVolume;
 use crate::error::{Error, Result};
@@ -153,16 +159,24 @@ struct Target<'a> {
     options: &'a StoreOptions,
 }
 
-/// Writes every level of `values` (dims `d`) as arrays `s0`, `s1`, ... of `data_type`; returns
-/// the levels' dims. `to` and `from` take a voxel to and from f64 for the block means.
-fn write_levels<T: Element + Copy + Into<zarrs::array::builder::ArrayBuilderFillValue>>(
+/// Writes every level of a volume of dims `d` as arrays `s0`, `s1`, ... of `data_type`, a
+/// chunk (or shard) at a time in parallel, so a volume of any size takes the memory of a few
+/// chunks: level 0's boxes come from `level0` (the volume in memory, or streamed from its
+/// store), each further level's from the level just written, read back. Returns the levels'
+/// dims. `to` and `from` take a voxel to and from f64 for the block means.
+fn write_levels<T>(
     target: &Target<'_>,
-    values: &[T],
+    level0: &(dyn Fn(UVec3, UVec3) -> Result<Vec<T>> + Sync),
     d: UVec3,
     (data_type, fill): (DataType, T),
-    to: impl Fn(T) -> f64 + Copy,
-    from: impl Fn(f64) -> T + Copy,
-) -> Result<Vec<UVec3>> {
+    to: impl Fn(T) -> f64 + Copy + Sync,
+    from: impl Fn(f64) -> T + Copy + Sync,
+) -> Result<Vec<UVec3>>
+where
+    T: Element + zarrs::array::ElementOwned + Copy + Send + Sync,
+    T: Into<zarrs::array::builder::ArrayBuilderFillValue>,
+{
+    use rayon::prelude::*;
     let Target {
         store,
         path,
@@ -170,8 +184,16 @@ fn write_levels<T: Element + Copy + Into<zarrs::array::builder::ArrayBuilderFill
     } = *target;
     let bad = |m: String| Error::format(path, m);
     let chunk = u64::from(options.chunk.max(1));
+    let one_thread = zarrs::array::CodecOptions::default().with_concurrent_target(1);
+    let zyx = |lo: UVec3, size: UVec3| {
+        ArraySubset::new_with_ranges(&[
+            u64::from(lo.z)..u64::from(lo.z + size.z),
+            u64::from(lo.y)..u64::from(lo.y + size.y),
+            u64::from(lo.x)..u64::from(lo.x + size.x),
+        ])
+    };
     let mut dims = vec![d];
-    let mut level: Vec<T> = values.to_vec();
+    let mut previous: Option<Array<FilesystemStore>> = None;
     for k in 0..options.max_levels.max(1) {
         let d = dims[k as usize];
         let array: Array<FilesystemStore> = options
@@ -181,18 +203,38 @@ fn write_levels<T: Element + Copy + Into<zarrs::array::builder::ArrayBuilderFill
         array
             .store_metadata()
             .map_err(|e| bad(format!("level {k}'s metadata: {e}")))?;
-        array
-            .store_array_subset(
-                &ArraySubset::new_with_shape(array.shape().to_vec()),
-                &level[..],
-            )
-            .map_err(|e| bad(format!("level {k}'s chunks: {e}")))?;
+        let (unit, _) = options.grid(d);
+        let counts = (d + unit - 1) / unit;
+        let n = counts.x as u64 * counts.y as u64 * counts.z as u64;
+        let below = previous.as_ref().map(|p| (p, dims[k as usize - 1]));
+        (0..n).into_par_iter().try_for_each(|i| -> Result<()> {
+            let c = UVec3::new(
+                (i % counts.x as u64) as u32,
+                ((i / counts.x as u64) % counts.y as u64) as u32,
+                (i / (counts.x as u64 * counts.y as u64)) as u32,
+            );
+            let lo = c * unit;
+            let size = unit.min(d - lo);
+            let values: Vec<T> = match below {
+                None => level0(lo, size)?,
+                Some((below, bd)) => {
+                    // The 2x2x2 blocks under this box (fewer at the level's far edges).
+                    let (lo2, size2) = (lo * 2, (size * 2).min(bd - lo * 2));
+                    let src: Vec<T> = below
+                        .retrieve_array_subset_opt(&zyx(lo2, size2), &one_thread)
+                        .map_err(|e| bad(format!("level {}: {e}", k - 1)))?;
+                    halve(&src, size2, to, from).0
+                }
+            };
+            array
+                .store_array_subset_opt(&zyx(lo, size), &values[..], &one_thread)
+                .map_err(|e| bad(format!("level {k}'s chunk {c}: {e}")))
+        })?;
         if d.max_element() as u64 <= chunk || k + 1 == options.max_levels.max(1) {
             break;
         }
-        let (next, h) = halve(&level, d, to, from);
-        level = next;
-        dims.push(h);
+        previous = Some(array);
+        dims.push((d + UVec3::ONE) / 2);
     }
     Ok(dims)
 }
@@ -210,17 +252,6 @@ pub fn write_ome_zarr(
         ));
     }
     options.check(path)?;
-    let Some(voxels) = volume.grid.voxels() else {
-        return Err(bad(format!(
-            "the volume is streamed from {} (larger than the memory budget): converting a \
-             streamed volume is not supported yet; raise --memory-budget to read it whole",
-            volume
-                .grid
-                .bricks()
-                .map(|b| b.source_name())
-                .unwrap_or_default()
-        )));
-    };
     std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
     let store = Arc::new(
         FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
@@ -232,32 +263,86 @@ pub fn write_ome_zarr(
         options,
     };
     let round = |v: f64| v.round();
-    let levels = match voxels {
-        Voxels::U8(v) => write_levels(&target, v, d, (data_type::uint8(), 0u8), f64::from, |m| {
-            round(m) as u8
-        })?,
-        Voxels::I8(v) => write_levels(&target, v, d, (data_type::int8(), 0i8), f64::from, |m| {
-            round(m) as i8
-        })?,
-        Voxels::U16(v) => {
-            write_levels(&target, v, d, (data_type::uint16(), 0u16), f64::from, |m| {
-                round(m) as u16
-            })?
+    let grid = &volume.grid;
+    // Level 0's box at `lo` of `size`, in the stored type `pick` takes out of a box of voxels.
+    fn boxes<T: Copy + Send + 'static>(
+        grid: &crate::grid::ScalarGrid,
+        pick: fn(Voxels) -> Option<Vec<T>>,
+    ) -> impl Fn(UVec3, UVec3) -> Result<Vec<T>> + Sync + '_ {
+        move |lo, size| {
+            let voxels = match (grid.voxels(), grid.bricks()) {
+                (Some(v), _) => v.copy_box(grid.dims(), lo, size),
+                (None, Some(b)) => b.copy_box(lo, size)?,
+                (None, None) => unreachable!("a grid is whole or streamed"),
+            };
+            pick(voxels).ok_or_else(|| Error::Invalid("a brick of another type".into()))
         }
-        Voxels::I16(v) => {
-            write_levels(&target, v, d, (data_type::int16(), 0i16), f64::from, |m| {
-                round(m) as i16
-            })?
-        }
-        Voxels::F32(v) => write_levels(
+    }
+    let levels = match grid.type_name() {
+        "uint8" => write_levels(
             &target,
-            v,
+            &boxes(grid, |v| if let Voxels::U8(v) = v { Some(v) } else { None }),
+            d,
+            (data_type::uint8(), 0u8),
+            f64::from,
+            |m| round(m) as u8,
+        )?,
+        "int8" => write_levels(
+            &target,
+            &boxes(grid, |v| if let Voxels::I8(v) = v { Some(v) } else { None }),
+            d,
+            (data_type::int8(), 0i8),
+            f64::from,
+            |m| round(m) as i8,
+        )?,
+        "uint16" => write_levels(
+            &target,
+            &boxes(grid, |v| {
+                if let Voxels::U16(v) = v {
+                    Some(v)
+                } else {
+                    None
+                }
+            }),
+            d,
+            (data_type::uint16(), 0u16),
+            f64::from,
+            |m| round(m) as u16,
+        )?,
+        "int16" => write_levels(
+            &target,
+            &boxes(grid, |v| {
+                if let Voxels::I16(v) = v {
+                    Some(v)
+                } else {
+                    None
+                }
+            }),
+            d,
+            (data_type::int16(), 0i16),
+            f64::from,
+            |m| round(m) as i16,
+        )?,
+        _ => write_levels(
+            &target,
+            &boxes(grid, |v| {
+                if let Voxels::F32(v) = v {
+                    Some(v)
+                } else {
+                    None
+                }
+            }),
             d,
             (data_type::float32(), 0f32),
             f64::from,
             |m| m as f32,
         )?,
     };
+    if let Some(b) = grid.bricks()
+        && let Some(failure) = b.failure()
+    {
+        return Err(bad(format!("reading the volume: {failure}")));
+    }
     write_group(
         &store,
         path,

@@ -71,6 +71,18 @@ impl DType {
         }
     }
 
+    /// The name of the type a voxel of this type is kept in (see [`Self::bytes_in_memory`]),
+    /// as [`crate::grid::Voxels::type_name`] gives it.
+    pub fn kept_type_name(self) -> &'static str {
+        match self {
+            DType::U8 => "uint8",
+            DType::I8 => "int8",
+            DType::U16 => "uint16",
+            DType::I16 => "int16",
+            DType::U32 | DType::I32 | DType::F32 | DType::F64 => "float32",
+        }
+    }
+
     /// Parses the names used by the Open SciVis file-name convention and by scene files.
     pub fn parse(s: &str) -> Option<Self> {
         Some(match s.to_ascii_lowercase().as_str() {

@@ -238,6 +238,19 @@ struct ZarrBricks {
     selection: ZarrSelection,
 }
 
+impl ZarrBricks {
+    /// The array's subset for the grid's box `lo .. lo + size` (time and channel fixed).
+    fn subset(&self, lo: UVec3, size: UVec3) -> ArraySubset {
+        let mut ranges = self.ranges.clone();
+        let [z, y, x] = self.spatial;
+        let span = |l: u32, n: u32| u64::from(l)..u64::from(l) + u64::from(n);
+        ranges[z] = span(lo.z, size.z);
+        ranges[y] = span(lo.y, size.y);
+        ranges[x] = span(lo.x, size.x);
+        ArraySubset::new_with_ranges(&ranges)
+    }
+}
+
 impl BrickSource for ZarrBricks {
     fn name(&self) -> String {
         format!("{}: array `{}`", self.store.display(), self.dataset)
@@ -248,23 +261,11 @@ impl BrickSource for ZarrBricks {
     }
 
     fn type_name(&self) -> &'static str {
-        match self.dtype {
-            DType::U8 => "uint8",
-            DType::I8 => "int8",
-            DType::U16 => "uint16",
-            DType::I16 => "int16",
-            DType::U32 | DType::I32 | DType::F32 | DType::F64 => "float32",
-        }
+        self.dtype.kept_type_name()
     }
 
     fn read(&self, lo: UVec3, size: UVec3) -> Result<Voxels> {
-        let mut ranges = self.ranges.clone();
-        let [z, y, x] = self.spatial;
-        let span = |l: u32, n: u32| u64::from(l)..u64::from(l) + u64::from(n);
-        ranges[z] = span(lo.z, size.z);
-        ranges[y] = span(lo.y, size.y);
-        ranges[x] = span(lo.x, size.x);
-        let subset = ArraySubset::new_with_ranges(&ranges);
+        let subset = self.subset(lo, size);
         let fault =
             |e: ArrayError| Error::format(&self.store, format!("array `{}`: {e}", self.dataset));
         // One brick is decoded on the calling thread: the render's threads are the
@@ -277,14 +278,7 @@ impl BrickSource for ZarrBricks {
         let Some(listing) = &self.listing else {
             return false;
         };
-        let mut ranges = self.ranges.clone();
-        let [z, y, x] = self.spatial;
-        let span = |l: u32, n: u32| u64::from(l)..u64::from(l) + u64::from(n);
-        ranges[z] = span(lo.z, size.z);
-        ranges[y] = span(lo.y, size.y);
-        ranges[x] = span(lo.x, size.x);
-        let subset = ArraySubset::new_with_ranges(&ranges);
-        let Ok(Some(chunks)) = self.array.chunks_in_array_subset(&subset) else {
+        let Ok(Some(chunks)) = self.array.chunks_in_array_subset(&self.subset(lo, size)) else {
             return false;
         };
         chunks.indices().iter().all(|indices| {

@@ -278,65 +278,28 @@ pub fn write_ome_zarr(
             pick(voxels).ok_or_else(|| Error::Invalid("a brick of another type".into()))
         }
     }
+    // One arm a stored type: its variant, zarr type, fill and rounding of block means.
+    macro_rules! levels {
+        ($variant:ident, $zarr:expr, $fill:expr, $from:expr) => {
+            write_levels(
+                &target,
+                &boxes(grid, |v| match v {
+                    Voxels::$variant(v) => Some(v),
+                    _ => None,
+                }),
+                d,
+                ($zarr, $fill),
+                f64::from,
+                $from,
+            )?
+        };
+    }
     let levels = match grid.type_name() {
-        "uint8" => write_levels(
-            &target,
-            &boxes(grid, |v| if let Voxels::U8(v) = v { Some(v) } else { None }),
-            d,
-            (data_type::uint8(), 0u8),
-            f64::from,
-            |m| round(m) as u8,
-        )?,
-        "int8" => write_levels(
-            &target,
-            &boxes(grid, |v| if let Voxels::I8(v) = v { Some(v) } else { None }),
-            d,
-            (data_type::int8(), 0i8),
-            f64::from,
-            |m| round(m) as i8,
-        )?,
-        "uint16" => write_levels(
-            &target,
-            &boxes(grid, |v| {
-                if let Voxels::U16(v) = v {
-                    Some(v)
-                } else {
-                    None
-                }
-            }),
-            d,
-            (data_type::uint16(), 0u16),
-            f64::from,
-            |m| round(m) as u16,
-        )?,
-        "int16" => write_levels(
-            &target,
-            &boxes(grid, |v| {
-                if let Voxels::I16(v) = v {
-                    Some(v)
-                } else {
-                    None
-                }
-            }),
-            d,
-            (data_type::int16(), 0i16),
-            f64::from,
-            |m| round(m) as i16,
-        )?,
-        _ => write_levels(
-            &target,
-            &boxes(grid, |v| {
-                if let Voxels::F32(v) = v {
-                    Some(v)
-                } else {
-                    None
-                }
-            }),
-            d,
-            (data_type::float32(), 0f32),
-            f64::from,
-            |m| m as f32,
-        )?,
+        "uint8" => levels!(U8, data_type::uint8(), 0u8, |m| round(m) as u8),
+        "int8" => levels!(I8, data_type::int8(), 0i8, |m| round(m) as i8),
+        "uint16" => levels!(U16, data_type::uint16(), 0u16, |m| round(m) as u16),
+        "int16" => levels!(I16, data_type::int16(), 0i16, |m| round(m) as i16),
+        _ => levels!(F32, data_type::float32(), 0f32, |m| m as f32),
     };
     if let Some(b) = grid.bricks()
         && let Some(failure) = b.failure()

@@ -163,13 +163,7 @@ impl BrickSource for RawBricks {
     }
 
     fn type_name(&self) -> &'static str {
-        match self.dtype {
-            DType::U8 => "uint8",
-            DType::I8 => "int8",
-            DType::U16 => "uint16",
-            DType::I16 => "int16",
-            DType::U32 | DType::I32 | DType::F32 | DType::F64 => "float32",
-        }
+        self.dtype.kept_type_name()
     }
 
     fn read(&self, lo: UVec3, size: UVec3) -> Result<Voxels> {

@@ -59,11 +59,12 @@ fn write_tiled(tile: &[u8], voxels: u32, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The default scene (`scenes/default.toml` of the bundled data) around the tiled volume,
-/// scaled so the box has the default scene's size and extinction per world unit.
-fn scene_file(
+/// The default scene (`scenes/default.toml` of the bundled data) around the tiled volume (a
+/// raw file, or `bench stream`'s store), scaled so the box has the default scene's size and
+/// extinction per world unit.
+pub(crate) fn scene_file(
     bundled: &Path,
-    raw: &Path,
+    volume: &Path,
     voxels: u32,
     size: u32,
     spp: u32,
@@ -76,7 +77,7 @@ fn scene_file(
     let spacing = 1.0 / (voxels as f32 / TILE_SIDE as f32);
     scene.volume = volume_pt::scene::VolumeDesc {
         spacing: Some([spacing; 3]),
-        ..volume_pt::scene::VolumeDesc::file(raw)
+        ..volume_pt::scene::VolumeDesc::file(volume)
     };
     (scene.camera.width, scene.camera.height) = (size, size);
     scene.render.spp = spp;

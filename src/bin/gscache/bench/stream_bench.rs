@@ -192,19 +192,7 @@ fn write_scene(
     size: u32,
     spp: u32,
 ) -> Result<PathBuf> {
-    let default_scene = bundled.join("scenes/default.toml");
-    let text = std::fs::read_to_string(&default_scene)
-        .with_context(|| format!("reading {}", default_scene.display()))?;
-    let mut scene: volume_pt::scene::SceneFile =
-        toml::from_str(&text).with_context(|| format!("{}", default_scene.display()))?;
-    let spacing = 1.0 / (v as f32 / TILE_SIDE as f32);
-    scene.volume = volume_pt::scene::VolumeDesc {
-        spacing: Some([spacing; 3]),
-        ..volume_pt::scene::VolumeDesc::file(store)
-    };
-    (scene.camera.width, scene.camera.height) = (size, size);
-    scene.render.spp = spp;
-    scene.render.show_lights = true;
+    let scene = crate::bench::large_bench::scene_file(bundled, store, v, size, spp)?;
     let path = dir.join(format!("stream_{v}.toml"));
     let comment = format!(
         "Made by `gscache bench stream`: neghip tiled {0}x{0}x{0}, as an OME-Zarr store.",

@@ -144,6 +144,15 @@ def test_the_program_renders_a_store_with_the_automatic_scene(stores, program, t
     assert done.returncode == 0, done.stderr
     image = gscache.read_exr(str(out))
     assert np.isfinite(image).all() and image.mean() > 0.0
+    # Its three channels composited: the first through [transfer], two [[channel]] tables.
+    saved = tmp_path / "auto.toml"
+    done = run_program(program, "render", str(paths["0.5"]), "--width", "16", "--height", "16",
+                       "--spp", "1", "-o", str(tmp_path / "small.exr"), "--save-scene",
+                       str(saved))
+    assert done.returncode == 0, done.stderr
+    import tomllib
+    auto = tomllib.loads(saved.read_text())
+    assert [c["index"] for c in auto["channel"]] == [1, 2], auto.get("channel")
     # From Python, the same choice.
     scene = gscache.Scene.from_volume(str(paths["0.5"]))
     assert np.isfinite(gscache.render(scene, spp=1)).all()

@@ -220,12 +220,68 @@ fn rgb(c: Vec3) -> [f32; 3] {
         .map(|x| format!("{x:.3}").parse::<f64>().map_or(x, |v| v as f32))
 }
 
+/// The colours channels are composited in, as microscopists' viewers give them: green,
+/// magenta, cyan, yellow, red, blue.
+pub const CHANNEL_COLOURS: [[f32; 3]; 6] = [
+    [0.1, 0.9, 0.2],
+    [0.9, 0.1, 0.9],
+    [0.1, 0.8, 0.9],
+    [0.9, 0.8, 0.1],
+    [0.9, 0.15, 0.1],
+    [0.2, 0.3, 0.95],
+];
+
 /// The automatic scene for the volume at `path`: the scene, and its TOML text (what
-/// `--save-scene` writes). The volume is read once.
+/// `--save-scene` writes). The volume is read once. A store of several channels (up to six)
+/// shows them composited: each in its colour of [`CHANNEL_COLOURS`], opaque from its own
+/// Otsu threshold to its 99.5th percentile (the first through `[transfer]`, the others as
+/// `[[channel]]` tables).
 pub fn scene_for_volume(path: &Path, colormap: Colormap) -> Result<(Scene, String)> {
     let loaded: LoadedVolume = read_volume(path, &ReadHints::default())?;
     let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
-    scene_for_loaded(loaded, &absolute, Format::from_path(path), colormap)
+    let channels = crate::io::channels(path, &ReadHints::default())?;
+    if channels <= 1 {
+        return scene_for_loaded(loaded, &absolute, Format::from_path(path), colormap);
+    }
+    let count = (channels as usize).min(CHANNEL_COLOURS.len());
+    let stats = volume_stats(&loaded.grid);
+    let spacing = loaded.spacing.unwrap_or(Vec3::ONE);
+    let size = loaded.grid.dims().as_vec3() * spacing;
+    let (mut desc, comment) =
+        scene_description(&absolute, Format::from_path(path), size, stats, colormap);
+    // The first channel in its colour, the ramp kept.
+    if let Some(points) = desc.transfer.points.as_mut() {
+        for p in points {
+            p.color = CHANNEL_COLOURS[0];
+        }
+    }
+    for (k, colour) in CHANNEL_COLOURS.iter().enumerate().take(count).skip(1) {
+        let hints = ReadHints {
+            zarr: crate::io::ZarrSelection {
+                channel: k as u32,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let s = volume_stats(&read_volume(path, &hints)?.grid);
+        let (lo, hi) = s.window;
+        desc.channels.push(crate::scene::ChannelDesc {
+            index: k as u32,
+            file: None,
+            window: [lo + s.threshold.clamp(0.0, 0.95) * (hi - lo), hi],
+            color: *colour,
+            opacity: 1.0,
+            density_scale: None,
+        });
+    }
+    let comment = format!(
+        "{comment}\nChannels 0 to {} composited in green, magenta, cyan, yellow, red, blue.",
+        count - 1
+    );
+    let text = desc.to_toml(&comment)?;
+    let anchor: PathBuf = absolute.with_extension("auto.toml");
+    let scene = build_scene_with_volume(&anchor, desc, loaded, absolute.clone())?;
+    Ok((scene, text))
 }
 
 /// [`scene_for_volume`] for a volume already in memory (a Python array); `name` is written as

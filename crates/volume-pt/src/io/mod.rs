@@ -195,6 +195,14 @@ pub fn time_points(path: &Path, hints: &ReadHints) -> Result<u32> {
     }
 }
 
+/// The number of channels of the volume at `path`: an OME-Zarr store's channel axis, else 1.
+pub fn channels(path: &Path, hints: &ReadHints) -> Result<u32> {
+    match hints.format.or_else(|| Format::from_path(path)) {
+        Some(Format::OmeZarr) if !series::is_series(path) => ome_zarr::channels(path),
+        _ => Ok(1),
+    }
+}
+
 /// Reads the volume at `path`, choosing the reader from `hints.format` or the file name. A
 /// folder (not an OME-Zarr store) or a name with `*` is a time series: time point
 /// `hints.zarr.time` is read (see [`series_files`]).

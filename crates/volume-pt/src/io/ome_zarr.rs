@@ -406,12 +406,22 @@ fn open_image(path: &Path) -> Result<(Arc<FilesystemStore>, Multiscale)> {
 
 /// The number of time points of the store at `path` (1 without a time axis).
 pub fn time_points(path: &Path) -> Result<u32> {
+    axis_length(path, AxisType::Time)
+}
+
+/// The number of channels of the store at `path` (1 without a channel axis).
+pub fn channels(path: &Path) -> Result<u32> {
+    axis_length(path, AxisType::Channel)
+}
+
+/// The length of the store's axis of type `kind` at level 0 (1 without one).
+fn axis_length(path: &Path, kind: AxisType) -> Result<u32> {
     let bad = |m: String| Error::format(path, m);
     let (store, image) = open_image(path)?;
     let Some(axis) = image
         .axes
         .iter()
-        .position(|a| matches!(a.r#type, Some(AxisType::Time)))
+        .position(|a| a.r#type.as_ref() == Some(&kind))
     else {
         return Ok(1);
     };

@@ -186,6 +186,21 @@ def test_convert_writes_a_store_the_reference_reader_reads(repo, program, tmp_pa
                         str(store))
     assert again.returncode != 0 and "already exists" in again.stderr
 
+    # OME-Zarr 0.4 on Zarr v2, for older readers: the same levels, read by the reference.
+    v04 = tmp_path / "neghip04.ome.zarr"
+    done = run_program(program, "convert", str(repo / "data/volumes/neghip_64x64x64_uint8.raw"),
+                       str(v04), "--chunk", "16", "--ome-version", "0.4")
+    assert done.returncode == 0, done.stderr
+    assert (v04 / ".zgroup").is_file() and (v04 / "s0" / ".zarray").is_file()
+    node = list(Reader(parse_url(str(v04)))())[0]
+    levels04 = [np.asarray(level) for level in node.data]
+    assert len(levels04) == 3 and all(np.array_equal(a, b) for a, b in zip(levels04, levels))
+    assert np.array_equal(gscache.Volume.read(str(v04)).to_numpy(), raw)
+    refused = run_program(program, "convert", str(repo / "data/volumes/neghip_64x64x64_uint8.raw"),
+                          str(tmp_path / "sharded04.ome.zarr"), "--ome-version", "0.4",
+                          "--shard", "128")
+    assert refused.returncode != 0 and "sharding needs OME-Zarr 0.5" in refused.stderr
+
     # A NIfTI in millimetres (nibabel writes it): the unit and the spacing carry over.
     import nibabel as nib
     nii = tmp_path / "mm.nii"

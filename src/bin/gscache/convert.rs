@@ -29,6 +29,9 @@ pub struct ConvertArgs {
     /// v3 sharding), for stores of many chunks; 0: a file a chunk.
     #[arg(long, default_value_t = StoreOptions::default().shard)]
     shard: u32,
+    /// OME-Zarr 0.5 (Zarr v3) or 0.4 (Zarr v2, for older readers; no sharding).
+    #[arg(long, value_enum, default_value = "0.5")]
+    ome_version: volume_pt::io::NgffVersion,
     /// An OME-Zarr input's level, channel and time point.
     #[arg(long)]
     level: Option<u32>,
@@ -53,6 +56,7 @@ pub fn run(a: ConvertArgs, global: &Global) -> Result<i32> {
         chunk: a.chunk,
         max_levels: a.max_levels,
         shard: a.shard,
+        version: a.ome_version,
         ..Default::default()
     };
     let written = write_ome_zarr(&volume, &a.output, &options)
@@ -64,8 +68,12 @@ pub fn run(a: ConvertArgs, global: &Global) -> Result<i32> {
             .map(|d| format!("{}x{}x{}", d.x, d.y, d.z))
             .collect();
         println!(
-            "wrote {}: OME-Zarr 0.5, {} levels ({}), chunks of {}^3, zstd",
+            "wrote {}: OME-Zarr {}, {} levels ({}), chunks of {}^3, zstd",
             a.output.display(),
+            match a.ome_version {
+                volume_pt::io::NgffVersion::V0_4 => "0.4 (Zarr v2)",
+                volume_pt::io::NgffVersion::V0_5 => "0.5 (Zarr v3)",
+            },
             written.levels.len(),
             sizes.join(", "),
             a.chunk

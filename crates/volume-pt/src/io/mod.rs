@@ -20,7 +20,9 @@ pub use budget::{
     measure_volume, memory_budget, parse_bytes, read_regular, read_text_file, set_memory_budget,
 };
 pub use ome_zarr::ZarrSelection;
-pub use ome_zarr_write::{StoreOptions, WrittenStore, write_ome_zarr, write_store_by_chunks};
+pub use ome_zarr_write::{
+    NgffVersion, StoreOptions, WrittenStore, write_ome_zarr, write_store_by_chunks,
+};
 pub use raw::{RawLayout, parse_raw_file_name};
 pub use series::{MAX_TIME_POINTS, is_series, series_files};
 

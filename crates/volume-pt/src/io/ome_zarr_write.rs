@@ -26,6 +26,19 @@ use zarrs::array::{Array, ArrayBuilder, ArraySubset, DataType, Element, data_typ
 use zarrs::filesystem::FilesystemStore;
 use zarrs::group::GroupBuilder;
 
+/// The OME-Zarr (NGFF) version a store is written as.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum NgffVersion {
+    /// OME-Zarr 0.4 on Zarr v2 (`.zgroup`, `.zattrs`, `.zarray`): what older readers take.
+    #[cfg_attr(feature = "clap", value(name = "0.4"))]
+    V0_4,
+    /// OME-Zarr 0.5 on Zarr v3 (`zarr.json`), with sharding where asked.
+    #[default]
+    #[cfg_attr(feature = "clap", value(name = "0.5"))]
+    V0_5,
+}
+
 /// How a store is written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StoreOptions {
@@ -38,6 +51,8 @@ pub struct StoreOptions {
     /// Shard side in voxels (a multiple of `chunk`): chunks are stored in shard files of this
     /// size (Zarr v3 sharding: one file a shard, each chunk decoded alone); 0: a file a chunk.
     pub shard: u32,
+    /// OME-Zarr 0.5 (Zarr v3, the default) or 0.4 (Zarr v2, no sharding).
+    pub version: NgffVersion,
 }
 
 impl Default for StoreOptions {
@@ -47,6 +62,7 @@ impl Default for StoreOptions {
             max_levels: 8,
             zstd_level: 3,
             shard: 0,
+            version: NgffVersion::V0_5,
         }
     }
 }
@@ -59,6 +75,12 @@ impl StoreOptions {
             return Err(bad(format!(
                 "chunk {}: expected 1 to 4096 voxels a side",
                 self.chunk
+            )));
+        }
+        if self.shard != 0 && self.version == NgffVersion::V0_4 {
+            return Err(bad(format!(
+                "shard {}: sharding needs OME-Zarr 0.5 (Zarr v3); 0.4 stores a file a chunk",
+                self.shard
             )));
         }
         if self.shard != 0 && (self.shard > 8192 || !self.shard.is_multiple_of(self.chunk)) {
@@ -80,6 +102,60 @@ impl StoreOptions {
             let shard = UVec3::splat(self.shard).min((dims + chunk - 1) / chunk * chunk);
             (shard, Some(chunk))
         }
+    }
+
+    /// Creates the array of a level of `dims` at `at` (`/s0`...) with these chunks (and
+    /// shards) and zstd, its metadata stored: Zarr v3 for OME-Zarr 0.5, v2 for 0.4.
+    fn create_array<T: Into<zarrs::array::builder::ArrayBuilderFillValue>>(
+        &self,
+        store: &Arc<FilesystemStore>,
+        at: &str,
+        dims: UVec3,
+        data_type: DataType,
+        fill: T,
+    ) -> std::result::Result<Array<FilesystemStore>, String> {
+        let array = match self.version {
+            NgffVersion::V0_5 => self
+                .builder(dims, data_type, fill)
+                .build(store.clone(), at)
+                .map_err(|e| e.to_string())?,
+            NgffVersion::V0_4 => {
+                let zyx = |v: UVec3| [u64::from(v.z), u64::from(v.y), u64::from(v.x)];
+                let dtype = [
+                    (data_type::uint8(), "|u1"),
+                    (data_type::int8(), "|i1"),
+                    (data_type::uint16(), "<u2"),
+                    (data_type::int16(), "<i2"),
+                    (data_type::float32(), "<f4"),
+                ]
+                .into_iter()
+                .find(|(t, _)| *t == data_type)
+                .map(|(_, v2)| v2)
+                .ok_or_else(|| format!("no Zarr v2 type for {data_type}"))?;
+                let (chunk, _) = self.grid(dims);
+                let metadata = serde_json::json!({
+                    "zarr_format": 2,
+                    "shape": zyx(dims),
+                    "chunks": zyx(chunk),
+                    "dtype": dtype,
+                    "compressor": {"id": "zstd", "level": self.zstd_level},
+                    "fill_value": 0,
+                    "order": "C",
+                    "filters": null,
+                    "dimension_separator": "/",
+                });
+                let metadata: zarrs::metadata::v2::ArrayMetadataV2 =
+                    serde_json::from_value(metadata).map_err(|e| e.to_string())?;
+                Array::new_with_metadata(
+                    store.clone(),
+                    at,
+                    zarrs::metadata::ArrayMetadata::V2(metadata),
+                )
+                .map_err(|e| e.to_string())?
+            }
+        };
+        array.store_metadata().map_err(|e| e.to_string())?;
+        Ok(array)
     }
 
     /// A builder for a level of `dims` with these chunks (and shards) and zstd.
@@ -196,13 +272,9 @@ where
     let mut previous: Option<Array<FilesystemStore>> = None;
     for k in 0..options.max_levels.max(1) {
         let d = dims[k as usize];
-        let array: Array<FilesystemStore> = options
-            .builder(d, data_type.clone(), fill)
-            .build(store.clone(), &format!("/s{k}"))
+        let array = options
+            .create_array(store, &format!("/s{k}"), d, data_type.clone(), fill)
             .map_err(|e| bad(format!("level {k}: {e}")))?;
-        array
-            .store_metadata()
-            .map_err(|e| bad(format!("level {k}'s metadata: {e}")))?;
         let (unit, _) = options.grid(d);
         let counts = (d + unit - 1) / unit;
         let n = counts.x as u64 * counts.y as u64 * counts.z as u64;
@@ -313,6 +385,7 @@ pub fn write_ome_zarr(
         volume.spacing.unwrap_or(glam::Vec3::ONE),
         volume.units.as_deref(),
         "2x2x2 block means",
+        options.version,
     )?;
     Ok(WrittenStore { levels })
 }
@@ -326,6 +399,7 @@ fn write_group(
     spacing: glam::Vec3,
     units: Option<&str>,
     description: &str,
+    version: NgffVersion,
 ) -> Result<()> {
     let bad = |m: String| Error::format(path, m);
     let unit = units.and_then(ngff_unit);
@@ -345,15 +419,27 @@ fn write_group(
             })
         })
         .collect();
+    let mut multiscale = serde_json::json!({
+        "name": path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+        "axes": [axis("z"), axis("y"), axis("x")],
+        "datasets": datasets,
+        "type": "mean",
+        "metadata": {"description": description, "method": "gscache"},
+    });
+    if version == NgffVersion::V0_4 {
+        // Zarr v2: the group's `.zgroup`, and `.zattrs` with the 0.4 multiscale (its version
+        // inside it).
+        multiscale["version"] = "0.4".into();
+        let write = |name: &str, value: serde_json::Value| {
+            let file = path.join(name);
+            std::fs::write(&file, value.to_string()).map_err(|e| Error::io(&file, e))
+        };
+        write(".zgroup", serde_json::json!({"zarr_format": 2}))?;
+        return write(".zattrs", serde_json::json!({"multiscales": [multiscale]}));
+    }
     let ome = serde_json::json!({
         "version": "0.5",
-        "multiscales": [{
-            "name": path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
-            "axes": [axis("z"), axis("y"), axis("x")],
-            "datasets": datasets,
-            "type": "mean",
-            "metadata": {"description": description, "method": "gscache"},
-        }],
+        "multiscales": [multiscale],
     });
     let mut attributes = serde_json::Map::new();
     attributes.insert("ome".into(), ome);
@@ -390,13 +476,9 @@ pub fn write_store_by_chunks(
     );
     // Written a chunk (or a whole shard) at a time.
     let (chunk, _) = options.grid(dims);
-    let array: Array<FilesystemStore> = options
-        .builder(dims, data_type::uint8(), 0u8)
-        .build(store.clone(), "/s0")
+    let array = options
+        .create_array(&store, "/s0", dims, data_type::uint8(), 0u8)
         .map_err(|e| bad(format!("level 0: {e}")))?;
-    array
-        .store_metadata()
-        .map_err(|e| bad(format!("level 0's metadata: {e}")))?;
     let counts = (dims + chunk - 1) / chunk;
     let n = counts.x as u64 * counts.y as u64 * counts.z as u64;
     (0..n).into_par_iter().try_for_each(|i| -> Result<()> {
@@ -421,7 +503,15 @@ pub fn write_store_by_chunks(
             )
             .map_err(|e| bad(format!("chunk {c}: {e}")))
     })?;
-    write_group(&store, path, 1, spacing, None, "procedural")
+    write_group(
+        &store,
+        path,
+        1,
+        spacing,
+        None,
+        "procedural",
+        options.version,
+    )
 }
 
 #[cfg(test)]

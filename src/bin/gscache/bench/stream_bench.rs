@@ -149,6 +149,7 @@ pub fn run(args: &StreamArgs, data: &crate::bench::DataDirs) -> Result<()> {
             max_levels: 1,
             zstd_level: 1,
             shard: args.shard,
+            ..Default::default()
         };
         volume_pt::io::write_store_by_chunks(
             &store,

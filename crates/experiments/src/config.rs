@@ -202,6 +202,9 @@ pub struct EventDesc {
     /// Replaces the scene's medium, lights and phase function by another scene file's (any
     /// transfer-function edit); the camera path is kept.
     pub scene: Option<PathBuf>,
+    /// Shows time point `time` of the scene's volume (a time series, or an OME-Zarr store's
+    /// time axis): the voxels read again, everything else kept.
+    pub time: Option<u32>,
 }
 
 /// One parameter of a cache method swept over values; every value is measured like a method.
@@ -553,13 +556,14 @@ fn check_event(e: &EventDesc, fly: &str) -> Result<()> {
         e.light_scale.is_some(),
         e.density_scale.is_some(),
         e.scene.is_some(),
+        e.time.is_some(),
     ]
     .iter()
     .filter(|&&b| b)
     .count();
     if n != 1 {
         refuse!(
-            "flythrough `{fly}`: the event at frame {} must have exactly one of light_offset, light_scale, density_scale, scene",
+            "flythrough `{fly}`: the event at frame {} must have exactly one of light_offset, light_scale, density_scale, scene, time",
             e.frame
         );
     }

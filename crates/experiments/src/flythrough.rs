@@ -93,6 +93,23 @@ pub fn event_edit(scene: &Scene, event: &EventDesc) -> Result<(Edit, String)> {
         };
         return Ok((edit, format!("scene {}", path.display())));
     }
+    if let Some(t) = event.time {
+        let hints = volume_pt::io::ReadHints {
+            zarr: volume_pt::io::ZarrSelection {
+                time: t,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let loaded = volume_pt::io::read_volume(&scene.volume_path, &hints)?;
+        let mut media = scene.media.clone();
+        media.medium.replace_grid(loaded.grid)?;
+        let edit = Edit::Volume {
+            media: Box::new(media),
+            path: scene.volume_path.clone(),
+        };
+        return Ok((edit, format!("time {t}")));
+    }
     refuse!("event at frame {} changes nothing", event.frame)
 }
 

@@ -151,6 +151,23 @@ impl Medium {
         Ok(())
     }
 
+    /// Replaces the first channel's voxels by `grid` of the same dims (another time point of a
+    /// series): placement, classification and clipping are kept, the ranges and majorants
+    /// rebuilt.
+    pub fn replace_grid(&mut self, grid: ScalarGrid) -> crate::Result<()> {
+        if grid.dims() != self.grid.dims() {
+            return Err(crate::Error::Invalid(format!(
+                "the new voxels are {}: expected the volume's {}",
+                grid.dims(),
+                self.grid.dims()
+            )));
+        }
+        self.ranges = ValueRanges::build(&grid, self.ranges.cell_size())?;
+        self.grid = grid;
+        self.majorants = self.build_majorants();
+        Ok(())
+    }
+
     /// The channels rendered together with the first.
     pub fn channels(&self) -> &[Channel] {
         &self.channels

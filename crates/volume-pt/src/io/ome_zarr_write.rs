@@ -311,23 +311,30 @@ where
     Ok(dims)
 }
 
-/// Writes `volume` as an OME-Zarr 0.5 store at `path` (a folder that must not exist yet).
+/// A new store folder at `path` for `options` (checked first): refused where anything is
+/// there already, so nothing on disk is replaced.
+fn new_store(path: &Path, options: &StoreOptions) -> Result<Arc<FilesystemStore>> {
+    if std::fs::symlink_metadata(path).is_ok() {
+        return Err(Error::format(
+            path,
+            "already exists: choose a new name (nothing is replaced)",
+        ));
+    }
+    options.check(path)?;
+    std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
+    Ok(Arc::new(FilesystemStore::new(path).map_err(|e| {
+        Error::format(path, format!("cannot create the store: {e}"))
+    })?))
+}
+
+/// Writes `volume` as an OME-Zarr store at `path` (a folder that must not exist yet).
 pub fn write_ome_zarr(
     volume: &LoadedVolume,
     path: &Path,
     options: &StoreOptions,
 ) -> Result<WrittenStore> {
     let bad = |m: String| Error::format(path, m);
-    if std::fs::symlink_metadata(path).is_ok() {
-        return Err(bad(
-            "already exists: choose a new name (nothing is replaced)".into(),
-        ));
-    }
-    options.check(path)?;
-    std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
-    let store = Arc::new(
-        FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
-    );
+    let store = new_store(path, options)?;
     let d = volume.grid.dims();
     let target = Target {
         store: &store,
@@ -464,16 +471,7 @@ pub fn write_store_by_chunks(
 ) -> Result<()> {
     use rayon::prelude::*;
     let bad = |m: String| Error::format(path, m);
-    if std::fs::symlink_metadata(path).is_ok() {
-        return Err(bad(
-            "already exists: choose a new name (nothing is replaced)".into(),
-        ));
-    }
-    options.check(path)?;
-    std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
-    let store = Arc::new(
-        FilesystemStore::new(path).map_err(|e| bad(format!("cannot create the store: {e}")))?,
-    );
+    let store = new_store(path, options)?;
     // Written a chunk (or a whole shard) at a time.
     let (chunk, _) = options.grid(dims);
     let array = options

@@ -36,7 +36,7 @@ pub struct LargeArgs {
 
 /// The tile: the bundled neghip volume.
 const TILE: &str = "volumes/neghip_64x64x64_uint8.raw";
-const TILE_SIDE: u32 = 64;
+pub(crate) const TILE_SIDE: u32 = 64;
 
 /// Writes `voxels^3` uint8 voxels tiled from `tile` (side `TILE_SIDE`), one z-slice at a time,
 /// atomically, so an interrupted write never leaves a short file under the final name.
@@ -86,6 +86,21 @@ pub(crate) fn scene_file(
     Ok(scene)
 }
 
+/// The tile's voxels (the bundled neghip), checked for their size.
+pub(crate) fn read_tile(data: &crate::bench::DataDirs) -> Result<Vec<u8>> {
+    let tile_path = data.bundled.join(TILE);
+    let tile =
+        std::fs::read(&tile_path).with_context(|| format!("reading {}", tile_path.display()))?;
+    if tile.len() != (TILE_SIDE as usize).pow(3) {
+        bail!(
+            "{TILE}: {} bytes, expected {}",
+            tile.len(),
+            TILE_SIDE.pow(3)
+        );
+    }
+    Ok(tile)
+}
+
 /// Peak resident memory of this process so far, from `/proc/self/status` (Linux), in bytes.
 fn peak_resident_bytes() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -101,16 +116,7 @@ pub fn run(args: &LargeArgs, data: &crate::bench::DataDirs) -> Result<()> {
             args.voxels
         );
     }
-    let tile_path = data.bundled.join(TILE);
-    let tile =
-        std::fs::read(&tile_path).with_context(|| format!("reading {}", tile_path.display()))?;
-    if tile.len() != (TILE_SIDE as usize).pow(3) {
-        bail!(
-            "{TILE}: {} bytes, expected {}",
-            tile.len(),
-            TILE_SIDE.pow(3)
-        );
-    }
+    let tile = read_tile(data)?;
     std::fs::create_dir_all(&args.dir)
         .with_context(|| format!("creating {}", args.dir.display()))?;
     let v = args.voxels;

@@ -53,8 +53,7 @@ pub struct StreamArgs {
     shard: u32,
 }
 
-const TILE: &str = "volumes/neghip_64x64x64_uint8.raw";
-const TILE_SIDE: u32 = 64;
+use crate::bench::large_bench::TILE_SIDE;
 
 /// The voxels of the box at `lo` (size `size`), x fastest: the tile repeated, each copy
 /// mirrored along each axis by a hash of its place.
@@ -124,16 +123,7 @@ pub fn run(args: &StreamArgs, data: &crate::bench::DataDirs) -> Result<()> {
     if !v.is_multiple_of(TILE_SIDE) {
         bail!("--voxels {v} is not a multiple of the tile's {TILE_SIDE} voxels");
     }
-    let tile_path = data.bundled.join(TILE);
-    let tile =
-        std::fs::read(&tile_path).with_context(|| format!("reading {}", tile_path.display()))?;
-    if tile.len() != (TILE_SIDE as usize).pow(3) {
-        bail!(
-            "{TILE}: {} bytes, expected {}",
-            tile.len(),
-            TILE_SIDE.pow(3)
-        );
-    }
+    let tile = crate::bench::large_bench::read_tile(data)?;
     std::fs::create_dir_all(&args.dir)
         .with_context(|| format!("creating {}", args.dir.display()))?;
     let store = std::path::absolute(args.dir.join(format!(
@@ -268,7 +258,14 @@ fn compare(scene_path: &Path, voxel_bytes: u64, args: &StreamArgs) -> Result<()>
     let cold = time_render(&cold_scene, args.size, args.spp)?;
     // Warm: every brick resident (the first render reads what the survey did not keep).
     time_render(&warm_scene, args.size, 1)?;
-    let tight_scene = open(voxel_bytes / 8)?;
+    // An eighth of the volume, or the least a streamed grid takes where that is more.
+    let side = (voxel_bytes as f64).cbrt().round() as u32;
+    let eighth = (voxel_bytes / 8).max(volume_pt::bricks::min_budget(
+        UVec3::splat(side),
+        UVec3::splat(args.chunk),
+        1,
+    ));
+    let tight_scene = open(eighth)?;
     time_render(&tight_scene, args.size, 1)?;
     let (mut w, mut s, mut t) = (0.0f64, 0.0f64, 0.0f64);
     for _ in 0..2 {
@@ -298,7 +295,7 @@ fn compare(scene_path: &Path, voxel_bytes: u64, args: &StreamArgs) -> Result<()>
     );
     println!(
         "| streamed, an eighth resident | {} | {:.3} | {:.2} | {} |",
-        gib(voxel_bytes / 8),
+        gib(eighth),
         t / 1e6,
         t / w,
         loads(&tight_scene)

@@ -469,38 +469,25 @@ pub fn write_store_by_chunks(
     spacing: glam::Vec3,
     voxels: impl Fn(UVec3, UVec3) -> Vec<u8> + Sync,
 ) -> Result<()> {
-    use rayon::prelude::*;
-    let bad = |m: String| Error::format(path, m);
     let store = new_store(path, options)?;
-    // Written a chunk (or a whole shard) at a time.
-    let (chunk, _) = options.grid(dims);
-    let array = options
-        .create_array(&store, "/s0", dims, data_type::uint8(), 0u8)
-        .map_err(|e| bad(format!("level 0: {e}")))?;
-    let counts = (dims + chunk - 1) / chunk;
-    let n = counts.x as u64 * counts.y as u64 * counts.z as u64;
-    (0..n).into_par_iter().try_for_each(|i| -> Result<()> {
-        let c = UVec3::new(
-            (i % counts.x as u64) as u32,
-            ((i / counts.x as u64) % counts.y as u64) as u32,
-            (i / (counts.x as u64 * counts.y as u64)) as u32,
-        );
-        let lo = c * chunk;
-        let size = chunk.min(dims - lo);
-        let data = voxels(lo, size);
-        let subset = ArraySubset::new_with_ranges(&[
-            u64::from(lo.z)..u64::from(lo.z + size.z),
-            u64::from(lo.y)..u64::from(lo.y + size.y),
-            u64::from(lo.x)..u64::from(lo.x + size.x),
-        ]);
-        array
-            .store_array_subset_opt(
-                &subset,
-                &data[..],
-                &zarrs::array::CodecOptions::default().with_concurrent_target(1),
-            )
-            .map_err(|e| bad(format!("chunk {c}: {e}")))
-    })?;
+    // The writer's own chunk loop, for one level.
+    let one_level = StoreOptions {
+        max_levels: 1,
+        ..*options
+    };
+    let target = Target {
+        store: &store,
+        path,
+        options: &one_level,
+    };
+    write_levels(
+        &target,
+        &|lo, size| Ok(voxels(lo, size)),
+        dims,
+        (data_type::uint8(), 0u8),
+        f64::from,
+        |m| m.round() as u8,
+    )?;
     write_group(
         &store,
         path,

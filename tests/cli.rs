@@ -1154,6 +1154,48 @@ fn denoising_the_default_scene_cuts_its_error() {
     assert!(after * 10.0 < before, "relMSE {before} -> {after}");
 }
 
+/// A cached render that will be denoised takes error-aware termination's settings
+/// (`CacheConfig::for_denoiser`) unless the command line names one of them: its raw image is
+/// the one those flags give by hand, bit for bit, and naming one keeps the user's choice.
+#[test]
+#[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
+fn a_denoised_cached_render_reads_the_cache_only_where_it_has_earned_trust() {
+    let d = scratch("denoised_cache");
+    let cached = [
+        "--cache", "--warmup", "4", "--frames", "4", "--seed", "3", "-o",
+    ];
+    let run = |name: &str, extra: &[&str]| {
+        let exr = d.join(name);
+        let out = render_small(extra).args(cached).arg(&exr).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{err}");
+        (read(&exr), err)
+    };
+    let (denoised, note) = run("a.exr", &["--denoise"]);
+    assert!(note.contains("earned trust"), "{note}");
+    let trust = [
+        "--cache-min-coverage",
+        "0.5",
+        "--cache-max-bias",
+        "0.03",
+        "--cache-stopper-weights",
+        "true",
+    ];
+    let (by_hand, quiet) = run("b.exr", &trust);
+    assert!(!quiet.contains("earned trust"), "{quiet}");
+    assert!(
+        denoised == by_hand,
+        "the denoised render's raw image is the trusted cache's"
+    );
+    let (named, quiet) = run("c.exr", &["--denoise", "--cache-max-bias", "0"]);
+    let (plain, _) = run("d.exr", &["--cache-max-bias", "0"]);
+    assert!(!quiet.contains("earned trust"), "{quiet}");
+    assert!(
+        named == plain && named != by_hand,
+        "a named setting is the user's"
+    );
+}
+
 /// `render --cache --cache-unbiased true` renders the unbiased cache and prints, per level, the
 /// most any q could gain there (gs-cache's crate docs); its bad settings are named.
 #[test]

@@ -100,6 +100,7 @@ fn settings_written_as_flags_read_back_the_same() {
         c_deep: 1.75,
         threshold: 0.75,
         min_coverage: 0.4,
+        max_bias: 0.07,
         early: false,
         natural: false,
         survivor_weights: true,

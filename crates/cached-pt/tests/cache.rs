@@ -653,3 +653,48 @@ fn paths_go_on_where_too_few_paths_reach_a_level() {
         "{strict_fraction} against {loose_fraction}"
     );
 }
+
+/// Error-aware termination's bias test (`max_bias`, gs-cache's `support.rs`): a settled cache
+/// keeps most of its first level readable, and after a light move nobody reported (so no
+/// fallback distrusts the levels) the pooled residuals against the new targets send the stale
+/// pixels' paths on within frames: the image over the next frames is closer to the new
+/// reference than without the test (relMSE of 8-frame means, fixed seeds).
+#[test]
+fn paths_go_on_where_a_level_measurably_misses_its_targets() {
+    let s = scene();
+    let mut moved = s.clone();
+    moved
+        .media
+        .lights
+        .lights
+        .iter_mut()
+        .for_each(|l| l.translate(Vec3::new(-140.0, 0.0, 0.0)));
+    let reference = plain(&moved, 256, 1000);
+    let run = |max_bias| {
+        let mut cache = new_cache(
+            &s,
+            CacheConfig {
+                fallback: false,
+                max_bias,
+                ..Default::default()
+            },
+        );
+        cached(&s, &mut cache, 30, 0, 5);
+        let settled = cache.frame().unwrap().trusted_fractions()[0];
+        let error = rel_mse(&cached(&moved, &mut cache, 10, 8, 6), &reference);
+        let after = cache.frame().unwrap().trusted_fractions()[0];
+        (settled, error, after)
+    };
+    let (settled, tested, after) = run(0.05);
+    let (_, untested, _) = run(0.0);
+    eprintln!(
+        "max_bias 0.05: level 1 readable at {settled:.2} of cache pixels when settled, {after:.2} \
+         after the move; relMSE after the move {tested:.4} against {untested:.4} without the test"
+    );
+    assert!(settled > 0.5, "a settled cache readable at {settled}");
+    assert!(
+        after < 0.5 * settled,
+        "after the move: {after} against {settled}"
+    );
+    assert!(tested < 0.8 * untested, "{tested} against {untested}");
+}

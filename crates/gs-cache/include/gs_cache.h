@@ -32,42 +32,12 @@
 // `GsCacheConfig::decay`: no decay.
 #define GS_CACHE_DECAY_OFF 2
 
-// The cache's size when `points` is 0: Gaussians per pixel of the cache image. The GSCache
-// paper's 300k Gaussians served 1920x1080 frames (0.14 per pixel); our size sweeps found 20k
-// best at 320x180 (0.35 per pixel) and the same density best at a quarter of the resolution
-// (1.25k for 80x45: docs/results/cost_*). A cloud cannot show more detail than the image it is
-// drawn into resolves, and each Gaussian more shares the same samples.
-#define GAUSSIANS_PER_CACHE_PIXEL 0.35
-
 // The most levels a cache may have (paths longer than this are never cached).
 #define GS_CACHE_MAX_LEVELS 8
 
 // The most Gaussians the first level may hold (16.8 M): far past what any image needs (the
 // automatic size is 0.35 per cache pixel), and a bound on memory a typo can ask for.
 #define GS_CACHE_MAX_POINTS (1 << 24)
-
-// How many standard errors the residual must exceed.
-#define Z_SCORE 3.0
-
-// The fraction of the value within which a distrusted pixel's residual must fall (or within
-// the noise) for the pixel to be trusted again.
-#define RELATIVE_ERROR 0.2
-
-// The fraction of the value a trusted pixel's residual must exceed (beyond the noise), in two
-// frames running, for the pixel to be distrusted.
-#define STALE_ERROR 0.5
-
-// The relative training weight, with `stopper_weights`, of a sample from a path that always
-// goes on at its level's vertex (see [`CachedPath::samples`]).
-#define ALWAYS_ON_WEIGHT 1e-3
-
-// Once the error has levelled off on a still view, a training step is taken on one frame in
-// this many (with adaptive training).
-#define SETTLED_TRAIN_EVERY 4
-
-// Each frame, the decayed sums are multiplied by this before the frame's counts are added:
-// about three frames of memory, so a moving view's coverage follows it.
-#define DECAY 0.7
 
 // Outcome of a call.
 typedef enum GsCacheStatus {
@@ -160,6 +130,10 @@ typedef struct GsCacheConfig {
   // cache pixel reached its vertex (0: everywhere; see `CacheConfig`). Needs the paths
   // counted with `gs_cache_add_path`.
   float min_coverage;
+  // Paths stop into a level only where its measured residual against its targets around
+  // their cache pixel is within this fraction (0: no test; see `CacheConfig`). Needs the
+  // paths counted with `gs_cache_add_path`.
+  float max_bias;
 } GsCacheConfig;
 
 // A pinhole camera given as eye, target and up (world units), the vertical field of view and

@@ -427,6 +427,9 @@ impl GsCache {
             if let Some(trust) = frame.trust.as_mut() {
                 trust.distrust_all();
             }
+            if let Some(support) = frame.support.as_mut() {
+                support.forget_bias();
+            }
         }
     }
 
@@ -494,7 +497,7 @@ impl GsCache {
             }
             trust
         });
-        let support = (self.config.min_coverage > 0.0).then(|| {
+        let support = self.config.tests_support().then(|| {
             let mut support = old_support.unwrap_or_default();
             support.fit(self.levels.len(), map.width, map.height);
             support
@@ -653,8 +656,21 @@ impl GsCache {
             )));
         }
         if let Some(support) = frame.support.as_mut() {
+            // The residuals of the level as this frame's paths read it: not on a fresh cache's
+            // first frame (its levels are still the albedo start) nor a handed-off one (not read).
+            if self.config.max_bias > 0.0 && !self.fresh && !frame.handed_off {
+                for (level, drawn) in frame.drawn.iter().enumerate() {
+                    let (target, _) = targets.level_target(level, true);
+                    support.observe(level, drawn, &target, &targets.level_spread(level));
+                }
+            }
             let (paths, reached) = targets.path_counts();
-            support.update(paths, reached, self.config.min_coverage);
+            support.update(
+                paths,
+                reached,
+                self.config.min_coverage,
+                self.config.max_bias,
+            );
         }
         if frame.handed_off {
             self.report.train_seconds = 0.0;

@@ -155,6 +155,10 @@ pub struct GsCacheConfig {
     /// cache pixel reached its vertex (0: everywhere; see `CacheConfig`). Needs the paths
     /// counted with `gs_cache_add_path`.
     pub min_coverage: f32,
+    /// Paths stop into a level only where its measured residual against its targets around
+    /// their cache pixel is within this fraction (0: no test; see `CacheConfig`). Needs the
+    /// paths counted with `gs_cache_add_path`.
+    pub max_bias: f32,
 }
 
 /// A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -324,6 +328,7 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             min_continuation: c.min_continuation,
             continuation_scale: c.continuation_scale,
             min_coverage: c.min_coverage,
+            max_bias: c.max_bias,
         })
     }
 }
@@ -385,6 +390,7 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         min_continuation: d.min_continuation,
         continuation_scale: d.continuation_scale,
         min_coverage: d.min_coverage,
+        max_bias: d.max_bias,
     }
 }
 

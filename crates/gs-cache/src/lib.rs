@@ -16,7 +16,8 @@
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
 //! - [`fallback`]: plain path tracing where a level's last residual says it is stale.
 //! - [`support`]: plain path tracing where too few paths reach a level's vertex for its fit
-//!   to be more than the Gaussians' blur (error-aware termination).
+//!   to be more than the Gaussians' blur, or where the fit measurably misses its targets
+//!   (error-aware termination).
 //! - [`warm_start`]: a fresh level's colours fitted to its first frames' samples.
 //! - [`persist`]: levels saved and loaded as 3DGS PLY files.
 //! - [`capi`]: the C ABI (header `include/gs_cache.h`; a C program using it in `c/`).
@@ -202,7 +203,15 @@
 //! straddles), the level there is the Gaussians' blur of denser neighbours, and the bilinear
 //! read mixes in pixels with no target at all. With `min_coverage`, paths stop into a level
 //! only where, around their cache pixel, at least that fraction of the paths reached its vertex
-//! ([`support`]); elsewhere they are plain path tracing, as under the fallback.
+//! ([`support`]); elsewhere they are plain path tracing, as under the fallback. (9) Measured
+//! bias. Where paths do reach the vertex the fit may still miss `Lambda_n` (the Gaussians blur a
+//! core's structure; in motion the fit lags the view, since a level drawn from a new camera
+//! composites its Gaussians with other weights than the new rays' vertices have). With
+//! `max_bias`, paths stop into a level only where the level's residual against its own targets,
+//! pooled over the last frames and a 5x5 block of cache pixels (about the denoiser's
+//! footprint), is within that fraction of the targets or within the noise ([`support`]). It
+//! sees what the targets see: a bias the targets share (the deeper levels' values carried into
+//! a shallower level's samples) passes it.
 
 pub mod cache;
 pub mod capi;

@@ -26,19 +26,46 @@ pub struct CacheFlags {
     /// table.
     #[command(flatten)]
     pub nrc_settings: NrcConfig,
+    /// Whether the command line named any of error-aware termination's settings
+    /// (`--cache-min-coverage`, `--cache-max-bias`, `--cache-stopper-weights`): set by
+    /// [`CacheFlags::note_named`] from the parsed arguments.
+    #[arg(skip)]
+    pub termination_named: bool,
 }
 
+/// Error-aware termination's settings, as clap names them: the ones
+/// [`CacheConfig::for_denoiser`] sets.
+const TERMINATION_SETTINGS: [&str; 3] = ["min_coverage", "max_bias", "stopper_weights"];
+
 impl CacheFlags {
-    /// The cache these flags ask for; the Gaussian cache starts from `load` when given.
-    pub fn choice(&self, load: Option<PathBuf>) -> Result<CacheChoice> {
+    /// Notes whether the command line (`matches`, the subcommand's) named any of error-aware
+    /// termination's settings, so that [`CacheFlags::choice`] keeps what the user chose.
+    pub fn note_named(&mut self, matches: &clap::ArgMatches) {
+        self.termination_named = TERMINATION_SETTINGS.iter().any(|id| {
+            matches.try_get_raw(id).is_ok_and(|v| v.is_some())
+                && matches.value_source(id) == Some(clap::parser::ValueSource::CommandLine)
+        });
+    }
+
+    /// The cache these flags ask for; the Gaussian cache starts from `load` when given. An
+    /// image that will be `denoised` takes [`CacheConfig::for_denoiser`]'s termination unless
+    /// the command line chose it (the plain cache's structured error is what a denoiser keeps).
+    pub fn choice(&self, load: Option<PathBuf>, denoised: bool) -> Result<CacheChoice> {
         Ok(if self.nrc {
             self.nrc_settings.validate()?;
             CacheChoice::Neural(self.nrc_settings)
         } else if self.cache {
-            CacheChoice::Gaussian {
-                config: self.settings,
-                load,
-            }
+            let config = if denoised && !self.termination_named {
+                eprintln!(
+                    "note: the image is denoised, so the cache reads a level only where it has \
+                     earned trust (--cache-min-coverage 0.5 --cache-max-bias 0.03 \
+                     --cache-stopper-weights true; name any of them to choose otherwise)"
+                );
+                self.settings.for_denoiser()
+            } else {
+                self.settings
+            };
+            CacheChoice::Gaussian { config, load }
         } else {
             CacheChoice::None
         })

@@ -117,7 +117,16 @@ fn group_cache_settings(cmd: clap::Command) -> clap::Command {
 }
 
 fn main() {
-    let cli = Cli::from_arg_matches(&command().get_matches()).unwrap_or_else(|e| e.exit());
+    let matches = command().get_matches();
+    let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    // Which cache settings the user named, for the settings a denoised image changes.
+    if let Some((_, sub)) = matches.subcommand() {
+        match &mut cli.command {
+            Command::Render(a) => a.note_named(sub),
+            Command::Movie(a) => a.note_named(sub),
+            _ => {}
+        }
+    }
     let result = cli.global.start_threads().and_then(|()| match cli.command {
         Command::Render(a) => render::run(*a, &cli.global),
         Command::Merge(a) => merge::run(a),

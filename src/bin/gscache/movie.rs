@@ -94,11 +94,18 @@ fn read_keys(path: &Path) -> Result<Vec<Keyframe>> {
     Ok(file.key)
 }
 
+impl MovieArgs {
+    /// Notes which cache settings the command line named ([`CacheFlags::note_named`]).
+    pub fn note_named(&mut self, matches: &clap::ArgMatches) {
+        self.cache.note_named(matches);
+    }
+}
+
 pub fn run(args: MovieArgs, global: &crate::common::Global) -> Result<i32> {
     let opened = volume_pt::open_scene(&args.scene, volume_pt::Colormap::default())?;
     let features = args.denoise.needs_features();
     let scene = crate::render::finish_scene(opened.scene, &args.overrides, features)?;
-    let choice = args.cache.choice(None)?;
+    let choice = args.cache.choice(None, args.denoise.denoise)?;
     let path = match &args.keys {
         Some(file) => MoviePath::Keys {
             keys: read_keys(file)?,

@@ -98,7 +98,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     let load_start = std::time::Instant::now();
     let scene = load_scene_for_render(&args, global)?;
     // The one place the flags become a cache: everything after asks the choice.
-    let choice = args.cache.choice()?;
+    let choice = args.cache.choice(args.denoise.denoise)?;
     if let (Some(shard), Some(partial)) = (args.shard, &args.partial) {
         if !choice.is_none() {
             bail!(
@@ -545,10 +545,17 @@ fn check_image_memory(width: u32, height: u32, features: bool) -> Result<()> {
     Ok(())
 }
 
+impl RenderArgs {
+    /// Notes which cache settings the command line named ([`CacheFlags::note_named`]).
+    pub fn note_named(&mut self, matches: &clap::ArgMatches) {
+        self.cache.flags.note_named(matches);
+    }
+}
+
 impl CacheRun {
     /// The cache these flags ask for.
-    fn choice(&self) -> Result<CacheChoice> {
-        self.flags.choice(self.load_cache.clone())
+    fn choice(&self, denoised: bool) -> Result<CacheChoice> {
+        self.flags.choice(self.load_cache.clone(), denoised)
     }
 }
 

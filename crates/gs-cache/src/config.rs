@@ -249,8 +249,8 @@ pub struct CacheConfig {
     /// residual against its targets over the last frames is within this fraction of the
     /// targets (beyond the noise: see `support.rs`); elsewhere they go on as plain path
     /// tracing. 0 turns the test off, the default: with it (0.03, stopper weights, in motion at
-    /// equal time) the cache + OIDN's relMSE falls 1.2-1.7x and hydrogen's JOD rises 0.6, but
-    /// the raw image's rises 1.2-1.5x (docs/results/cache_error.md); with `min_coverage` it is
+    /// equal time) the cache + OIDN's relMSE falls 1.1-1.7x and hydrogen's JOD rises 0.6-0.7,
+    /// but the raw image's rises 1.2-1.6x (docs/results/cache_error.md); with `min_coverage` it is
     /// [`CacheConfig::for_denoiser`]'s setting. It also catches a change nobody reported (a
     /// light moved): 8 frames after one, 0.024 relMSE against 0.109 without it.
     #[cfg_attr(feature = "clap", arg(long = "cache-max-bias", default_value_t = DEFAULT.max_bias))]
@@ -324,12 +324,13 @@ impl CacheConfig {
     /// These settings with error-aware termination's for an image that will be denoised:
     /// paths stop into a level only where at least half the paths around them reach its vertex
     /// (`min_coverage` 0.5) and its measured bias is within 3% (`max_bias`), with the stoppers'
-    /// weights on its targets (`stopper_weights`). Measured against the plain cache, both
-    /// denoised by Open Image Denoise at equal time: 1.3-7x lower relMSE on hydrogen, default
-    /// and embryo, still and in motion, where the plain cache's structured error is what the
-    /// filter keeps (docs/results/cache_error.md). Raw, without a denoiser, the plain cache is
-    /// the better one (its relMSE 1.3-5x lower), so these are not the defaults; the program
-    /// takes them when `--denoise` is on and none of the three is given.
+    /// weights on its targets (`stopper_weights`). Against the plain cache, both denoised by
+    /// Open Image Denoise at equal time (the six bundled volumes on stills at 1 spp, 200 ms and
+    /// 1 s; hydrogen, default and embryo in motion at 100 and 200 ms): relMSE 1.0-4.8x lower,
+    /// never higher beyond the runs' noise, because the plain cache's structured error is what
+    /// the filter keeps (docs/results/cache_error.md). Raw, without a denoiser, the plain cache
+    /// is the better one (relMSE 2.0-4.7x lower at 1 spp), so these are not the defaults; the
+    /// program takes them when `--denoise` is on and none of the three is given.
     pub fn for_denoiser(self) -> Self {
         Self {
             min_coverage: 0.5,

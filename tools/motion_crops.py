@@ -3,8 +3,10 @@
 
 For each scene it makes four short movies with `gscache movie` (a 24-degree turntable, 8 frames
 of 100 ms each after a 30-frame warm-up for the cache): NEE + OIDN (fast, albedo), the cache
-raw, the cache + OIDN, and takes the last frame of each beside that frame's NEE reference
-(512 spp). The crops go side by side into one small JPEG.
+raw, the plain cache + OIDN (`--cache-max-bias 0` names the setting, so the program keeps the
+plain cache), the cache + OIDN as the program denoises it (reading a level only where it has
+earned trust: `CacheConfig::for_denoiser`), and takes the last frame of each beside that
+frame's NEE reference (512 spp). The crops go side by side into one small JPEG.
 
 Run from the repository root, with the program built (`cargo build --release`), ffmpeg not
 needed (`--video none`), Pillow installed and GSCACHE_OIDN set:
@@ -31,7 +33,9 @@ DENOISE = ["--denoise", "--denoise-quality", "fast", "--denoise-guides", "albedo
 METHODS = [
     ("NEE + OIDN", [] + DENOISE, ".denoised.png"),
     ("cache", ["--cache", "--warmup", "30"], ".png"),
-    ("cache + OIDN", ["--cache", "--warmup", "30"] + DENOISE, ".denoised.png"),
+    ("plain cache + OIDN", ["--cache", "--warmup", "30", "--cache-max-bias", "0"] + DENOISE,
+     ".denoised.png"),
+    ("trusted cache + OIDN", ["--cache", "--warmup", "30"] + DENOISE, ".denoised.png"),
 ]
 FRAMES = 8
 

@@ -385,6 +385,25 @@ impl GsCache {
         &self.config
     }
 
+    /// Takes error-aware termination's settings (`min_coverage`, `max_bias` and
+    /// `stopper_weights`) from `config`, keeping the levels and everything else: a viewer's
+    /// denoise toggle switches between [`CacheConfig::for_denoiser`]'s and the plain cache's
+    /// without losing what the levels learned. The tests start afresh on the next frame.
+    pub fn set_error_aware_termination(&mut self, config: &CacheConfig) -> Result<()> {
+        let changed = CacheConfig {
+            min_coverage: config.min_coverage,
+            max_bias: config.max_bias,
+            stopper_weights: config.stopper_weights,
+            ..self.config
+        };
+        changed.validate()?;
+        self.config = changed;
+        if let Some(frame) = self.frame.as_mut() {
+            frame.support = None;
+        }
+        Ok(())
+    }
+
     /// Turns training on or off (`train`) without rebuilding the cache: a viewer freezes what
     /// the cache has learnt, and lets it learn again.
     pub fn set_training(&mut self, on: bool) {

@@ -142,6 +142,17 @@ impl Cache {
         }
     }
 
+    /// Takes error-aware termination's settings (`min_coverage`, `max_bias`,
+    /// `stopper_weights`) from `config` and keeps the levels (see
+    /// [`GsCache::set_error_aware_termination`]); nothing to do for the others.
+    pub fn set_error_aware_termination(&mut self, config: &gs_cache::CacheConfig) -> Result<()> {
+        if let Cache::Gaussian(c) = self {
+            c.set_error_aware_termination(config)
+                .map_err(|e| SessionError::Invalid(e.to_string()))?;
+        }
+        Ok(())
+    }
+
     /// The levels as the last frame drew and read them (the Gaussian cache, after its first
     /// frame): what an experiment keeps as the cache's picture.
     pub fn drawn_levels(&self) -> Option<&gs_cache::CacheFrame> {

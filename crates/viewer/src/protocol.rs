@@ -186,13 +186,21 @@ impl Method {
             .collect()
     }
 
-    /// The session's cache for this method.
-    pub fn cache_choice(self) -> CacheChoice {
+    /// The session's cache for this method; one whose image will be `denoised` reads its
+    /// levels only where they have earned trust ([`gs_cache::CacheConfig::for_denoiser`]).
+    pub fn cache_choice(self, denoised: bool) -> CacheChoice {
         use gs_cache::{CacheConfig, Lookup};
+        let algorithm_1 = |config: CacheConfig| {
+            CacheChoice::gaussian(if denoised {
+                config.for_denoiser()
+            } else {
+                config
+            })
+        };
         match self {
             Method::Nee => CacheChoice::None,
-            Method::Cache => CacheChoice::gaussian(CacheConfig::default()),
-            Method::CacheRt => CacheChoice::gaussian(CacheConfig {
+            Method::Cache => algorithm_1(CacheConfig::default()),
+            Method::CacheRt => algorithm_1(CacheConfig {
                 lookup: Lookup::Rt,
                 ..Default::default()
             }),

@@ -521,7 +521,7 @@ impl Worker {
             }
             Change::Method(method) => {
                 self.session
-                    .edit(Edit::Cache(method.cache_choice()))
+                    .edit(Edit::Cache(method.cache_choice(self.denoise_on)))
                     .map_err(|e| e.to_string())?;
                 self.method = method;
                 self.set_camera()?;
@@ -560,7 +560,7 @@ impl Worker {
             }
             Change::ResetCache => {
                 self.session
-                    .edit(Edit::Cache(self.method.cache_choice()))
+                    .edit(Edit::Cache(self.method.cache_choice(self.denoise_on)))
                     .map_err(|e| e.to_string())?;
                 self.set_camera()?;
             }
@@ -610,6 +610,16 @@ impl Worker {
                     return Err(format!("denoising is not available: {why}"));
                 }
                 self.denoise_on = on;
+                // A cache whose image is denoised reads its levels only where they have earned
+                // trust, and the plain cache's reading comes back without the filter: the same
+                // levels, trained on, with the other termination.
+                let wanted = self.method.cache_choice(on);
+                if let render_session::CacheChoice::Gaussian { config, .. } = &wanted {
+                    self.session
+                        .cache_mut()
+                        .set_error_aware_termination(config)
+                        .map_err(|e| e.to_string())?;
+                }
                 // The albedo guides the filter; the next frame shows the change, even on a
                 // converged view.
                 self.session.set_features(on);
@@ -795,6 +805,10 @@ impl Worker {
             // Per level, the fraction of cache pixels whose residual was gross this frame (the
             // fallback's verdict: paths there go on as plain path tracing).
             "stale": (!report.stale_fraction.is_empty()).then_some(&report.stale_fraction),
+            // Per level, the fraction of cache pixels paths may stop into (the fallback's and
+            // error-aware termination's verdicts together; with the denoiser on, the trusted
+            // cache's).
+            "readable": self.session.cache().drawn_levels().map(|f| f.trusted_fractions()),
             "split": self.split.as_ref().map(|s| serde_json::json!({
                 "left": "nee",
                 "left_spp": s.frames_in_image(),

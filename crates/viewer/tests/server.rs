@@ -590,6 +590,62 @@ async fn turning_denoising_on_loads_the_denoiser_and_denoises_frames() {
     v.stop();
 }
 
+/// With the cache as the method, turning the denoiser on makes the same cache read its levels
+/// only where they have earned trust (`CacheConfig::for_denoiser`: the plain cache's structured
+/// error is what the filter keeps), and turning it off gives the plain reading back: the
+/// fraction of the first level's cache pixels paths may stop into falls and rises again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
+async fn a_denoised_cache_reads_only_where_it_has_earned_trust() {
+    let out = scratch("denoise-trust");
+    let v = start_with_denoiser(&out, denoise::OnDemand::new(1));
+    let mut socket = connect(&v, &token(&v)).await.unwrap();
+    let mut seen = Seen::default();
+    read_until(&mut socket, &mut seen, |s| s.hello.is_some()).await;
+    let readable = |m: &serde_json::Value| m["readable"][0].as_f64();
+    let send = |text: &'static str| Message::Text(text.into());
+    socket
+        .send(send(r#"{"type":"method","method":"cache"}"#))
+        .await
+        .unwrap();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats
+            .last()
+            .is_some_and(|m| m["method"] == "cache" && m["spp"].as_u64() >= Some(8))
+    })
+    .await;
+    let plain = readable(seen.stats.last().unwrap()).expect("the cache's readable fractions");
+    socket
+        .send(send(r#"{"type":"denoise","on":true}"#))
+        .await
+        .unwrap();
+    seen.stats.clear();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats.last().is_some_and(|m| m["denoised"] == true)
+    })
+    .await;
+    let trusted = readable(seen.stats.last().unwrap()).unwrap();
+    socket
+        .send(send(r#"{"type":"denoise","on":false}"#))
+        .await
+        .unwrap();
+    seen.stats.clear();
+    read_until(&mut socket, &mut seen, |s| {
+        s.stats
+            .last()
+            .is_some_and(|m| m["denoised"] == false && m["spp"].as_u64() >= Some(8))
+    })
+    .await;
+    let again = readable(seen.stats.last().unwrap()).unwrap();
+    assert!(seen.errors.is_empty(), "{:?}", seen.errors);
+    eprintln!("level 1 readable: plain {plain:.2}, denoised {trusted:.2}, plain again {again:.2}");
+    // The default scene's background holds a third of the 64x36 frame or more, and no path
+    // through it reaches a vertex: coverage leaves it, and its neighbours, unread.
+    assert!(trusted < plain - 0.2, "{trusted} against {plain}");
+    assert!(again > trusted + 0.2, "{again} against {trusted}");
+    v.stop();
+}
+
 /// Issue 48, item 10: a bad `--output` is said when the viewer starts (it was said only at the
 /// first Save), and nothing is created for a good one until a Save.
 #[test]

@@ -196,3 +196,21 @@ fn neural_cache_settings_written_as_flags_read_back_the_same() {
     assert_eq!(NrcConfig::from_arg_matches(&m).unwrap(), changed);
     assert!(NrcConfig::default().changed_flags().is_empty());
 }
+
+/// The settings a denoised image's cache changes are the ones named as its keys (the program
+/// and Python keep a user's choice of any of them by those names).
+#[test]
+fn the_denoiser_settings_are_the_keys_named_for_them() {
+    let plain = toml::Table::try_from(CacheConfig::default()).unwrap();
+    let denoised = toml::Table::try_from(CacheConfig::default().for_denoiser()).unwrap();
+    let mut changed: Vec<&str> = plain
+        .keys()
+        .filter(|k| plain[*k] != denoised[*k])
+        .map(String::as_str)
+        .collect();
+    let mut named = CacheConfig::FOR_DENOISER_KEYS.to_vec();
+    changed.sort();
+    named.sort();
+    assert_eq!(changed, named);
+    CacheConfig::default().for_denoiser().validate().unwrap();
+}

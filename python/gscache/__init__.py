@@ -579,12 +579,13 @@ def _movie_spec(
         budget = {"seconds": float(frame_seconds)}
     else:
         budget = {"spp": int(spp if spp is not None else scene_spp)}
-    if denoise is True:
-        denoise = {}
-    if denoise:
-        denoise = {"quality": "high", "guides": "none", "prefilter": True, **dict(denoise)}
-    else:
+    # True and a dict (even an empty one: the defaults) denoise; None and False do not. (An
+    # empty dict is falsy: `if denoise:` once made `denoise=True` render no denoised frame.)
+    if denoise is None or denoise is False:
         denoise = None
+    else:
+        options = {} if denoise is True else dict(denoise)
+        denoise = {"quality": "high", "guides": "none", "prefilter": True, **options}
     return json.dumps({
         "frames": int(frames), "fps": float(fps), "path": path, "budget": budget,
         "warmup": int(warmup), "denoise": denoise, "reference_spp": reference_spp,
@@ -638,7 +639,7 @@ def movie(
         _gscache._encode_movie(scene._inner, str(folder), spec, video, cache_json)
     if not return_frames:
         return str(folder)
-    return str(folder), movie_frames(folder, frames, denoised=bool(denoise))
+    return str(folder), movie_frames(folder, frames, denoised=denoise is not None and denoise is not False)
 
 
 def movie_frames(folder: str, frames: int, *, denoised: bool = False) -> np.ndarray:

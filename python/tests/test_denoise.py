@@ -112,3 +112,26 @@ def test_a_pyoidn_in_the_current_folder_is_never_the_library(tmp_path, monkeypat
     monkeypatch.syspath_prepend(str(tmp_path))
     found = gscache._pyoidn_library()
     assert found is None or not os.path.realpath(found).startswith(str(tmp_path.resolve())), found
+
+
+@needs_oidn
+def test_a_denoised_cached_movie_reads_the_cache_only_where_it_has_earned_trust(repo, tmp_path):
+    # As `gscache movie --cache --denoise`: the cache takes error-aware termination's settings
+    # (gs_cache's CacheConfig::for_denoiser) unless the cache dict names one of them.
+    scene = gscache.Scene.load(str(small_default_scene(repo, tmp_path, 32, 18)))
+    trust = {"min_coverage": 0.5, "max_bias": 0.03, "stopper_weights": True}
+
+    def raw(name, cache, denoise):
+        folder = gscache.movie(scene, tmp_path / name, 3, spp=2, warmup=2, video=None,
+                               cache={"points": 500, **cache}, denoise=denoise)
+        return gscache.movie_frames(folder, 3)
+
+    denoised = raw("denoised", {}, True)
+    # `denoise=True` denoises (it once made an empty, falsy options dict and denoised nothing).
+    assert (tmp_path / "denoised" / "frame_000002.denoised.exr").is_file()
+    by_hand = raw("by_hand", trust, None)
+    named = raw("named", {"max_bias": 0}, True)
+    plain = raw("plain", {}, None)
+    assert np.array_equal(denoised, by_hand)
+    assert np.array_equal(named, plain)
+    assert not np.array_equal(by_hand, plain)

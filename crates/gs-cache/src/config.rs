@@ -321,6 +321,11 @@ pub const MAX_POINTS: usize = 1 << 24;
 pub const BYTES_PER_TRAINED_GAUSSIAN: u64 = 14 * 4 * 4;
 
 impl CacheConfig {
+    /// The settings [`CacheConfig::for_denoiser`] sets, by their names as keys and flags (a
+    /// caller that lets the user name some keeps those).
+    pub const FOR_DENOISER_KEYS: [&'static str; 3] =
+        ["min_coverage", "max_bias", "stopper_weights"];
+
     /// These settings with error-aware termination's for an image that will be denoised:
     /// paths stop into a level only where at least half the paths around them reach its vertex
     /// (`min_coverage` 0.5) and its measured bias is within 3% (`max_bias`), with the stoppers'

@@ -12,16 +12,24 @@ fn spec_from(spec_json: &str) -> PyResult<MovieSpec> {
     serde_json::from_str(spec_json).map_err(|e| crate::error(format!("movie: {e}")))
 }
 
-fn choice_from(cache_json: Option<&str>) -> PyResult<CacheChoice> {
-    Ok(match cache_json {
-        None => CacheChoice::None,
-        Some(j) => {
-            let config: gs_cache::CacheConfig =
-                serde_json::from_str(j).map_err(|e| crate::error(format!("cache config: {e}")))?;
-            config.validate().map_err(crate::error)?;
-            CacheChoice::gaussian(config)
-        }
-    })
+/// The movie's cache from its settings as JSON (none: NEE). A movie that will be `denoised`
+/// takes [`gs_cache::CacheConfig::for_denoiser`]'s termination unless the settings name one
+/// of its keys, as `gscache movie --denoise` does.
+fn choice_from(cache_json: Option<&str>, denoised: bool) -> PyResult<CacheChoice> {
+    let Some(j) = cache_json else {
+        return Ok(CacheChoice::None);
+    };
+    let bad = |e: serde_json::Error| crate::error(format!("cache config: {e}"));
+    let value: serde_json::Value = serde_json::from_str(j).map_err(bad)?;
+    let named = gs_cache::CacheConfig::FOR_DENOISER_KEYS
+        .iter()
+        .any(|k| value.get(k).is_some());
+    let mut config: gs_cache::CacheConfig = serde_json::from_value(value).map_err(bad)?;
+    if denoised && !named {
+        config = config.for_denoiser();
+    }
+    config.validate().map_err(crate::error)?;
+    Ok(CacheChoice::gaussian(config))
 }
 
 /// What decides the movie's frames besides its spec: the scene (its key with its settings)
@@ -53,7 +61,7 @@ pub(crate) fn movie(
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<(u32, bool, String)> {
     let spec = spec_from(spec_json)?;
-    let choice = choice_from(cache_json)?;
+    let choice = choice_from(cache_json, spec.denoise.is_some())?;
     spec.check(!choice.is_none()).map_err(crate::error)?;
     let part = part.map(|(first, last, overlap)| Part {
         first,
@@ -112,7 +120,7 @@ pub(crate) fn merge_movie(
     cache_json: Option<&str>,
 ) -> PyResult<u32> {
     let spec = spec_from(spec_json)?;
-    let choice = choice_from(cache_json)?;
+    let choice = choice_from(cache_json, spec.denoise.is_some())?;
     let merged =
         merge_parts(&folder, &identity(scene, &choice), &spec, &parts).map_err(crate::error)?;
     Ok(merged.done().len() as u32)
@@ -129,7 +137,7 @@ pub(crate) fn encode_movie(
     cache_json: Option<&str>,
 ) -> PyResult<PathBuf> {
     let spec = spec_from(spec_json)?;
-    let choice = choice_from(cache_json)?;
+    let choice = choice_from(cache_json, spec.denoise.is_some())?;
     let format = match format {
         "mp4" => ::movie::VideoFormat::Mp4,
         "webm" => ::movie::VideoFormat::Webm,

@@ -33,15 +33,12 @@ pub struct CacheFlags {
     pub termination_named: bool,
 }
 
-/// Error-aware termination's settings, as clap names them: the ones
-/// [`CacheConfig::for_denoiser`] sets.
-const TERMINATION_SETTINGS: [&str; 3] = ["min_coverage", "max_bias", "stopper_weights"];
-
 impl CacheFlags {
     /// Notes whether the command line (`matches`, the subcommand's) named any of error-aware
     /// termination's settings, so that [`CacheFlags::choice`] keeps what the user chose.
     pub fn note_named(&mut self, matches: &clap::ArgMatches) {
-        self.termination_named = TERMINATION_SETTINGS.iter().any(|id| {
+        // clap's ids are the settings' field names, as the keys are.
+        self.termination_named = CacheConfig::FOR_DENOISER_KEYS.iter().any(|id| {
             matches.try_get_raw(id).is_ok_and(|v| v.is_some())
                 && matches.value_source(id) == Some(clap::parser::ValueSource::CommandLine)
         });

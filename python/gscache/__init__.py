@@ -639,7 +639,8 @@ def movie(
         _gscache._encode_movie(scene._inner, str(folder), spec, video, cache_json)
     if not return_frames:
         return str(folder)
-    return str(folder), movie_frames(folder, frames, denoised=denoise is not None and denoise is not False)
+    denoised = denoise is not None and denoise is not False
+    return str(folder), movie_frames(folder, frames, denoised=denoised)
 
 
 def movie_frames(folder: str, frames: int, *, denoised: bool = False) -> np.ndarray:

@@ -161,18 +161,19 @@ class Scene:
         from the volume's histogram (window at its 0.5th-99.5th percentiles, opacity above
         Otsu's threshold) with colour map ``colormap`` (``bone``, ``viridis``, ``inferno``,
         ``cool-to-warm``, ``grayscale``), a camera framing it, a key light and a dim sky.
-        ``scene.toml`` holds the choice as scene-file text, to save and edit."""
+        ``scene.toml`` holds the choice as scene-file text, to save and edit. A file's path is
+        read as the program reads it: a store of several channels shows them composited (up to
+        six, each in its colour, as ``[[channel]]`` tables)."""
         import os
 
-        nifti = False
-        if isinstance(volume, (str, os.PathLike)):
-            name = os.fspath(volume).lower()
-            nifti = name.endswith(".nii") or name.endswith(".nii.gz")
-            volume = Volume.read(os.fspath(volume))
-        elif not isinstance(volume, Volume):
-            volume = Volume.from_array(volume)
         self = cls.__new__(cls)
-        self._inner, self.toml = _gscache.Scene.from_volume(volume, colormap, nifti)
+        if isinstance(volume, (str, os.PathLike)):
+            self._inner, self.toml = _gscache.Scene.from_volume_file(os.fspath(volume), colormap)
+            self._path = "volume.auto.toml"
+            return self
+        if not isinstance(volume, Volume):
+            volume = Volume.from_array(volume)
+        self._inner, self.toml = _gscache.Scene.from_volume(volume, colormap, False)
         self._path = "volume.auto.toml"
         return self
 

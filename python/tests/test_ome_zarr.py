@@ -153,8 +153,12 @@ def test_the_program_renders_a_store_with_the_automatic_scene(stores, program, t
     import tomllib
     auto = tomllib.loads(saved.read_text())
     assert [c["index"] for c in auto["channel"]] == [1, 2], auto.get("channel")
-    # From Python, the same choice.
+    # From Python, the same choice: the same channels, the same scene text but its size.
     scene = gscache.Scene.from_volume(str(paths["0.5"]))
+    from_python = tomllib.loads(scene.toml)
+    assert [c["index"] for c in from_python["channel"]] == [1, 2], scene.toml
+    assert from_python["channel"] == auto["channel"]
+    assert from_python["transfer"] == auto["transfer"]
     assert np.isfinite(gscache.render(scene, spp=1)).all()
 
 

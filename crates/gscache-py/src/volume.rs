@@ -383,6 +383,29 @@ impl Scene {
         ))
     }
 
+    /// The automatic scene for the volume file at `path`, as `gscache render VOLUME` chooses
+    /// it (a store of several channels composited, each in its colour: see
+    /// `volume_pt::auto_scene::scene_for_volume`), and its TOML text. The render key is the
+    /// file's path, size and the scene's text.
+    #[staticmethod]
+    fn from_volume_file(path: PathBuf, colormap: &str) -> PyResult<(Self, String)> {
+        let colormap: volume_pt::Colormap = colormap.parse().map_err(crate::error)?;
+        let (scene, text) =
+            volume_pt::auto_scene::scene_for_volume(&path, colormap).map_err(crate::error)?;
+        let size = std::fs::metadata(&path).map_err(crate::error)?.len();
+        let key = RenderKey::new()
+            .part(path.to_string_lossy().as_bytes())
+            .part(&size.to_le_bytes())
+            .part(text.as_bytes());
+        Ok((
+            Self {
+                scene,
+                origin: Origin::Tables(key),
+            },
+            text,
+        ))
+    }
+
     /// This scene with its clipping replaced by `clip_json` (the `[clip]` table as JSON: `box`
     /// and `plane`); `{}` clips nothing. The render key follows the clipping.
     fn with_clipping(&self, clip_json: &str) -> PyResult<Self> {

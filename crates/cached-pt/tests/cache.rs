@@ -506,14 +506,9 @@ fn after_a_scene_change_the_fallback_renders_plain_nee() {
     );
 }
 
-/// A stale cache nobody reported (the lights moved, `reset_schedule` was not called): the
-/// pixels whose residuals exceed half the value beyond the noise two frames running fall back,
-/// and the image over the next frames is closer to the new reference than without the fallback
-/// (relMSE of 8-frame means, fixed seeds; 0.094 against 0.109 when written). It is not a
-/// guarantee: plain NEE's 8 frames measure 0.024, since most stale pixels are off by less than
-/// half; only a reported change distrusts every pixel.
-#[test]
-fn an_unreported_change_falls_back_within_frames() {
+/// The test scene, and the same scene with its lights moved 140 units along -x: a change of
+/// lighting nobody reports to the cache.
+fn scene_and_moved_lights() -> (Scene, Scene) {
     let s = scene();
     let mut moved = s.clone();
     moved
@@ -522,6 +517,18 @@ fn an_unreported_change_falls_back_within_frames() {
         .lights
         .iter_mut()
         .for_each(|l| l.translate(Vec3::new(-140.0, 0.0, 0.0)));
+    (s, moved)
+}
+
+/// A stale cache nobody reported (the lights moved, `reset_schedule` was not called): the
+/// pixels whose residuals exceed half the value beyond the noise two frames running fall back,
+/// and the image over the next frames is closer to the new reference than without the fallback
+/// (relMSE of 8-frame means, fixed seeds; 0.094 against 0.109 when written). It is not a
+/// guarantee: plain NEE's 8 frames measure 0.024, since most stale pixels are off by less than
+/// half; only a reported change distrusts every pixel.
+#[test]
+fn an_unreported_change_falls_back_within_frames() {
+    let (s, moved) = scene_and_moved_lights();
     let reference = plain(&moved, 256, 1000);
     let error = |fallback| {
         let mut cache = new_cache(
@@ -661,14 +668,7 @@ fn paths_go_on_where_too_few_paths_reach_a_level() {
 /// reference than without the test (relMSE of 8-frame means, fixed seeds).
 #[test]
 fn paths_go_on_where_a_level_measurably_misses_its_targets() {
-    let s = scene();
-    let mut moved = s.clone();
-    moved
-        .media
-        .lights
-        .lights
-        .iter_mut()
-        .for_each(|l| l.translate(Vec3::new(-140.0, 0.0, 0.0)));
+    let (s, moved) = scene_and_moved_lights();
     let reference = plain(&moved, 256, 1000);
     let run = |max_bias| {
         let mut cache = new_cache(

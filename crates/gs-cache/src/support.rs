@@ -60,8 +60,6 @@ pub const BIAS_Z: f32 = 2.0;
 /// One level's decayed residual sums at one cache pixel (luminance).
 #[derive(Debug, Clone, Copy, Default)]
 struct ResidualSums {
-    /// Samples behind the targets.
-    samples: f32,
     /// Samples times the residual `T - I`.
     residual: f32,
     /// Samples times the target `T`.
@@ -72,13 +70,11 @@ struct ResidualSums {
 
 impl ResidualSums {
     fn decay(&mut self) {
-        self.samples *= BIAS_DECAY;
         self.residual *= BIAS_DECAY;
         self.target *= BIAS_DECAY;
         self.variance *= BIAS_DECAY * BIAS_DECAY;
     }
     fn add(&mut self, other: &Self) {
-        self.samples += other.samples;
         self.residual += other.residual;
         self.target += other.target;
         self.variance += other.variance;
@@ -164,7 +160,6 @@ impl Support {
             // Written so that a NaN anywhere adds nothing.
             if count >= 2 && (t - d).is_finite() && variance.is_finite() {
                 sum.add(&ResidualSums {
-                    samples: n,
                     residual: n * (t - d),
                     target: n * t,
                     variance: n * n * variance,

@@ -53,12 +53,14 @@ impl CacheFlags {
             CacheChoice::Neural(self.nrc_settings)
         } else if self.cache {
             let config = if denoised && !self.termination_named {
+                let c = self.settings.for_denoiser();
                 eprintln!(
                     "note: the image is denoised, so the cache reads a level only where it has \
-                     earned trust (--cache-min-coverage 0.5 --cache-max-bias 0.03 \
-                     --cache-stopper-weights true; name any of them to choose otherwise)"
+                     earned trust (--cache-min-coverage {} --cache-max-bias {} \
+                     --cache-stopper-weights {}; name any of them to choose otherwise)",
+                    c.min_coverage, c.max_bias, c.stopper_weights
                 );
-                self.settings.for_denoiser()
+                c
             } else {
                 self.settings
             };

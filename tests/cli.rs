@@ -1180,6 +1180,8 @@ fn a_denoised_cached_render_reads_the_cache_only_where_it_has_earned_trust() {
         "0.03",
         "--cache-stopper-weights",
         "true",
+        "--cache-handoff-frames",
+        "2",
     ];
     let (by_hand, quiet) = run("b.exr", &trust);
     assert!(!quiet.contains("earned trust"), "{quiet}");

@@ -385,15 +385,18 @@ impl GsCache {
         &self.config
     }
 
-    /// Takes error-aware termination's settings (`min_coverage`, `max_bias` and
-    /// `stopper_weights`) from `config`, keeping the levels and everything else: a viewer's
-    /// denoise toggle switches between [`CacheConfig::for_denoiser`]'s and the plain cache's
-    /// without losing what the levels learned. The tests start afresh on the next frame.
+    /// Takes the settings [`CacheConfig::for_denoiser`] sets (its
+    /// [`CacheConfig::FOR_DENOISER_KEYS`]: error-aware termination's and the handoff) from
+    /// `config`, keeping the levels and everything else: a viewer's denoise toggle switches
+    /// between the denoised and the plain cache's settings without losing what the levels
+    /// learned. The tests start afresh on the next frame; an image already past the new
+    /// handoff hands off on its next frame.
     pub fn set_error_aware_termination(&mut self, config: &CacheConfig) -> Result<()> {
         let changed = CacheConfig {
             min_coverage: config.min_coverage,
             max_bias: config.max_bias,
             stopper_weights: config.stopper_weights,
+            handoff_frames: config.handoff_frames,
             ..self.config
         };
         changed.validate()?;

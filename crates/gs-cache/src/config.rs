@@ -323,24 +323,34 @@ pub const BYTES_PER_TRAINED_GAUSSIAN: u64 = 14 * 4 * 4;
 impl CacheConfig {
     /// The settings [`CacheConfig::for_denoiser`] sets, by their names as keys and flags (a
     /// caller that lets the user name some keeps those).
-    pub const FOR_DENOISER_KEYS: [&'static str; 3] =
-        ["min_coverage", "max_bias", "stopper_weights"];
+    pub const FOR_DENOISER_KEYS: [&'static str; 4] = [
+        "min_coverage",
+        "max_bias",
+        "stopper_weights",
+        "handoff_frames",
+    ];
 
-    /// These settings with error-aware termination's for an image that will be denoised:
-    /// paths stop into a level only where at least half the paths around them reach its vertex
-    /// (`min_coverage` 0.5) and its measured bias is within 3% (`max_bias`), with the stoppers'
-    /// weights on its targets (`stopper_weights`). Against the plain cache, both denoised by
-    /// Open Image Denoise at equal time (the six bundled volumes on stills at 1 spp, 200 ms and
-    /// 1 s; hydrogen, default and embryo in motion at 100 and 200 ms): relMSE 1.0-4.8x lower,
-    /// never higher beyond the runs' noise, because the plain cache's structured error is what
-    /// the filter keeps (docs/results/cache_error.md). Raw, without a denoiser, the plain cache
-    /// is the better one (relMSE 2.0-4.7x lower at 1 spp), so these are not the defaults; the
-    /// program takes them when `--denoise` is on and none of the three is given.
+    /// These settings for an image that will be denoised: paths stop into a level only where
+    /// at least half the paths around them reach its vertex (`min_coverage` 0.5) and its
+    /// measured bias is within 3% (`max_bias`), with the stoppers' weights on its targets
+    /// (`stopper_weights`), and an image accumulated over passes of one view reads the cache in
+    /// its first two only (`handoff_frames` 2). Against the plain cache, both denoised by Open
+    /// Image Denoise at equal time (the six bundled volumes on stills at 1 spp, 200 ms and 1 s;
+    /// hydrogen, default and embryo in motion at 100 and 200 ms), error-aware termination's
+    /// relMSE was 1.0-4.8x lower, never higher beyond the runs' noise, because the plain
+    /// cache's structured error is what the filter keeps; the early handoff lowered it again
+    /// by up to 1.4x on stills past one pass and in motion at 200 ms, because a denoiser leaves
+    /// so little of the plain passes' noise that the cache's bias outweighs its variance after
+    /// a pass or two (the crate docs derive it; docs/results/cache_error.md). Raw, without a
+    /// denoiser, the plain cache is the better one (relMSE 2.0-4.7x lower at 1 spp), so these
+    /// are not the defaults; the program takes them when `--denoise` is on and none of
+    /// [`CacheConfig::FOR_DENOISER_KEYS`] is given.
     pub fn for_denoiser(self) -> Self {
         Self {
             min_coverage: 0.5,
             max_bias: 0.03,
             stopper_weights: true,
+            handoff_frames: 2,
             ..self
         }
     }

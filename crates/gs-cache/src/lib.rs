@@ -212,6 +212,33 @@
 //! footprint), is within that fraction of the targets or within the noise ([`support`]). It
 //! sees what the targets see: a bias the targets share (the deeper levels' values carried into
 //! a shallower level's samples) passes it.
+//!
+//! # How many passes of an image should read the cache
+//!
+//! An image of one view averages `k` passes (a still's frames, or a fly-through frame's 1-spp
+//! passes), of which the first `m` read the cache (the handoff, `handoff_frames`). At a pixel,
+//! a pass that reads it has mean `mu + b` (`b`: the cache's bias there) and variance `s_c^2`;
+//! one that does not, mean `mu` and variance `s_n^2 > s_c^2`. A denoiser keeps a bias and
+//! removes most of the noise (the breakdown in docs/results/cache_error.md: bias² is 75-89% of
+//! the cache's error after Open Image Denoise); model it as leaving a fraction `phi` of the
+//! variance. The image's squared error is then
+//!
+//! `E_k(m) = (m b / k)^2 + phi (m s_c^2 + (k - m) s_n^2) / k^2`,
+//!
+//! least at `m* = phi (s_n^2 - s_c^2) / (2 b^2)`, **whatever `k`**: the cache is worth a fixed
+//! number of passes however long the image, and `phi` scales that number. Raw (`phi = 1`) the
+//! measured best handoff was 16 passes (BENCHMARKS.md); Open Image Denoise's `phi`, its relMSE
+//! over plain NEE's at 1 spp, is 0.10 on hydrogen, 0.021 on default and 0.018 on embryo, so
+//! with the denoiser the same caches are worth 0.3-1.6 passes: `for_denoiser` hands off after 2
+//! (1, 2 and 4 measured; docs/results/cache_error.md). At the optimum,
+//!
+//! `E_k(m*) / E_k(0) = 1 - (m* / 2k) (1 - s_c^2 / s_n^2)`:
+//!
+//! after a denoiser a biased cache can take at most the fraction `m* / 2k` off plain path
+//! tracing's error, a few percent at 200 ms (`k` about 9 at 320x180), which is the ties the
+//! equal-time tables show. Where it can win is where an image is one or two passes, and only
+//! by how far its bias is below the denoised plain image's error (`b^2 < phi (s_n^2 - s_c^2)`
+//! for `m* > 1/2`): the lever is the cache's bias, not how often it is read.
 
 pub mod cache;
 pub mod capi;

@@ -26,8 +26,9 @@ pub struct CacheFlags {
     /// table.
     #[command(flatten)]
     pub nrc_settings: NrcConfig,
-    /// Whether the command line named any of error-aware termination's settings
-    /// (`--cache-min-coverage`, `--cache-max-bias`, `--cache-stopper-weights`): set by
+    /// Whether the command line named any of the denoised cache's settings
+    /// (`--cache-min-coverage`, `--cache-max-bias`, `--cache-stopper-weights`,
+    /// `--cache-handoff-frames`): set by
     /// [`CacheFlags::note_named`] from the parsed arguments.
     #[arg(skip)]
     pub termination_named: bool,
@@ -56,9 +57,10 @@ impl CacheFlags {
                 let c = self.settings.for_denoiser();
                 eprintln!(
                     "note: the image is denoised, so the cache reads a level only where it has \
-                     earned trust (--cache-min-coverage {} --cache-max-bias {} \
-                     --cache-stopper-weights {}; name any of them to choose otherwise)",
-                    c.min_coverage, c.max_bias, c.stopper_weights
+                     earned trust, and only in an image's first passes (--cache-min-coverage {} \
+                     --cache-max-bias {} --cache-stopper-weights {} --cache-handoff-frames {}; \
+                     name any of them to choose otherwise)",
+                    c.min_coverage, c.max_bias, c.stopper_weights, c.handoff_frames
                 );
                 c
             } else {

@@ -3,7 +3,9 @@
 The renderer of the ``gscache`` program, from Python:
 
 - ``Volume.from_array`` (numpy, shape (nz, ny, nx); uint8, int8, uint16, int16 or float32,
-  kept in its own type) or ``Volume.read`` (raw, NRRD, VTK, NIfTI files, OME-Zarr stores with
+  kept in its own type; a zarr or dask array, an h5py dataset or any array numpy can read a
+  box of is streamed from it a brick at a time when larger than ``memory_budget``, never
+  copied whole) or ``Volume.read`` (raw, NRRD, VTK, NIfTI files, OME-Zarr stores with
   ``level``, ``channel`` and ``time``);
 - ``Scene(volume, transfer=..., camera=..., lights=...)`` with the scene format's tables
   (docs/scene-format.md), or ``Scene.load("scene.toml")``;

@@ -16,7 +16,11 @@ def set_memory_budget(budget: Optional[int | str]) -> None: ...
 
 class Volume:
     @staticmethod
-    def from_array(array: npt.NDArray[Any], spacing: Optional[Sequence[float]] = None) -> Volume: ...
+    def from_array(
+        array: Any,
+        spacing: Optional[Sequence[float]] = None,
+        memory_budget: Optional[int | str] = None,
+    ) -> Volume: ...
     @staticmethod
     def read(
         path: str,

@@ -19,6 +19,7 @@
 // readers of `cargo doc --document-private-items`.
 #![allow(rustdoc::private_intra_doc_links)]
 
+mod array_source;
 mod cache;
 mod clouds;
 mod denoise;

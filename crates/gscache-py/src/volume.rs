@@ -3,6 +3,7 @@
 //! through the program's readers; a scene is the scene format's tables around a volume, or a
 //! scene file, so the package and the program build scenes through the same code.
 
+use crate::array_source::{ArraySource, is_numpy};
 use numpy::PyReadonlyArray3;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
@@ -124,21 +125,28 @@ fn array_voxels(array: &Bound<'_, PyAny>) -> PyResult<(Voxels, [usize; 3], &'sta
     )))
 }
 
-#[pymethods]
 impl Volume {
-    /// A volume from a numpy array of shape (nz, ny, nx); `spacing` is the world size of a
-    /// voxel along (x, y, z).
-    #[staticmethod]
-    #[pyo3(signature = (array, spacing=None))]
-    fn from_array(array: &Bound<'_, PyAny>, spacing: Option<[f32; 3]>) -> PyResult<Self> {
+    /// A volume from a numpy array of shape (nz, ny, nx), copied in its own type.
+    fn from_numpy(array: &Bound<'_, PyAny>, spacing: Option<[f32; 3]>) -> PyResult<Self> {
         let (voxels, [nz, ny, nx], dtype) = array_voxels(array)?;
         let too_big = |n: usize| u32::try_from(n).is_err();
         if too_big(nx) || too_big(ny) || too_big(nz) {
             return Err(crate::error("array dimensions above 2^32 - 1 voxels"));
         }
         let dims = glam::UVec3::new(nx as u32, ny as u32, nz as u32);
+        Self::from_voxels(dims, voxels, spacing, format!("numpy {dtype} array"))
+    }
+
+    /// A volume of `voxels` (x fastest) held in memory, named `<name>` in messages; its
+    /// identity is a hash of the voxels.
+    fn from_voxels(
+        dims: glam::UVec3,
+        voxels: Voxels,
+        spacing: Option<[f32; 3]>,
+        name: String,
+    ) -> PyResult<Self> {
         let identity = RenderKey::new()
-            .part(dtype.as_bytes())
+            .part(voxels.type_name().as_bytes())
             .part(format!("{dims:?}").as_bytes());
         let identity = match &voxels {
             Voxels::U8(v) => identity.part(v),
@@ -148,13 +156,6 @@ impl Volume {
             Voxels::F32(v) => hash_voxels(identity, v, f32::to_le_bytes),
         };
         let grid = ScalarGrid::from_voxels(dims, voxels, 1.0, 0.0).map_err(crate::error)?;
-        if let Some(s) = spacing
-            && !s.iter().all(|v| v.is_finite() && *v > 0.0)
-        {
-            return Err(crate::error(format!(
-                "spacing {s:?}: expected three finite sizes > 0"
-            )));
-        }
         Ok(Self {
             loaded: LoadedVolume {
                 grid,
@@ -162,7 +163,88 @@ impl Volume {
                 units: None,
                 notes: Vec::new(),
             },
-            name: PathBuf::from(format!("<numpy {dtype} array>")),
+            name: PathBuf::from(format!("<{name}>")),
+            identity,
+        })
+    }
+}
+
+#[pymethods]
+impl Volume {
+    /// A volume from an array of shape (nz, ny, nx); `spacing` is the world size of a voxel
+    /// along (x, y, z). A numpy array is copied in its own type. Any other array numpy can read
+    /// a box of (a zarr or dask array, an h5py dataset) is read whole if it fits
+    /// `memory_budget` (bytes, or a size such as `"4G"`; default: the process's budget, as
+    /// [`Volume::read`]'s), and otherwise streamed from it a brick at a time, never copied
+    /// whole (see `array_source`).
+    #[staticmethod]
+    #[pyo3(signature = (array, spacing=None, memory_budget=None))]
+    fn from_array(
+        py: Python<'_>,
+        array: &Bound<'_, PyAny>,
+        spacing: Option<[f32; 3]>,
+        memory_budget: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        if let Some(s) = spacing
+            && !s.iter().all(|v| v.is_finite() && *v > 0.0)
+        {
+            return Err(crate::error(format!(
+                "spacing {s:?}: expected three finite sizes > 0"
+            )));
+        }
+        if is_numpy(array) {
+            return Self::from_numpy(array, spacing);
+        }
+        let source = ArraySource::new(array)?;
+        let budget = match memory_budget {
+            Some(b) => budget_bytes(b)?,
+            None => volume_pt::io::memory_budget().map_err(crate::error)?,
+        };
+        if source.bytes_in_memory() <= budget {
+            // Read whole as one box: the same slicing, conversion and checks as a brick's.
+            let voxels = source.read_whole(py)?;
+            return Self::from_voxels(source.dims, voxels, spacing, source.describe());
+        }
+        let (dims, dtype) = (source.dims, source.dtype);
+        let name = volume_pt::bricks::BrickSource::name(&source);
+        // The streamed grid surveys its bricks (on render threads that take the GIL to slice
+        // the array: see `array_source`), so the GIL is released meanwhile.
+        let grid = py
+            .detach(|| {
+                let bricks = volume_pt::bricks::Bricks::new(
+                    dims,
+                    std::sync::Arc::new(source),
+                    dtype.bytes_in_memory(),
+                    budget,
+                )?;
+                ScalarGrid::streamed(bricks, 1.0, 0.0)
+            })
+            .map_err(crate::error)?;
+        // Nothing cheap identifies the voxels of an array that is never read whole: each such
+        // volume is its own, so no render of another is ever taken for its.
+        static STREAMED_ARRAYS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let serial = STREAMED_ARRAYS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let identity = RenderKey::new()
+            .part(name.as_bytes())
+            .part(&std::process::id().to_le_bytes())
+            .part(&serial.to_le_bytes())
+            .part(
+                &std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_nanos())
+                    .to_le_bytes(),
+            );
+        Ok(Self {
+            loaded: LoadedVolume {
+                grid,
+                spacing: spacing.map(glam::Vec3::from_array),
+                units: None,
+                notes: vec![format!(
+                    "{name}, streamed within a memory budget of {}",
+                    volume_pt::io::human_bytes(budget)
+                )],
+            },
+            name: PathBuf::from(format!("<{name}>")),
             identity,
         })
     }
@@ -247,8 +329,10 @@ impl Volume {
 
     /// The smallest and largest value (after the file's intensity scaling).
     #[getter]
-    fn range(&self) -> (f32, f32) {
-        self.loaded.grid.range()
+    fn range(&self, py: Python<'_>) -> (f32, f32) {
+        // A streamed volume's range is its survey, which may read every brick (on render
+        // threads that take the GIL to slice an array: see `array_source`).
+        py.detach(|| self.loaded.grid.range())
     }
 
     /// The world size of a voxel along (x, y, z), when given or stated by the file.
@@ -298,13 +382,13 @@ impl Volume {
         })
     }
 
-    fn __repr__(&self) -> String {
+    fn __repr__(&self, py: Python<'_>) -> String {
         let (z, y, x) = self.shape();
         format!(
             "Volume({}, shape=({z}, {y}, {x}), dtype={}, range={:?})",
             self.name.display(),
             self.dtype(),
-            self.range()
+            self.range(py)
         )
     }
 }
@@ -343,14 +427,17 @@ impl Scene {
     /// A scene from the scene format's tables (as JSON, without `volume.file`) around `volume`.
     /// The Python layer (`gscache.Scene`) builds the JSON from keyword arguments.
     #[new]
-    fn new(volume: &Volume, tables_json: &str) -> PyResult<Self> {
+    fn new(py: Python<'_>, volume: &Volume, tables_json: &str) -> PyResult<Self> {
         let here = std::env::current_dir().unwrap_or_else(|_| PathBuf::from("."));
         let origin = here.join("<scene from Python>");
         let desc: SceneFile = serde_json::from_str(tables_json)
             .map_err(|e| crate::error(format!("{}: scene: {e}", origin.display())))?;
-        let scene =
-            build_scene_with_volume(&origin, desc, volume.loaded.clone(), volume.name.clone())
-                .map_err(crate::error)?;
+        // The majorants of a streamed volume come from its survey (see `Volume::range`).
+        let scene = py
+            .detach(|| {
+                build_scene_with_volume(&origin, desc, volume.loaded.clone(), volume.name.clone())
+            })
+            .map_err(crate::error)?;
         let key = volume.identity.clone().part(tables_json.as_bytes());
         Ok(Self {
             scene,
@@ -363,16 +450,26 @@ impl Scene {
     /// TOML text.
     #[staticmethod]
     #[pyo3(signature = (volume, colormap="bone", nifti=false))]
-    fn from_volume(volume: &Volume, colormap: &str, nifti: bool) -> PyResult<(Self, String)> {
+    fn from_volume(
+        py: Python<'_>,
+        volume: &Volume,
+        colormap: &str,
+        nifti: bool,
+    ) -> PyResult<(Self, String)> {
         let colormap: volume_pt::Colormap = colormap.parse().map_err(crate::error)?;
         let format = nifti.then_some(volume_pt::io::Format::Nifti);
-        let (scene, text) = volume_pt::auto_scene::scene_for_loaded(
-            volume.loaded.clone(),
-            &volume.name,
-            format,
-            colormap,
-        )
-        .map_err(crate::error)?;
+        // The histogram and majorants of a streamed volume come from its survey (see
+        // `Volume::range`).
+        let (scene, text) = py
+            .detach(|| {
+                volume_pt::auto_scene::scene_for_loaded(
+                    volume.loaded.clone(),
+                    &volume.name,
+                    format,
+                    colormap,
+                )
+            })
+            .map_err(crate::error)?;
         let key = volume.identity.clone().part(text.as_bytes());
         Ok((
             Self {
@@ -408,14 +505,11 @@ impl Scene {
 
     /// This scene with its clipping replaced by `clip_json` (the `[clip]` table as JSON: `box`
     /// and `plane`); `{}` clips nothing. The render key follows the clipping.
-    fn with_clipping(&self, clip_json: &str) -> PyResult<Self> {
+    fn with_clipping(&self, py: Python<'_>, clip_json: &str) -> PyResult<Self> {
         let clipping: volume_pt::Clipping =
             serde_json::from_str(clip_json).map_err(|e| crate::error(format!("clip: {e}")))?;
         let mut scene = self.scene.clone();
-        scene
-            .media
-            .medium
-            .set_clipping(clipping)
+        py.detach(|| scene.media.medium.set_clipping(clipping))
             .map_err(crate::error)?;
         Ok(Self {
             scene,

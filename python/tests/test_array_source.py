@@ -56,10 +56,14 @@ def render(volume):
     return gscache.render(gscache.Scene(volume, **TABLES), spp=2, threads=2)
 
 
-def test_a_zarr_array_streams_brick_by_brick_and_renders_as_its_numpy_copy(tmp_path):
+@pytest.mark.parametrize("where", ["folder", "memory"])
+def test_a_zarr_array_streams_brick_by_brick_and_renders_as_its_numpy_copy(tmp_path, where):
+    """From a store in a folder, and from one that is not a file at all (zarr's in-memory
+    store, standing for the object stores zarr reaches through fsspec: the renderer only ever
+    slices the array)."""
     zarr = _zarr()
-    stored = zarr.open_array(str(tmp_path / "a.zarr"), mode="w", shape=SHAPE, chunks=(8, 8, 8),
-                             dtype="uint16")
+    store = str(tmp_path / "a.zarr") if where == "folder" else zarr.storage.MemoryStore()
+    stored = zarr.open_array(store, mode="w", shape=SHAPE, chunks=(8, 8, 8), dtype="uint16")
     stored[:] = DATA
     counted = Counted(stored)
     streamed = gscache.Volume.from_array(counted, memory_budget=BUDGET)

@@ -39,6 +39,20 @@ def run_program(program: str, *args: str, env=None) -> subprocess.CompletedProce
     )
 
 
+def import_ome_zarr_package(name: str):
+    """Imports `name`, a module of PyPI's `ome-zarr` or of `zarr`, which it installs: the test
+    is skipped where it is missing, and fails instead under GSCACHE_REQUIRE_OME_ZARR=1 (CI,
+    whose venv has it)."""
+    import importlib
+
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        if os.environ.get("GSCACHE_REQUIRE_OME_ZARR") == "1":
+            pytest.fail(f"needs {name} (pip install ome-zarr) (GSCACHE_REQUIRE_OME_ZARR=1)")
+        pytest.skip(f"needs {name} (pip install ome-zarr)")
+
+
 def small_default_scene(repo: pathlib.Path, folder: pathlib.Path, width: int, height: int) -> pathlib.Path:
     """The bundled default scene at `width` x `height`, written into `folder` (its volume path
     made absolute), so a test renders it in milliseconds."""

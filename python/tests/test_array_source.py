@@ -4,12 +4,11 @@ whole: it renders bit for bit the image of the same voxels copied from numpy, on
 threads that each take the interpreter's lock to slice it; its faults are named. Skipped where
 `zarr` is not installed, unless GSCACHE_REQUIRE_OME_ZARR=1 (CI installs it with ome-zarr)."""
 
-import os
-
 import numpy as np
 import pytest
 
 import gscache
+from conftest import import_ome_zarr_package
 
 SHAPE = (40, 48, 56)  # z, y, x
 DATA = np.random.default_rng(5).integers(1, 4000, size=SHAPE, dtype=np.uint16)
@@ -24,16 +23,6 @@ TABLES = dict(
 # ranges, far under the 215 KB the array takes, so it streams and its bricks are evicted and
 # read again throughout the render.
 BUDGET = 64 * 1024
-
-
-def _zarr():
-    try:
-        import zarr
-    except ImportError:
-        if os.environ.get("GSCACHE_REQUIRE_OME_ZARR") == "1":
-            pytest.fail("needs zarr (pip install ome-zarr) (GSCACHE_REQUIRE_OME_ZARR=1)")
-        pytest.skip("needs zarr (pip install zarr)")
-    return zarr
 
 
 class Counted:
@@ -61,7 +50,7 @@ def test_a_zarr_array_streams_brick_by_brick_and_renders_as_its_numpy_copy(tmp_p
     """From a store in a folder, and from one that is not a file at all (zarr's in-memory
     store, standing for the object stores zarr reaches through fsspec: the renderer only ever
     slices the array)."""
-    zarr = _zarr()
+    zarr = import_ome_zarr_package("zarr")
     store = str(tmp_path / "a.zarr") if where == "folder" else zarr.storage.MemoryStore()
     stored = zarr.open_array(store, mode="w", shape=SHAPE, chunks=(8, 8, 8), dtype="uint16")
     stored[:] = DATA

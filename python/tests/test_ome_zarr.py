@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import gscache
-from conftest import run_program
+from conftest import import_ome_zarr_package, run_program
 
 SHAPE = (2, 3, 20, 24, 28)  # t, c, z, y, x
 AXES = [
@@ -31,16 +31,11 @@ TRANSFORMS = [
 
 
 def _writer():
-    try:
-        import zarr
-        from ome_zarr.format import FormatV04, FormatV05
-        from ome_zarr.io import parse_url
-        from ome_zarr.writer import write_multiscale
-    except ImportError:
-        if os.environ.get("GSCACHE_REQUIRE_OME_ZARR") == "1":
-            pytest.fail("needs ome-zarr (pip install ome-zarr) (GSCACHE_REQUIRE_OME_ZARR=1)")
-        pytest.skip("needs ome-zarr (pip install ome-zarr)")
-    return zarr, FormatV04, FormatV05, parse_url, write_multiscale
+    zarr = import_ome_zarr_package("zarr")
+    fmt = import_ome_zarr_package("ome_zarr.format")
+    parse_url = import_ome_zarr_package("ome_zarr.io").parse_url
+    write_multiscale = import_ome_zarr_package("ome_zarr.writer").write_multiscale
+    return zarr, fmt.FormatV04, fmt.FormatV05, parse_url, write_multiscale
 
 
 @pytest.fixture(scope="module")

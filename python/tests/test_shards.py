@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import gscache
-from conftest import run_program, small_default_scene
+from conftest import import_ome_zarr_package, run_program, small_default_scene
 
 
 def small_scene_file(repo, tmp_path):
@@ -71,14 +71,7 @@ def test_dask_sharded_render_and_sweep_equal_one_process(repo, tmp_path, client)
     # A recipe function builds a numpy scene on the worker.
     def recipe():
         voxels = np.fromfile(f"{repo}/data/volumes/neghip_64x64x64_uint8.raw", dtype=np.uint8)
-        return gscache.Scene(
-            gscache.Volume.from_array(voxels.reshape(64, 64, 64)),
-            transfer={"window": [0, 255], "density_scale": 0.6,
-                      "points": [{"value": 0.0, "color": [1, 0.8, 0.6], "opacity": 0.0},
-                                 {"value": 0.4, "color": [0.6, 0.8, 1.0], "opacity": 1.0}]},
-            camera={"eye": [60, 45, 95], "target": [0, 0, 0], "fov_y": 38, "width": 24, "height": 20},
-            environment=[1.0, 1.0, 1.0],
-        )
+        return _neghip_scene(gscache.Volume.from_array(voxels.reshape(64, 64, 64)))
 
     seeds = [{"seed": s} for s in (1, 2, 3)]
     images = gd.map_sweep(client, recipe, seeds, spp=2, threads=1)
@@ -174,3 +167,45 @@ def test_dask_workers_open_a_shared_store_within_their_budget(repo, program, tmp
             [client.submit(_streamed_on_worker, str(store), budget, pure=False,
                            workers=[w]) for w in client.scheduler_info()["workers"]]):
         assert streamed and nbytes == 48 * 1024
+
+
+def _zarr_array_recipe(path, budget):
+    """A recipe that opens the zarr array at `path` on the worker and streams it through
+    `Volume.from_array` within `budget`: the array itself never travels."""
+    def recipe():
+        import zarr
+        return _neghip_scene(gscache.Volume.from_array(zarr.open_array(path, mode="r"),
+                                                       memory_budget=budget))
+    return recipe
+
+
+def _neghip_scene(volume):
+    return gscache.Scene(
+        volume,
+        transfer={"window": [0, 255], "density_scale": 0.6,
+                  "points": [{"value": 0.0, "color": [1, 0.8, 0.6], "opacity": 0.0},
+                             {"value": 0.4, "color": [0.6, 0.8, 1.0], "opacity": 1.0}]},
+        camera={"eye": [60, 45, 95], "target": [0, 0, 0], "fov_y": 38, "width": 24, "height": 20},
+        environment=[1.0, 1.0, 1.0],
+    )
+
+
+def test_dask_workers_stream_a_zarr_array_each_opens_itself(repo, tmp_path, client):
+    """Issue 50: a recipe opens a zarr array on each worker and streams it within a budget of a
+    few bricks (`Volume.from_array`); the shards are of one render (the array's store path
+    names its voxels in every process) and merge into the render of the numpy copy, bit for
+    bit."""
+    zarr = import_ome_zarr_package("zarr")
+    voxels = np.fromfile(f"{repo}/data/volumes/neghip_64x64x64_uint8.raw", dtype=np.uint8)
+    voxels = voxels.reshape(64, 64, 64)
+    path = str(tmp_path / "neghip.zarr")
+    stored = zarr.open_array(path, mode="w", shape=voxels.shape, chunks=(16, 16, 16),
+                             dtype="uint8")
+    stored[:] = voxels
+    whole = gscache.render(_neghip_scene(gscache.Volume.from_array(voxels)), spp=4)
+
+    from gscache import distributed as gd
+    recipe = _zarr_array_recipe(path, "48K")
+    assert recipe()._inner.render_key == recipe()._inner.render_key
+    image = gd.render_sharded(client, recipe, 4, spp=4, threads=1)
+    assert np.array_equal(bits(image), bits(whole))

@@ -31,6 +31,26 @@ pub(crate) struct ArraySource {
     pub(crate) dims: glam::UVec3,
     pub(crate) dtype: DType,
     brick: glam::UVec3,
+    /// What names the voxels in any process, where the array's library says (see
+    /// [`stable_name`]).
+    pub(crate) stable_name: Option<String>,
+}
+
+/// What names an array's voxels in any process, where its library gives it cheaply: a zarr
+/// array's store path (`file:///data/cells.zarr/0`; not an in-memory store's, which is the
+/// process's own) or a dask array's name (a token of the graph that makes it, the same in every
+/// process that builds it the same way). Dask workers that each open the same array then
+/// render shards of the same render, which merge; other arrays are each their own.
+fn stable_name(array: &Bound<'_, PyAny>) -> Option<String> {
+    let module = array.get_type().module().ok()?.to_string();
+    let text = |attr: &str| Some(array.getattr(attr).ok()?.str().ok()?.to_string());
+    if module.starts_with("zarr.") {
+        text("store_path").filter(|p| !p.starts_with("memory://"))
+    } else if module.starts_with("dask.") {
+        text("name")
+    } else {
+        None
+    }
 }
 
 /// A dtype as numpy names it (`uint16`), as the readers' [`DType`].
@@ -113,6 +133,7 @@ impl ArraySource {
             dims: glam::UVec3::new(x, y, z),
             dtype,
             brick: glam::UVec3::new(edge(2), edge(1), edge(0)),
+            stable_name: stable_name(array),
         })
     }
 

@@ -2,19 +2,20 @@
 //! anything else of shape (nz, ny, nx) that numpy can read a box of, rendered without a copy of
 //! the whole. The streamed grid ([`volume_pt::bricks`]) asks for one brick at a time; each
 //! request slices the array (`array[z0:z1, y0:y1, x0:x1]`) and converts the slice with
-//! `numpy.asarray`, so the array's own library reads only the chunks the brick covers (a
-//! zarr array decodes them, a dask array computes them).
+//! `numpy.ascontiguousarray`, so the array's own library reads only the chunks the brick covers
+//! (a zarr array decodes them, a dask array computes them).
 //!
 //! **The interpreter lock.** A brick is read on whichever render thread first needs it, which
 //! takes the GIL for the slice. Every call that may read bricks therefore runs with the GIL
-//! released by its caller (the renders through `run::run_polled`, the scene builders and the
-//! volume's `range` and `to_numpy` through `detach`): a caller that held it while waiting for
-//! the render threads would wait for ever. Bricks are read rarely (each is kept resident within
+//! released by its caller (the renders through `run::run_polled`; the grid's survey when the
+//! volume is made, the scene builders and the volume's `range` through `detach`): a caller that
+//! held it while waiting for the render threads would wait for ever. Bricks are read rarely (each is kept resident within
 //! the budget), so the lock costs the renders little.
 
 use numpy::PyArrayMethods;
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 use volume_pt::bricks::BrickSource;
 use volume_pt::grid::Voxels;
 use volume_pt::io::DType;
@@ -26,14 +27,14 @@ const DEFAULT_BRICK: u32 = 64;
 #[derive(Debug)]
 pub(crate) struct ArraySource {
     array: Py<PyAny>,
-    /// The array's type and shape, for messages: `zarr.Array (512, 512, 512) uint16`.
+    /// The array's type, shape and dtype, for messages (see [`ArraySource::describe`]).
     name: String,
     pub(crate) dims: glam::UVec3,
     pub(crate) dtype: DType,
     brick: glam::UVec3,
     /// What names the voxels in any process, where the array's library says (see
     /// [`stable_name`]).
-    pub(crate) stable_name: Option<String>,
+    stable_name: Option<String>,
 }
 
 /// What names an array's voxels in any process, where its library gives it cheaply: a zarr
@@ -137,10 +138,29 @@ impl ArraySource {
         })
     }
 
-    /// What the array is, for messages: `a zarr.Array of shape (512, 512, 512) and dtype
-    /// uint16`.
+    /// What the array is, for messages: `a zarr.core.array.Array of shape (512, 512, 512) and
+    /// dtype uint16`.
     pub(crate) fn describe(&self) -> String {
         self.name.clone()
+    }
+
+    /// What identifies the voxels in a render's key (the volume's part of it): the array's
+    /// [`stable_name`] where it has one, else this volume alone (the process, a counter and
+    /// the time), so that no render of another array is ever taken for its.
+    pub(crate) fn render_key(&self) -> volume_pt::RenderKey {
+        static VOLUMES: AtomicU64 = AtomicU64::new(0);
+        let key = volume_pt::RenderKey::new().part(self.name.as_bytes());
+        match &self.stable_name {
+            Some(stable) => key.part(stable.as_bytes()),
+            None => {
+                let nanos = std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_nanos());
+                key.part(&std::process::id().to_le_bytes())
+                    .part(&VOLUMES.fetch_add(1, Ordering::Relaxed).to_le_bytes())
+                    .part(&nanos.to_le_bytes())
+            }
+        }
     }
 
     /// Every voxel, read as one box (an array that fits the memory budget).

@@ -206,8 +206,7 @@ impl Volume {
             return Self::from_voxels(source.dims, voxels, spacing, source.describe());
         }
         let (dims, dtype) = (source.dims, source.dtype);
-        let stable_name = source.stable_name.clone();
-        let name = volume_pt::bricks::BrickSource::name(&source);
+        let (name, identity) = (source.describe(), source.render_key());
         // The streamed grid surveys its bricks (on render threads that take the GIL to slice
         // the array: see `array_source`), so the GIL is released meanwhile.
         let grid = py
@@ -221,27 +220,6 @@ impl Volume {
                 ScalarGrid::streamed(bricks, 1.0, 0.0)
             })
             .map_err(crate::error)?;
-        // The voxels of an array that is never read whole are named by what its library says
-        // names them (a zarr store's path, a dask graph's token) or, failing that, by this
-        // volume alone, so no render of another is ever taken for its.
-        static STREAMED_ARRAYS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-        let identity = RenderKey::new().part(name.as_bytes());
-        let identity = match &stable_name {
-            Some(stable) => identity.part(stable.as_bytes()),
-            None => identity
-                .part(&std::process::id().to_le_bytes())
-                .part(
-                    &STREAMED_ARRAYS
-                        .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-                        .to_le_bytes(),
-                )
-                .part(
-                    &std::time::SystemTime::now()
-                        .duration_since(std::time::UNIX_EPOCH)
-                        .map_or(0, |d| d.as_nanos())
-                        .to_le_bytes(),
-                ),
-        };
         Ok(Self {
             loaded: LoadedVolume {
                 grid,

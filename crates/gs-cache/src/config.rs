@@ -200,7 +200,9 @@ pub struct CacheConfig {
     /// in frames whatever their spp. 0 never hands off. A camera move or a scene change ends
     /// the image; interactive frames (no `start_image`) never hand off. 16 by measurement
     /// (8, 16, 32 tried on four volumes after the experiments' warm-up): at 1 s the cache went
-    /// from 0.52-0.99x NEE's relMSE to 0.92-1.06x, unchanged at 200 ms (BENCHMARKS.md).
+    /// from 0.52-0.99x NEE's relMSE to 0.92-1.06x, unchanged at 200 ms (BENCHMARKS.md). An
+    /// image that will be denoised hands off after 2 ([`CacheConfig::for_denoiser`]): the
+    /// frames a biased cache is worth scale with the noise the denoiser leaves (crate docs).
     #[cfg_attr(feature = "clap", arg(long = "cache-handoff-frames", default_value_t = DEFAULT.handoff_frames))]
     pub handoff_frames: u32,
     /// Frames over which a fresh level's colours are fitted straight to the samples (a running

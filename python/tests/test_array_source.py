@@ -131,7 +131,7 @@ class Shaped:
     (Shaped((4, 4), "uint8"), r"2-D test_array_source.Shaped: expected a 3-D array"),
     (Shaped((4, 0, 4), "uint8"), r"shape \(4, 0, 4\): expected each axis 1 to"),
     (Shaped((4, 4, 4), "complex64"), "complex64: expected uint8"),
-    (object(), "without an integer `shape`"),
+    (object(), "an object: expected a numpy array of shape"),
 ])
 def test_an_array_that_cannot_be_a_volume_is_refused_by_what_it_lacks(array, message):
     with pytest.raises((gscache.GscacheError, TypeError), match=message):

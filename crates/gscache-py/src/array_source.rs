@@ -54,6 +54,12 @@ fn stable_name(array: &Bound<'_, PyAny>) -> Option<String> {
     }
 }
 
+/// `word` after "a" or "an", as English reads it (`a list`, `an object`).
+fn with_article(word: &str) -> String {
+    let vowel = word.starts_with(['a', 'e', 'i', 'o', 'u', 'A', 'E', 'I', 'O', 'U']);
+    format!("{} {word}", if vowel { "an" } else { "a" })
+}
+
 /// A dtype as numpy names it (`uint16`), as the readers' [`DType`].
 fn dtype_of(array: &Bound<'_, PyAny>) -> PyResult<(DType, String)> {
     let name = array.getattr("dtype")?.str()?.to_string();
@@ -99,7 +105,10 @@ impl ArraySource {
             .and_then(|s| s.extract())
             .map_err(|_| {
                 PyTypeError::new_err(format!(
-                    "a {kind} without an integer `shape`: expected an array of shape (nz, ny, nx)"
+                    "{}: expected a numpy array of shape (nz, ny, nx), or an array numpy \
+                     can slice (zarr, dask, h5py); wrap a list in numpy.asarray(..., \
+                     dtype=numpy.float32)",
+                    with_article(&kind)
                 ))
             })?;
         let [nz, ny, nx] = shape[..] else {
@@ -130,7 +139,10 @@ impl ArraySource {
         };
         Ok(Self {
             array: array.clone().unbind(),
-            name: format!("a {kind} of shape ({nz}, {ny}, {nx}) and dtype {dtype_name}"),
+            name: format!(
+                "{} of shape ({nz}, {ny}, {nx}) and dtype {dtype_name}",
+                with_article(&kind)
+            ),
             dims: glam::UVec3::new(x, y, z),
             dtype,
             brick: glam::UVec3::new(edge(2), edge(1), edge(0)),

@@ -76,6 +76,19 @@ def test_a_zarr_array_streams_brick_by_brick_and_renders_as_its_numpy_copy(tmp_p
     assert np.array_equal(render(small), expected)
 
 
+def test_a_numpy_memmap_larger_than_the_budget_streams_from_its_file(tmp_path):
+    """A numpy array has no chunks: it streams in 32^3 bricks (64 KiB of uint16), eight of
+    them within a budget of a third of its 1.7 MB."""
+    data = np.random.default_rng(6).integers(1, 4000, size=(96, 96, 96), dtype=np.uint16)
+    mapped = np.memmap(tmp_path / "voxels.u16", dtype=np.uint16, mode="w+", shape=data.shape)
+    mapped[:] = data
+    mapped.flush()
+    streamed = gscache.Volume.from_array(mapped, memory_budget="600K")
+    whole = gscache.Volume.from_array(data)
+    assert streamed.streamed and not whole.streamed
+    assert np.array_equal(render(streamed), render(whole))
+
+
 def test_a_dask_array_of_float64_streams_as_its_float32_copy():
     da = pytest.importorskip("dask.array")
     data = DATA.astype(np.float64) / 4000.0

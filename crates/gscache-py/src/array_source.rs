@@ -20,8 +20,10 @@ use volume_pt::bricks::BrickSource;
 use volume_pt::grid::Voxels;
 use volume_pt::io::DType;
 
-/// The brick edge for an array with no chunks of its own (a numpy memmap, an xarray).
-const DEFAULT_BRICK: u32 = 64;
+/// The brick edge for an array with no chunks of its own (a numpy memmap, an xarray of one):
+/// 32 KiB of uint8 a brick, the chunk `gscache bench stream`'s stores were measured fastest
+/// with (BENCHMARKS.md), and a small share of any budget.
+const DEFAULT_BRICK: u32 = 32;
 
 /// An array of shape (nz, ny, nx) read a box at a time (see the module docs).
 #[derive(Debug)]

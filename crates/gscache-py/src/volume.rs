@@ -172,11 +172,11 @@ impl Volume {
 #[pymethods]
 impl Volume {
     /// A volume from an array of shape (nz, ny, nx); `spacing` is the world size of a voxel
-    /// along (x, y, z). A numpy array is copied in its own type. Any other array numpy can read
-    /// a box of (a zarr or dask array, an h5py dataset) is read whole if it fits
-    /// `memory_budget` (bytes, or a size such as `"4G"`; default: the process's budget, as
-    /// [`Volume::read`]'s), and otherwise streamed from it a brick at a time, never copied
-    /// whole (see `array_source`).
+    /// along (x, y, z). An array that fits `memory_budget` (bytes, or a size such as `"4G"`;
+    /// default: the process's budget, as [`Volume::read`]'s) is read whole: a numpy array
+    /// copied in its own type, any other array numpy can read a box of (a zarr or dask array,
+    /// an h5py dataset) as one box. A larger one (a numpy memmap too) is streamed from it a
+    /// brick at a time, never copied whole (see `array_source`).
     #[staticmethod]
     #[pyo3(signature = (array, spacing=None, memory_budget=None))]
     fn from_array(
@@ -192,14 +192,16 @@ impl Volume {
                 "spacing {s:?}: expected three finite sizes > 0"
             )));
         }
-        if is_numpy(array) {
-            return Self::from_numpy(array, spacing);
-        }
-        let source = ArraySource::new(array)?;
         let budget = match memory_budget {
             Some(b) => budget_bytes(b)?,
             None => volume_pt::io::memory_budget().map_err(crate::error)?,
         };
+        // A numpy array within the budget is copied as it always was; a larger one (a memmap of
+        // a file larger than memory) is streamed like any other array.
+        if is_numpy(array) && array.getattr("nbytes")?.extract::<u64>()? <= budget {
+            return Self::from_numpy(array, spacing);
+        }
+        let source = ArraySource::new(array)?;
         if source.bytes_in_memory() <= budget {
             // Read whole as one box: the same slicing, conversion and checks as a brick's.
             let voxels = source.read_whole(py)?;

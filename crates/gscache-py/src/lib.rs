@@ -4,6 +4,8 @@
 //!
 //! - [`volume`]: `Volume` (from a numpy array or a file) and `Scene` (the scene format's
 //!   tables, or a scene file).
+//! - [`array_source`]: a volume streamed from a Python array (zarr, dask, a memmap) a brick
+//!   at a time, never copied whole.
 //! - [`run`]: running work with the GIL released while the calling thread polls for Ctrl-C
 //!   and reports progress.
 //! - [`render`]: `render`, `render_partial` and `Partial` (shards that merge bit for bit).

@@ -1178,8 +1178,6 @@ fn a_denoised_cached_render_reads_the_cache_only_where_it_has_earned_trust() {
         "0.5",
         "--cache-max-bias",
         "0.03",
-        "--cache-stopper-weights",
-        "true",
         "--cache-handoff-frames",
         "2",
     ];

@@ -46,10 +46,12 @@ EPSILON = 0.01
 class Moments:
     """Per-pixel sums over frames, in f64."""
 
-    def __init__(self):
+    def __init__(self, regions: dict):
         self.n = 0
         self.sum = None
         self.sum2 = None
+        self.regions = regions
+        self.region_sums = {name: [] for name in regions}
 
     def add(self, image: np.ndarray):
         x = image.astype(np.float64)
@@ -59,6 +61,8 @@ class Moments:
         self.sum += x
         self.sum2 += x * x
         self.n += 1
+        for name, mask in self.regions.items():
+            self.region_sums[name].append(x[mask].sum(0))
 
     def mean(self) -> np.ndarray:
         return self.sum / self.n
@@ -72,8 +76,9 @@ def luminance(x: np.ndarray) -> np.ndarray:
     return 0.2126 * x[..., 0] + 0.7152 * x[..., 1] + 0.0722 * x[..., 2]
 
 
-def parts(m: Moments, reference: np.ndarray, mask: np.ndarray) -> dict:
-    """relMSE per frame split into bias^2 and noise over the pixels of `mask`."""
+def parts(m: Moments, reference: np.ndarray, region: str) -> dict:
+    """relMSE per frame split into bias^2 and noise over the pixels of `region`."""
+    mask = m.regions[region]
     weight = 1.0 / (reference.astype(np.float64) ** 2 + EPSILON)
     var = m.variance()
     bias2 = np.maximum((m.mean() - reference) ** 2 - var / m.n, 0.0)
@@ -82,7 +87,16 @@ def parts(m: Moments, reference: np.ndarray, mask: np.ndarray) -> dict:
     v = float((weight * var)[sel].mean()) if sel.any() else 0.0
     ref_lum = luminance(reference)[mask].sum()
     signed = float((luminance(m.mean())[mask].sum() - ref_lum) / max(ref_lum, 1e-12))
-    return {"bias2": b, "noise": v, "total": b + v, "signed_bias": signed}
+    # Per colour channel: the region's mean against the reference's, and the standard error of
+    # that figure from the frames' own spread (pixels of one frame summed first, so their
+    # correlation is kept): a bias is measured where it is several of these.
+    mean = m.mean()[mask].sum(0)
+    ref = reference.astype(np.float64)[mask].sum(0)
+    channel = (mean - ref) / np.maximum(ref, 1e-12)
+    frame_sums = np.array(m.region_sums[region])
+    stderr = frame_sums.std(0, ddof=1) / np.sqrt(len(frame_sums)) / np.maximum(ref, 1e-12)
+    return {"bias2": b, "noise": v, "total": b + v, "signed_bias": signed,
+            "channel_bias": channel.tolist(), "channel_stderr": stderr.tolist()}
 
 
 def bias_map(m: Moments, reference: np.ndarray, path: pathlib.Path, scale: float):
@@ -135,7 +149,7 @@ def main():
     }
 
     def measure(label, frame):
-        raw, den = Moments(), Moments()
+        raw, den = Moments(regions), Moments(regions)
         t = time.time()
         for k in range(args.frames):
             image = frame(k)
@@ -146,7 +160,7 @@ def main():
         for stage, m in (("raw", raw), ("OIDN", den)):
             for region, mask in regions.items():
                 rows.append({"method": label, "stage": stage, "region": region,
-                             "pixels": int(mask.sum()), **parts(m, reference, mask)})
+                             "pixels": int(mask.sum()), **parts(m, reference, region)})
         print(f"{label}: {args.frames} frames in {seconds:.1f} s; " + ", ".join(
             f"{r['stage']} {r['region']} {r['total']:.5f} ({r['signed_bias']:+.2%})"
             for r in rows if r["region"] != "empty"), flush=True)
@@ -190,15 +204,18 @@ def main():
         f"1/(r²+{EPSILON}), untrimmed; bias² has the frames' own noise removed; signed bias is "
         "the region's luminance against the reference's.",
         "",
-        "| method | stage | region | pixels | relMSE | bias² | noise | bias² share | signed bias |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| method | stage | region | pixels | relMSE | bias² | noise | bias² share | signed bias "
+        "| R / G / B bias (standard error) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         share = r["bias2"] / r["total"] if r["total"] > 0 else 0.0
         lines.append(
             f"| {r['method']} | {r['stage']} | {r['region']} | {r['pixels']} | "
             f"{r['total']:.5f} | {r['bias2']:.5f} | {r['noise']:.5f} | {share:.0%} | "
-            f"{r['signed_bias']:+.2%} |"
+            f"{r['signed_bias']:+.2%} | "
+            + " / ".join(f"{b:+.2%}" for b in r["channel_bias"])
+            + f" ({max(r['channel_stderr']):.2%}) |"
         )
     (out / "breakdown.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -119,7 +119,7 @@ def test_a_denoised_cached_movie_reads_the_cache_only_where_it_has_earned_trust(
     # As `gscache movie --cache --denoise`: the cache takes error-aware termination's settings
     # (gs_cache's CacheConfig::for_denoiser) unless the cache dict names one of them.
     scene = gscache.Scene.load(str(small_default_scene(repo, tmp_path, 32, 18)))
-    trust = {"min_coverage": 0.5, "max_bias": 0.03, "stopper_weights": True, "handoff_frames": 2}
+    trust = {"min_coverage": 0.5, "max_bias": 0.03, "handoff_frames": 2}
 
     def raw(name, cache, denoise):
         folder = gscache.movie(scene, tmp_path / name, 3, spp=2, warmup=2, video=None,

@@ -104,6 +104,7 @@ pub fn termination(config: &NrcConfig) -> TerminationConfig {
         natural: false,
         survivor_weights: false,
         stopper_weights: false,
+        channel_weights: false,
         unbiased: false,
         min_continuation: 1.0,
     }

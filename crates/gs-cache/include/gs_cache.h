@@ -87,6 +87,10 @@ typedef struct GsCacheConfig {
   // Training samples weighted `(1 - q) lum(W) / q`, for the paths that stop (takes
   // precedence over `survivor_weights`).
   bool stopper_weights;
+  // Training samples weighted per colour channel by the path's throughput there.
+  bool channel_weights;
+  // Each cache pixel's share of the training loss is its samples' summed weight.
+  bool weighted_loss;
   // `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
   uint32_t optimizer;
   // `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.

@@ -36,12 +36,35 @@ pub struct Level {
     warm_steps: u32,
     /// Per colour channel, its blending weight summed over the warm-start frames so far.
     warm_weights: Vec<f32>,
+    /// With `weighted_loss`: per colour channel, the mean summed sample weight of a cache
+    /// pixel with a target, averaged over the last frames ([`LOSS_WEIGHT_DECAY`]); `None`
+    /// before the first.
+    loss_weight_scale: Option<[f64; 3]>,
 }
+
+/// How much of the running mean sample weight ([`Level::loss_weight_scale`]) each frame keeps:
+/// about ten frames. A pixel's share of the loss is its weight over this mean rather than over
+/// its own frame's, so that a frame whose samples weigh more moves the level more, as pooling
+/// the frames' samples would.
+const LOSS_WEIGHT_DECAY: f64 = 0.9;
 
 impl Level {
     /// The factor from the cloud's colours to radiance.
     pub fn radiance_scale(&self) -> f32 {
         self.radiance_scale.unwrap_or(1.0)
+    }
+
+    /// Folds this frame's mean sample weight per channel into the running mean, which it
+    /// returns (the frame's own on the first frame).
+    fn update_loss_weight_scale(&mut self, frame: [f64; 3]) -> [f64; 3] {
+        let scale = match self.loss_weight_scale {
+            Some(s) => std::array::from_fn(|c| {
+                LOSS_WEIGHT_DECAY * s[c] + (1.0 - LOSS_WEIGHT_DECAY) * frame[c]
+            }),
+            None => frame,
+        };
+        self.loss_weight_scale = Some(scale);
+        scale
     }
 
     /// Sets the radiance scale from the level's first samples. Absolute colours (a loaded
@@ -361,6 +384,7 @@ impl GsCache {
                     absolute_colors: true,
                     warm_steps: u32::MAX,
                     warm_weights: Vec::new(),
+                    loss_weight_scale: None,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -395,7 +419,6 @@ impl GsCache {
         let changed = CacheConfig {
             min_coverage: config.min_coverage,
             max_bias: config.max_bias,
-            stopper_weights: config.stopper_weights,
             handoff_frames: config.handoff_frames,
             ..self.config
         };
@@ -869,6 +892,16 @@ impl LevelStep<'_> {
             outcome.stale_fraction = update_trust(verdicts, &prediction, &target, &spread);
         }
         let (loss, mut grad) = loss_and_grad(Loss::Hdr, &prediction, &target, Some(&mask));
+        let loss_weights = self.config.weighted_loss.then(|| {
+            let scale = level.update_loss_weight_scale(self.targets.level_mean_weight(i));
+            self.targets
+                .level_loss_weights(i, scale, self.config.masked_targets)
+        });
+        if let Some(weights) = &loss_weights {
+            grad.iter_mut()
+                .zip(weights)
+                .for_each(|(g, w)| g.iter_mut().zip(w).for_each(|(v, w)| *v *= w));
+        }
         // The cloud draws radiance / scale: the chain rule multiplies its gradient by scale.
         grad.iter_mut().flatten().for_each(|g| *g *= scale);
         if !loss.is_finite() {
@@ -898,7 +931,13 @@ impl LevelStep<'_> {
                         prediction: &prediction,
                         radiance_scale: scale,
                     };
-                    warm_sums(&level.cloud, drawn_level, &target, &mask)
+                    warm_sums(
+                        &level.cloud,
+                        drawn_level,
+                        &target,
+                        &mask,
+                        loss_weights.as_deref(),
+                    )
                 })
             },
         );

@@ -112,6 +112,10 @@ pub struct GsCacheConfig {
     /// Training samples weighted `(1 - q) lum(W) / q`, for the paths that stop (takes
     /// precedence over `survivor_weights`).
     pub stopper_weights: bool,
+    /// Training samples weighted per colour channel by the path's throughput there.
+    pub channel_weights: bool,
+    /// Each cache pixel's share of the training loss is its samples' summed weight.
+    pub weighted_loss: bool,
     /// `GS_CACHE_OPTIMIZER_ADAMW` or `GS_CACHE_OPTIMIZER_ADAM`.
     pub optimizer: u32,
     /// `GS_CACHE_DECAY_PAPER`, `GS_CACHE_DECAY_PLATEAU` or `GS_CACHE_DECAY_OFF`.
@@ -305,6 +309,8 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             natural: c.natural,
             survivor_weights: c.survivor_weights,
             stopper_weights: c.stopper_weights,
+            channel_weights: c.channel_weights,
+            weighted_loss: c.weighted_loss,
             optimizer,
             decay,
             lr_position: c.lr_position,
@@ -360,6 +366,8 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         natural: d.natural,
         survivor_weights: d.survivor_weights,
         stopper_weights: d.stopper_weights,
+        channel_weights: d.channel_weights,
+        weighted_loss: d.weighted_loss,
         optimizer: match d.optimizer {
             Optimizer::AdamW => GS_CACHE_OPTIMIZER_ADAMW,
             Optimizer::Adam => GS_CACHE_OPTIMIZER_ADAM,

@@ -34,6 +34,9 @@ pub struct TerminationConfig {
     /// Training samples weighted for the paths that stop: `(1 - q) lum(W) / q`; takes
     /// precedence over `survivor_weights`.
     pub stopper_weights: bool,
+    /// Training samples weighted per colour channel by the path's throughput in that channel
+    /// (with `stopper_weights`: `(1 - q) W_c / q` for `(1 - q) lum(W) / q`).
+    pub channel_weights: bool,
     /// The unbiased estimator: every path reaching a level reads the cache and goes on with
     /// probability `q`, adding `(L - C) / q` (the crate docs). Algorithm 1's selection and
     /// natural termination are off.
@@ -121,14 +124,34 @@ pub struct CacheConfig {
     /// that reached the vertex rather than over the survivors (see `CachedPath::samples`).
     #[cfg_attr(feature = "clap", arg(long = "cache-survivor-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.survivor_weights))]
     pub survivor_weights: bool,
-    /// Weight each training sample by `(1 - q) lum(W) / q` (`q`: Algorithm 1's probability of
-    /// going on at the level's vertex, `W`: the path's throughput there), so that a level
-    /// learns what the paths that *stop* into it would have gathered, which is what the image
-    /// needs of it (see `CachedPath::samples`). Takes precedence over `survivor_weights`. Off
-    /// by default until measured at equal time on every volume: on hydrogen it takes the
-    /// first level's bias from -1.1% to -0.3% in the dense core (docs/results/cache_error.md).
+    /// Weight each training sample by `(1 - q) W / q` (`q`: Algorithm 1's probability of
+    /// going on at the level's vertex, `W`: the path's throughput there; its luminance, or per
+    /// channel with `channel_weights`), so that a level learns what the paths that *stop* into
+    /// it would have gathered, which is what the image needs of it (see
+    /// `CachedPath::samples`). Takes precedence over `survivor_weights`. On by default, with
+    /// `channel_weights` and `weighted_loss`: the three take the raw image's brightness error
+    /// from -0.93% to -0.34% on hydrogen and from -0.48% to -0.18% on the blob scene and lower
+    /// its relMSE at equal time (the crate docs; docs/results/cache_error.md).
     #[cfg_attr(feature = "clap", arg(long = "cache-stopper-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.stopper_weights))]
     pub stopper_weights: bool,
+    /// Training samples weighted per colour channel by the path's throughput in that channel
+    /// (`W_c`; with `stopper_weights` `(1 - q) W_c / q`, with `survivor_weights` `W_c / q`):
+    /// a level's channel `c` then holds `E[w W_c R_c] / E[w W_c]`, what a path that stops and
+    /// adds `W_c` times it needs, where weighting every channel alike drops the covariance of
+    /// a vertex's albedo and the radiance from it on (a red shell round a blue core: the
+    /// shell's paths carry more red throughput and gather more red light; the blob scene's red
+    /// rendered 2.7% dark without it). See `CachedPath::samples`.
+    #[cfg_attr(feature = "clap", arg(long = "cache-channel-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.channel_weights))]
+    pub channel_weights: bool,
+    /// Each cache pixel's share of a level's training loss (and of its warm start's fit) is,
+    /// per channel, the summed weight of the samples binned into it over the level's running
+    /// mean of that sum, instead of one share per pixel. A level's value is then the weighted
+    /// mean of its samples pooled over frames (not the mean of each frame's means, in which a
+    /// pixel's one sample cancels its own weight), and where the Gaussians' blur must trade one
+    /// pixel against another it favours those the weights say the image reads most (with
+    /// `stopper_weights`: where paths stop). See `targets.rs`.
+    #[cfg_attr(feature = "clap", arg(long = "cache-weighted-loss", action = clap::ArgAction::Set, default_value_t = DEFAULT.weighted_loss))]
+    pub weighted_loss: bool,
     /// `adamw` or `adam` (no weight decay).
     #[cfg_attr(feature = "clap", arg(long = "cache-optimizer", value_enum, default_value_t = DEFAULT.optimizer))]
     pub optimizer: Optimizer,
@@ -274,7 +297,9 @@ const DEFAULT: CacheConfig = CacheConfig {
     early: true,
     natural: true,
     survivor_weights: false,
-    stopper_weights: false,
+    stopper_weights: true,
+    channel_weights: true,
+    weighted_loss: true,
     optimizer: Optimizer::AdamW,
     decay: Decay::Plateau,
     lr_position: 1.16e-3,
@@ -325,18 +350,13 @@ pub const BYTES_PER_TRAINED_GAUSSIAN: u64 = 14 * 4 * 4;
 impl CacheConfig {
     /// The settings [`CacheConfig::for_denoiser`] sets, by their names as keys and flags (a
     /// caller that lets the user name some keeps those).
-    pub const FOR_DENOISER_KEYS: [&'static str; 4] = [
-        "min_coverage",
-        "max_bias",
-        "stopper_weights",
-        "handoff_frames",
-    ];
+    pub const FOR_DENOISER_KEYS: [&'static str; 3] = ["min_coverage", "max_bias", "handoff_frames"];
 
     /// These settings for an image that will be denoised: paths stop into a level only where
     /// at least half the paths around them reach its vertex (`min_coverage` 0.5) and its
-    /// measured bias is within 3% (`max_bias`), with the stoppers' weights on its targets
-    /// (`stopper_weights`), and an image accumulated over passes of one view reads the cache in
-    /// its first two only (`handoff_frames` 2). Against the plain cache, both denoised by Open
+    /// measured bias is within 3% (`max_bias`), and an image accumulated over passes of one
+    /// view reads the cache in its first two only (`handoff_frames` 2). (The stoppers' weights
+    /// on the targets, once part of this setting, are the default now.) Against the plain cache, both denoised by Open
     /// Image Denoise at equal time (the six bundled volumes on stills at 1 spp, 200 ms and 1 s;
     /// hydrogen, default and embryo in motion at 100 and 200 ms), error-aware termination's
     /// relMSE was 1.0-4.8x lower, never higher beyond the runs' noise, because the plain
@@ -351,7 +371,6 @@ impl CacheConfig {
         Self {
             min_coverage: 0.5,
             max_bias: 0.03,
-            stopper_weights: true,
             handoff_frames: 2,
             ..self
         }
@@ -521,6 +540,7 @@ impl CacheConfig {
             natural: self.natural && !self.unbiased,
             survivor_weights: self.survivor_weights && !self.unbiased,
             stopper_weights: self.stopper_weights && !self.unbiased,
+            channel_weights: self.channel_weights && !self.unbiased,
             unbiased: self.unbiased,
             min_continuation: self.min_continuation,
         }

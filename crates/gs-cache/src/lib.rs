@@ -87,14 +87,41 @@
 //! early termination leaves, and a least-squares fit is their mean. A user who
 //! needs the image's brightness to better than that sets `early = false` (the cache then reads
 //! only where paths end naturally, and its error gain falls: 1.0x on hydrogen) or a larger `C`.
-//! The selection part of the second term has an exact correction: a level trained on the
-//! survivors' samples weighted `(1 - q) W_n / q` holds what the paths that stop need
-//! (`stopper_weights`, derived at [`CachedPath::samples`]); measured on hydrogen it takes the
-//! first level's bias in the dense core from -1.1% to -0.3%, while the deeper levels keep a
-//! dark bias it does not remove (docs/results/cache_error.md). Off by default until measured at
-//! equal time. The deeper levels' bias compounds (each trains on paths that stopped into the
-//! next), so their stops can be made rarer on their own: `c_deep` is Algorithm 1's `C` from path
-//! length 2 on.
+//! The second term has an exact correction, and the default applies it. A stop adds `W_n`
+//! times the level's value *channel by channel*, so the image is unbiased where, in each colour
+//! channel `c`, the level holds `Lambda_n^c = E[(1 - q) W_n^c R_n^c] / E[(1 - q) W_n^c]` over
+//! the paths that reach the vertex: the stoppers' radiance weighted by their throughput in
+//! that channel. The level's samples come from the paths that went on, drawn with probability
+//! `q`, so each carries the weight `(1 - q) W_n^c / q` in channel `c` (`stopper_weights` with
+//! `channel_weights`, derived at [`CachedPath::samples`]). Three things each undid part of it:
+//!
+//! - Weighting by `lum(W_n)` alone (the first form of `stopper_weights`) corrects the
+//!   selection but not the covariance, across a pixel's footprint, of a vertex's albedo and
+//!   the radiance from it on in one channel: a red shell round a blue core sends more red
+//!   throughput *and* more red light (its paths scatter on in red), so the unweighted mean of
+//!   the red samples is too small for the stoppers, whose red throughput is the shell's. On
+//!   the blob scene (`data/scenes/blobs.toml`) the red channel rendered 2.7% dark (14% in the
+//!   dense blobs) and on hydrogen the blue channel 5.4% (its blue halo round a warm core).
+//! - Weights cancel within a target that holds one sample: a cache pixel's target is its
+//!   samples' weighted mean, so at one sample (full resolution, a deep level) it is the sample
+//!   whatever its weight, and one share of the loss per cache pixel and frame then fits the
+//!   mean of the frames' targets. With `weighted_loss` each pixel's share of the loss, per
+//!   channel, is its summed weight over the level's running mean, which fits the pooled
+//!   weighted mean over frames, and where the Gaussians' blur must trade one pixel for
+//!   another it favours where paths stop.
+//! - Without the weights at all, the survivors are the paths through bright albedo (in
+//!   hydrogen's core the shadowed ones), and the level learns their mean: -1.1% at the first
+//!   level in the core.
+//!
+//! Measured (tools/cache_error.py, 64 still frames of 1 spp against 4096 spp;
+//! docs/results/cache_error.md) the three together take the image's brightness error from
+//! -0.93% to -0.34% on hydrogen (blue -5.4% to -0.6%), -0.47% to -0.21% on default (red -2.4%
+//! to -0.2%), -0.48% to -0.18% on the blob scene (red -2.75% to -0.36%), and lower the raw
+//! relMSE at equal time on 15 of the 18 stills of the six volumes (by up to 1.5x), so they are
+//! the default. What they cannot remove is the spread term: a pixel-space value is an average
+//! over the vertices seen through the pixel, exact only in expectation over them. The deeper
+//! levels' bias compounds (each trains on paths that stopped into the next), so their stops can
+//! be made rarer on their own: `c_deep` is Algorithm 1's `C` from path length 2 on.
 //!
 //! # The unbiased estimator (`unbiased = true`)
 //!

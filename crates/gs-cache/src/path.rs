@@ -292,43 +292,60 @@ impl<'a> CachedPath<'a> {
     }
 
     /// The training samples the path produced: `(level, value, weight)` for every level whose
-    /// vertex it reached and went on from. The weight is 1, or with
+    /// vertex it reached and went on from, the weight one per colour channel. It is 1, or with
     /// `survivor_weights` the inverse of the probability with which Algorithm 1 let the path go
     /// on at that vertex: paths that go on are a selection of those that reach the vertex
     /// (biased towards bright albedo products), and the weight makes the level's target the
     /// mean over all of them.
     ///
-    /// With `stopper_weights` the weight is `(1 - q) lum(W_n) / q`. What the image needs of
-    /// level `n` at a pixel is the value the paths that *stop* there would have gathered,
-    /// weighted by their throughput: stopping adds `W_n C` where going on would have added
-    /// `W_n R_n`, so the image is unbiased when `C = E[(1 - q) W_n R_n] / E[(1 - q) W_n]` over
-    /// the paths that reach the vertex (the crate docs' second bias term then vanishes for a
-    /// cache that fits its targets). The samples come from the paths that went on, drawn with
-    /// probability `q`, so each carries `(1 - q) W_n / q`. On hydrogen's dense core, where the
-    /// paths through bright albedo (likely to go on) are the shadowed ones, survivors' samples
-    /// are darker than the stoppers' and the unweighted target renders 1.1% dark at the first
-    /// level; these weights leave -0.3%, where `survivor_weights` (the mean over all paths)
-    /// overshoots to +0.7% (docs/results/cache_error.md). A path that always goes on (`q = 1`)
-    /// never needs the level, but keeps a weight of [`ALWAYS_ON_WEIGHT`] `lum(W_n)`, so that
-    /// a pixel only such paths reach is still trained (natural termination reads it).
-    pub fn samples(&self) -> impl Iterator<Item = (usize, Vec3, f32)> + '_ {
-        (0..self.active()).filter(|&m| self.sampled[m]).map(|m| {
-            let w = if self.termination.stopper_weights {
-                let q = continue_probability_at(&self.termination, m, self.albedo_at[m]);
-                let w = luminance(self.throughput_at[m]).max(0.0);
-                if q > 0.0 && q < 1.0 {
-                    (1.0 - q) * w / q
+    /// With `stopper_weights` the weight is `(1 - q) W_n / q`. What the image needs of level
+    /// `n` at a pixel is the value the paths that *stop* there would have gathered, weighted by
+    /// their throughput: stopping adds `W_n C` where going on would have added `W_n R_n`, so the
+    /// image is unbiased when `C = E[(1 - q) W_n R_n] / E[(1 - q) W_n]` over the paths that
+    /// reach the vertex (the crate docs' second bias term then vanishes for a cache that fits
+    /// its targets). The samples come from the paths that went on, drawn with probability `q`,
+    /// so each carries `(1 - q) W_n / q`. The products are per channel, and so is the weight
+    /// with `channel_weights` (`W_n^c`); without it every channel weighs `lum(W_n)`, which
+    /// corrects the selection but not the covariance of albedo and radiance within a channel
+    /// (the crate docs measure both). On hydrogen's dense core, where the paths through bright
+    /// albedo (likely to go on) are the shadowed ones, survivors' samples are darker than the
+    /// stoppers' and the unweighted target renders 1.1% dark at the first level; these weights
+    /// leave -0.3%, where `survivor_weights` (the mean over all paths) overshoots to +0.7%
+    /// (docs/results/cache_error.md). A path that always goes on (`q = 1`) never needs the
+    /// level, but keeps a weight of [`ALWAYS_ON_WEIGHT`] times its throughput, so that a pixel
+    /// only such paths reach is still trained (natural termination reads it). With
+    /// `channel_weights` and neither of the others the weight is `W_n^c` alone.
+    pub fn samples(&self) -> impl Iterator<Item = (usize, Vec3, Vec3)> + '_ {
+        let t = &self.termination;
+        (0..self.active())
+            .filter(|&m| self.sampled[m])
+            .map(move |m| {
+                let throughput = self.throughput_at[m].max(Vec3::ZERO);
+                // The throughput factor: per channel, or its luminance for every channel.
+                let per_channel = |fallback: Vec3| {
+                    if t.channel_weights {
+                        throughput
+                    } else {
+                        fallback
+                    }
+                };
+                let w = if t.stopper_weights {
+                    let q = continue_probability_at(t, m, self.albedo_at[m]);
+                    let w = per_channel(Vec3::splat(luminance(self.throughput_at[m]).max(0.0)));
+                    if q > 0.0 && q < 1.0 {
+                        (1.0 - q) * w / q
+                    } else {
+                        ALWAYS_ON_WEIGHT * w
+                    }
+                } else if t.survivor_weights {
+                    let q = continue_probability_at(t, m, self.albedo_at[m]);
+                    let w = per_channel(Vec3::ONE);
+                    if q > 0.0 && q < 1.0 { w / q } else { w }
                 } else {
-                    ALWAYS_ON_WEIGHT * w
-                }
-            } else if self.termination.survivor_weights {
-                let q = continue_probability_at(&self.termination, m, self.albedo_at[m]);
-                if q > 0.0 && q < 1.0 { 1.0 / q } else { 1.0 }
-            } else {
-                1.0
-            };
-            (m, self.sums[m], w)
-        })
+                    per_channel(Vec3::ONE)
+                };
+                (m, self.sums[m], w)
+            })
     }
 }
 
@@ -363,12 +380,13 @@ mod tests {
         cache
     }
 
-    /// One path's sample at its first vertex (albedo 0.8, so `W = 0.8`) that gathered 2.
-    fn weight(config: CacheConfig) -> f32 {
+    /// One path's sample at its first vertex (albedo `albedo`, so `W = albedo`) that gathered
+    /// 2: its per-channel weight.
+    fn weight_at(config: CacheConfig, albedo: Vec3) -> Vec3 {
         let cache = drawn_cache(config);
         let frame = cache.frame().unwrap();
         let mut path = CachedPath::new(frame, 0, 1, cache.config().termination());
-        path.vertex(Vec3::splat(0.8));
+        path.vertex(albedo);
         path.radiance(Vec3::splat(2.0));
         let samples: Vec<_> = path.samples().collect();
         assert_eq!(samples.len(), 1);
@@ -376,9 +394,20 @@ mod tests {
         samples[0].2
     }
 
+    /// [`weight_at`] for a grey albedo of 0.8, where every channel weighs the same.
+    fn weight(config: CacheConfig) -> f32 {
+        let w = weight_at(config, Vec3::splat(0.8));
+        assert!(w.x == w.y && w.y == w.z, "{w}");
+        w.x
+    }
+
     #[test]
     fn training_weights_follow_the_chosen_population() {
-        let c = CacheConfig::default();
+        let c = CacheConfig {
+            stopper_weights: false,
+            channel_weights: false,
+            ..CacheConfig::default()
+        };
         // Algorithm 1 with C = 0.5 at albedo 0.8: q = 0.4.
         assert_eq!(weight(c), 1.0);
         let survivors = CacheConfig {
@@ -404,5 +433,37 @@ mod tests {
             ..c
         };
         assert!((weight(always_on) - ALWAYS_ON_WEIGHT * 0.8).abs() < 1e-8);
+    }
+
+    /// With `channel_weights` each channel weighs by the throughput in that channel, where
+    /// without it every channel weighs by the throughput's luminance.
+    #[test]
+    fn channel_weights_weigh_each_channel_by_its_own_throughput() {
+        let red = Vec3::new(0.9, 0.2, 0.1);
+        let lum = crate::termination::luminance(red);
+        // q = C lum = 0.5 lum, so (1 - q) / q.
+        let q = 0.5 * lum;
+        let stoppers = CacheConfig {
+            stopper_weights: true,
+            channel_weights: false,
+            ..CacheConfig::default()
+        };
+        let w = weight_at(stoppers, red);
+        assert!(
+            (w - Vec3::splat((1.0 - q) * lum / q)).abs().max_element() < 1e-5,
+            "{w}"
+        );
+        let per_channel = CacheConfig {
+            channel_weights: true,
+            ..stoppers
+        };
+        let w = weight_at(per_channel, red);
+        assert!((w - (1.0 - q) * red / q).abs().max_element() < 1e-5, "{w}");
+        // Without stopper weights, the throughput alone.
+        let plain = CacheConfig {
+            stopper_weights: false,
+            ..per_channel
+        };
+        assert_eq!(weight_at(plain, red), red);
     }
 }

@@ -55,43 +55,78 @@ fn frame_rows_per_cache_row(map: &PixelMap, height: u32) -> Vec<std::ops::Range<
     rows
 }
 
-/// One bin's sums for one level: the weighted sum of its samples, the summed weights, the
-/// weighted sum of their luminances and of their squared luminances, and the number of frame
-/// pixels' sums added (the samples, when each pixel adds one).
+/// One bin's sums for one level: per colour channel the weighted sum of its samples and the
+/// summed weights, the summed scalar weights ([`scalar_weight`]), the scalar-weighted sum of
+/// their luminances and of their squared luminances, and the number of frame pixels' sums added
+/// (the samples, when each pixel adds one).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct BinSums {
     sum: [f64; 3],
+    channel_weight: [f64; 3],
     weight: f64,
     luminance: f64,
     square: f64,
     count: u64,
 }
 
+/// A sample's weight as one number, for the statistics that see luminance alone (the support
+/// and fallback tests' spread, the loss's shares): the weights' luminance, and exactly their
+/// common value when the channels agree (in f32 luminance's coefficients need not sum to 1, and
+/// one weight for all channels must give what a scalar weight gave).
+#[inline]
+pub(crate) fn scalar_weight(weight: Vec3) -> f32 {
+    if weight.x == weight.y && weight.y == weight.z {
+        weight.x
+    } else {
+        luminance(weight)
+    }
+}
+
 impl BinSums {
-    /// Adds `value` with `weight` as one frame pixel's sums; false (nothing added) for a value
-    /// not finite or above [`MAX_SAMPLE_RADIANCE`] in magnitude, or a weight not finite and
-    /// positive. Negative values are kept: the unbiased estimator's control variate makes
-    /// them, and their mean is still the level's target. Written so that NaN fails. The
-    /// products are rounded to f32 as a per-pixel f32 sum would hold them.
+    /// Adds `value` with per-channel `weight` as one frame pixel's sums; false (nothing added)
+    /// for a value not finite or above [`MAX_SAMPLE_RADIANCE`] in magnitude, or a weight with
+    /// a channel not finite or negative or with no positive scalar weight. A channel of zero
+    /// weight adds nothing to that channel (its target is 0 if no sample weighs it). Negative
+    /// values are kept: the unbiased estimator's control variate makes them, and their mean is
+    /// still the level's target. Written so that NaN fails. The products are rounded to f32 as
+    /// a per-pixel f32 sum would hold them.
     #[inline]
-    fn add(&mut self, value: [f32; 3], weight: f32) -> bool {
+    fn add(&mut self, value: [f32; 3], weight: Vec3) -> bool {
+        let scalar = scalar_weight(weight);
         if !(value
             .iter()
             .all(|v| (-MAX_SAMPLE_RADIANCE..=MAX_SAMPLE_RADIANCE).contains(v))
-            && weight > 0.0
-            && weight.is_finite())
+            && weight.is_finite()
+            && weight.min_element() >= 0.0
+            && scalar > 0.0)
         {
             return false;
         }
-        let weighted = value.map(|v| weight * v);
+        let weighted = [
+            value[0] * weight.x,
+            value[1] * weight.y,
+            value[2] * weight.z,
+        ];
         for c in 0..3 {
             self.sum[c] += weighted[c] as f64;
+            self.channel_weight[c] += weight[c] as f64;
         }
-        self.weight += weight as f64;
-        self.luminance += luminance(Vec3::from_array(weighted)) as f64;
-        self.square += (weight * luminance(Vec3::from_array(value)).powi(2)) as f64;
+        self.weight += scalar as f64;
+        self.luminance += luminance(Vec3::from_array(value.map(|v| scalar * v))) as f64;
+        self.square += (scalar * luminance(Vec3::from_array(value)).powi(2)) as f64;
         self.count += 1;
         true
+    }
+
+    /// The weighted mean per channel (0 in a channel no sample weighs).
+    fn mean(&self) -> [f64; 3] {
+        std::array::from_fn(|c| {
+            if self.channel_weight[c] > 0.0 {
+                self.sum[c] / self.channel_weight[c]
+            } else {
+                0.0
+            }
+        })
     }
 }
 
@@ -202,7 +237,7 @@ impl TrainingTargets {
     pub fn add_weighted(&mut self, level: usize, pixel: usize, value: [f32; 3], weight: f32) {
         let w = self.width() as usize;
         let bin = self.map.bin((pixel % w) as u32, (pixel / w) as u32);
-        if !self.bins[level][bin].add(value, weight) {
+        if !self.bins[level][bin].add(value, Vec3::splat(weight)) {
             self.dropped += 1;
         }
     }
@@ -240,13 +275,59 @@ impl TrainingTargets {
                     ([0.0; 3], !masked)
                 } else if identity {
                     // A bin is a frame pixel: its mean in f32, as the pixel's own sums give it.
-                    let inv = 1.0 / b.weight as f32;
-                    (b.sum.map(|v| v as f32 * inv), true)
+                    let mean = std::array::from_fn(|c| {
+                        let w = b.channel_weight[c] as f32;
+                        if w > 0.0 {
+                            b.sum[c] as f32 * (1.0 / w)
+                        } else {
+                            0.0
+                        }
+                    });
+                    (mean, true)
                 } else {
-                    (b.sum.map(|v| (v / b.weight) as f32), true)
+                    (b.mean().map(|v| v as f32), true)
                 }
             })
             .unzip()
+    }
+
+    /// Per colour channel, the mean over the cache pixels of `level` with a target of their
+    /// samples' summed weight in that channel (0 where no pixel has one).
+    pub fn level_mean_weight(&self, level: usize) -> [f64; 3] {
+        let (sum, n) = self.bins[level].iter().filter(|b| b.weight > 0.0).fold(
+            ([0.0f64; 3], 0u64),
+            |(mut s, n), b| {
+                for c in 0..3 {
+                    s[c] += b.channel_weight[c];
+                }
+                (s, n + 1)
+            },
+        );
+        sum.map(|s| s / n.max(1) as f64)
+    }
+
+    /// Per cache pixel of `level` and colour channel, its share of the training loss with
+    /// `weighted_loss`: the summed weight of its samples in that channel over `scale` (the
+    /// cache's running mean of [`TrainingTargets::level_mean_weight`], so the shares average
+    /// about 1 and the loss keeps its scale); 0 where there is no scale. A pixel without a
+    /// sample has no share when `masked` (it has no target), and one share, as without the
+    /// weights, when not (it targets zero: [`TrainingTargets::level_target`]).
+    pub fn level_loss_weights(&self, level: usize, scale: [f64; 3], masked: bool) -> Vec<[f32; 3]> {
+        self.bins[level]
+            .iter()
+            .map(|b| {
+                if !(b.weight > 0.0) {
+                    return [if masked { 0.0 } else { 1.0 }; 3];
+                }
+                std::array::from_fn(|c| {
+                    if scale[c] > 0.0 {
+                        (b.channel_weight[c] / scale[c]) as f32
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect()
     }
 
     /// Per cache pixel, the number of samples binned into it and the variance of their
@@ -280,8 +361,8 @@ pub struct TileTargets {
     height: u32,
     levels: usize,
     sums: Vec<Vec3>,
-    /// Summed sample weights (sample counts when every weight is 1).
-    weights: Vec<f32>,
+    /// Summed sample weights per channel (sample counts when every weight is 1).
+    weights: Vec<Vec3>,
     /// Per tile pixel, the paths through it (block 0) and per level those that reached its
     /// vertex (block `l + 1`), as [`TrainingTargets`] keeps them per bin.
     paths: Vec<u32>,
@@ -305,7 +386,7 @@ impl TileTargets {
             height,
             levels,
             sums: vec![Vec3::ZERO; n],
-            weights: vec![0.0; n],
+            weights: vec![Vec3::ZERO; n],
             paths: vec![0; n + width as usize * height as usize],
             counted: false,
             dropped: 0,
@@ -339,11 +420,12 @@ impl TileTargets {
     }
 
     /// Files one path's `(level, value, weight)` samples (what [`crate::CachedPath::samples`]
-    /// gives); the path went through row-major tile pixel `in_tile`.
+    /// gives: a weight per colour channel); the path went through row-major tile pixel
+    /// `in_tile`.
     pub fn add_samples(
         &mut self,
         in_tile: usize,
-        samples: impl IntoIterator<Item = (usize, Vec3, f32)>,
+        samples: impl IntoIterator<Item = (usize, Vec3, Vec3)>,
     ) {
         let tile_pixels = self.width as usize * self.height as usize;
         for (level, value, weight) in samples {
@@ -352,7 +434,7 @@ impl TileTargets {
             if !(value.is_finite()
                 && value.min_element() >= -MAX_SAMPLE_RADIANCE
                 && value.max_element() <= MAX_SAMPLE_RADIANCE
-                && weight >= 0.0
+                && weight.min_element() >= 0.0
                 && weight.is_finite())
             {
                 self.dropped += 1;
@@ -428,10 +510,14 @@ impl TrainingTargets {
                             let j = y as usize - tile.y0 as usize;
                             for i in 0..tile.width as usize {
                                 let k = level * tile_pixels + j * tile.width as usize + i;
-                                if tile.weights[k] > 0.0 {
-                                    let mean = (tile.sums[k] / tile.weights[k]).to_array();
+                                let weight = tile.weights[k];
+                                if scalar_weight(weight) > 0.0 {
+                                    let mean = tile.sums[k] / weight;
+                                    // A channel no sample weighs has no mean.
+                                    let mean =
+                                        Vec3::select(weight.cmpgt(Vec3::ZERO), mean, Vec3::ZERO);
                                     let bin = &mut bins[column[tile.x0 as usize + i]];
-                                    if !bin.add(mean, tile.weights[k]) {
+                                    if !bin.add(mean.to_array(), weight) {
                                         dropped += 1;
                                     }
                                 }
@@ -521,13 +607,22 @@ mod tests {
     #[test]
     fn bad_samples_are_counted_and_do_not_spoil_a_pixel() {
         let mut tile = TileTargets::new(1, 0, 0, 2, 1);
-        tile.add_samples(0, [(0, Vec3::splat(1.0), 1.0), (0, Vec3::splat(3.0), 1.0)]);
-        tile.add_samples(0, [(0, Vec3::new(f32::NAN, 0.0, 0.0), 1.0)]);
         tile.add_samples(
             0,
-            [(0, Vec3::splat(-3e38), 1.0), (0, Vec3::ONE, f32::INFINITY)],
+            [
+                (0, Vec3::splat(1.0), Vec3::ONE),
+                (0, Vec3::splat(3.0), Vec3::ONE),
+            ],
         );
-        tile.add_samples(1, [(0, Vec3::splat(-1.0), 1.0)]);
+        tile.add_samples(0, [(0, Vec3::new(f32::NAN, 0.0, 0.0), Vec3::ONE)]);
+        tile.add_samples(
+            0,
+            [
+                (0, Vec3::splat(-3e38), Vec3::ONE),
+                (0, Vec3::ONE, Vec3::splat(f32::INFINITY)),
+            ],
+        );
+        tile.add_samples(1, [(0, Vec3::splat(-1.0), Vec3::ONE)]);
         let mut targets = TrainingTargets::new(1, identity(2, 1));
         targets.add_tile(&tile);
         targets.add(0, 1, [f32::NAN; 3]);
@@ -552,8 +647,8 @@ mod tests {
     #[test]
     fn weights_are_kept_through_the_binning() {
         let mut tile = TileTargets::new(1, 0, 0, 2, 2);
-        tile.add_samples(0, [(0, Vec3::splat(1.0), 1.0)]);
-        tile.add_samples(1, [(0, Vec3::splat(5.0), 3.0)]);
+        tile.add_samples(0, [(0, Vec3::splat(1.0), Vec3::ONE)]);
+        tile.add_samples(1, [(0, Vec3::splat(5.0), Vec3::splat(3.0))]);
         let map = PixelMap::for_size(2, 2, 2);
         assert_eq!((map.width, map.height), (1, 1));
         let mut targets = TrainingTargets::new(1, map);
@@ -564,6 +659,41 @@ mod tests {
         unbinned.add_tile(&tile);
         let (target, _) = unbinned.level_target(0, true);
         assert_eq!(&target[..2], &[[1.0; 3], [5.0; 3]]);
+    }
+
+    /// With a weight per channel each channel's target is its own weighted mean: three pixels
+    /// in one cache pixel, values 1, 5 and 7 weighing (1, 3, 0), (3, 1, 2) and (1, 1, 0), give
+    /// (4.6, 3, 5) where one weight for all channels would give one mean; a channel no sample
+    /// weighs targets 0; the loss shares are each channel's summed weight over the scale given.
+    #[test]
+    fn each_channel_takes_its_own_weighted_mean() {
+        let mut tile = TileTargets::new(1, 0, 0, 2, 2);
+        tile.add_samples(0, [(0, Vec3::splat(1.0), Vec3::new(1.0, 3.0, 0.0))]);
+        tile.add_samples(1, [(0, Vec3::splat(5.0), Vec3::new(3.0, 1.0, 2.0))]);
+        tile.add_samples(2, [(0, Vec3::splat(7.0), Vec3::new(1.0, 1.0, 0.0))]);
+        let map = PixelMap::for_size(2, 2, 2);
+        let mut targets = TrainingTargets::new(1, map);
+        targets.add_tile(&tile);
+        let (target, _) = targets.level_target(0, true);
+        let want = [
+            (1.0 + 15.0 + 7.0) / 5.0,
+            (3.0 + 5.0 + 7.0) / 5.0,
+            10.0 / 2.0,
+        ];
+        for c in 0..3 {
+            assert!((target[0][c] - want[c]).abs() < 1e-6, "{:?}", target[0]);
+        }
+        assert_eq!(targets.level_mean_weight(0), [5.0, 5.0, 2.0]);
+        assert_eq!(
+            targets.level_loss_weights(0, [2.5, 5.0, 4.0], true),
+            vec![[2.0, 1.0, 0.5]]
+        );
+        // One pixel's only sample weighs nothing in blue: its blue target is 0, not NaN.
+        let mut tile = TileTargets::new(1, 0, 0, 1, 1);
+        tile.add_samples(0, [(0, Vec3::splat(2.0), Vec3::new(1.0, 1.0, 0.0))]);
+        let mut targets = TrainingTargets::new(1, identity(1, 1));
+        targets.add_tile(&tile);
+        assert_eq!(targets.level_target(0, true).0, vec![[2.0, 2.0, 0.0]]);
     }
 
     /// The targets as they were gathered before they went straight into the bins (issue 31):
@@ -592,10 +722,11 @@ mod tests {
                 for j in 0..tile.height {
                     for i in 0..tile.width {
                         let k = level * tile_pixels + (j * tile.width + i) as usize;
-                        if tile.weights[k] > 0.0 {
+                        // The test's weights are one number for every channel.
+                        let w = tile.weights[k].x;
+                        if w > 0.0 {
                             let q = ((tile.y0 + j) * width + tile.x0 + i) as usize;
-                            let (mean, w) =
-                                ((tile.sums[k] / tile.weights[k]).to_array(), tile.weights[k]);
+                            let mean = (tile.sums[k] / w).to_array();
                             for c in 0..3 {
                                 p.sums[q][c] += w * mean[c];
                             }
@@ -667,7 +798,10 @@ mod tests {
                         }
                         let level = (r(1) * levels as f32) as usize;
                         let value = Vec3::new(r(2), 10.0 * r(3), r(4) - 0.2);
-                        tile.add_samples(p as usize, [(level, value, 0.5 + 3.0 * r(5))]);
+                        tile.add_samples(
+                            p as usize,
+                            [(level, value, Vec3::splat(0.5 + 3.0 * r(5)))],
+                        );
                     }
                 }
                 tiles.push(tile);

@@ -57,7 +57,7 @@ pub(crate) fn fit_colors(
     mask: &[bool],
     weights: &mut [f32],
 ) -> usize {
-    let sums = warm_sums(cloud, drawn, target, mask);
+    let sums = warm_sums(cloud, drawn, target, mask, None);
     apply_fit(cloud, &sums, weights)
 }
 
@@ -78,7 +78,9 @@ pub(crate) fn warm_sums(
     drawn: Drawn<'_>,
     target: &[[f32; 3]],
     mask: &[bool],
+    weights: Option<&[[f32; 3]]>,
 ) -> WarmSums {
+    let weight = |i: usize| weights.map_or([1.0; 3], |w| w[i]);
     let Drawn {
         camera,
         state,
@@ -91,13 +93,11 @@ pub(crate) fn warm_sums(
         .iter()
         .zip(target)
         .zip(mask)
-        .map(|((p, t), &m)| {
+        .enumerate()
+        .map(|(i, ((p, t), &m))| {
             if m {
-                [
-                    (t[0] - p[0]) * to_colour,
-                    (t[1] - p[1]) * to_colour,
-                    (t[2] - p[2]) * to_colour,
-                ]
+                let w = weight(i);
+                std::array::from_fn(|c| (t[c] - p[c]) * to_colour * w[c])
             } else {
                 [0.0; 3]
             }
@@ -106,7 +106,14 @@ pub(crate) fn warm_sums(
     let coverage: Vec<[f32; 3]> = mask
         .iter()
         .zip(state.transmittance(camera))
-        .map(|(&m, t)| if m { [1.0 - t; 3] } else { [0.0; 3] })
+        .enumerate()
+        .map(|(i, (&m, t))| {
+            if m {
+                weight(i).map(|w| (1.0 - t) * w)
+            } else {
+                [0.0; 3]
+            }
+        })
         .collect();
     let gradient = |upstream: &[[f32; 3]]| {
         backward(

@@ -142,8 +142,8 @@ impl Cache {
         }
     }
 
-    /// Takes error-aware termination's settings (`min_coverage`, `max_bias`,
-    /// `stopper_weights`) from `config` and keeps the levels (see
+    /// Takes error-aware termination's settings and the handoff (`min_coverage`, `max_bias`,
+    /// `handoff_frames`) from `config` and keeps the levels (see
     /// [`GsCache::set_error_aware_termination`]); nothing to do for the others.
     pub fn set_error_aware_termination(&mut self, config: &gs_cache::CacheConfig) -> Result<()> {
         if let Cache::Gaussian(c) = self {

@@ -27,8 +27,7 @@ pub struct CacheFlags {
     #[command(flatten)]
     pub nrc_settings: NrcConfig,
     /// Whether the command line named any of the denoised cache's settings
-    /// (`--cache-min-coverage`, `--cache-max-bias`, `--cache-stopper-weights`,
-    /// `--cache-handoff-frames`): set by
+    /// (`--cache-min-coverage`, `--cache-max-bias`, `--cache-handoff-frames`): set by
     /// [`CacheFlags::note_named`] from the parsed arguments.
     #[arg(skip)]
     pub termination_named: bool,
@@ -58,9 +57,9 @@ impl CacheFlags {
                 eprintln!(
                     "note: the image is denoised, so the cache reads a level only where it has \
                      earned trust, and only in an image's first passes (--cache-min-coverage {} \
-                     --cache-max-bias {} --cache-stopper-weights {} --cache-handoff-frames {}; \
+                     --cache-max-bias {} --cache-handoff-frames {}; \
                      name any of them to choose otherwise)",
-                    c.min_coverage, c.max_bias, c.stopper_weights, c.handoff_frames
+                    c.min_coverage, c.max_bias, c.handoff_frames
                 );
                 c
             } else {

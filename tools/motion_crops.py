@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """Crops of frames in motion, at equal time, for issue 53's write-up (docs/results/cache_error.md).
 
-For each scene it makes four short movies with `gscache movie` (a 24-degree turntable, 8 frames
-of 100 ms each after a 30-frame warm-up for the cache): NEE + OIDN (fast, albedo), the cache
-raw, the plain cache + OIDN (`--cache-max-bias 0` names the setting, so the program keeps the
-plain cache), the cache + OIDN as the program denoises it (reading a level only where it has
-earned trust: `CacheConfig::for_denoiser`), and takes the last frame of each beside that
-frame's NEE reference (512 spp). The crops go side by side into one small JPEG.
+For each scene it makes five short movies with `gscache movie` (a 24-degree turntable, 8 frames
+of 100 ms each after a 30-frame warm-up for the cache): NEE + OIDN (fast, albedo); the cache raw
+before and after its targets were weighted per colour channel and pooled over frames (issue 53:
+`--cache-stopper-weights`, `--cache-channel-weights`, `--cache-weighted-loss`, all on by default
+now); and the cache + OIDN as the program denoises it (reading a level only where it has earned
+trust: `CacheConfig::for_denoiser`), before and after the same change. It takes the last frame
+of each beside that frame's NEE reference (512 spp); the crops go side by side into one small
+JPEG.
 
 Run from the repository root, with the program built (`cargo build --release`), ffmpeg not
 needed (`--video none`), Pillow installed and GSCACHE_OIDN set:
@@ -30,10 +32,15 @@ SCENES = [
 ]
 DENOISE = ["--denoise", "--denoise-quality", "fast", "--denoise-guides", "albedo",
            "--denoise-raw-guides"]
+# The cache's settings before issue 53's per-channel weights (stopper weights by luminance
+# for the denoised cache, none for the raw one): the "before" columns.
+BEFORE = ["--cache-channel-weights", "false", "--cache-weighted-loss", "false"]
 METHODS = [
     ("NEE + OIDN", [] + DENOISE, ".denoised.png"),
+    ("cache, before", ["--cache", "--warmup", "30", "--cache-stopper-weights", "false"] + BEFORE,
+     ".png"),
     ("cache", ["--cache", "--warmup", "30"], ".png"),
-    ("plain cache + OIDN", ["--cache", "--warmup", "30", "--cache-max-bias", "0"] + DENOISE,
+    ("trusted cache + OIDN, before", ["--cache", "--warmup", "30"] + BEFORE + DENOISE,
      ".denoised.png"),
     ("trusted cache + OIDN", ["--cache", "--warmup", "30"] + DENOISE, ".denoised.png"),
 ]

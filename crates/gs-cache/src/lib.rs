@@ -87,6 +87,7 @@
 //! early termination leaves, and a least-squares fit is their mean. A user who
 //! needs the image's brightness to better than that sets `early = false` (the cache then reads
 //! only where paths end naturally, and its error gain falls: 1.0x on hydrogen) or a larger `C`.
+//!
 //! The second term has an exact correction, and the default applies it. A stop adds `W_n`
 //! times the level's value *channel by channel*, so the image is unbiased where, in each colour
 //! channel `c`, the level holds `Lambda_n^c = E[(1 - q) W_n^c R_n^c] / E[(1 - q) W_n^c]` over
@@ -117,11 +118,12 @@
 //! docs/results/cache_error.md) the three together take the image's brightness error from
 //! -0.93% to -0.34% on hydrogen (blue -5.4% to -0.6%), -0.47% to -0.21% on default (red -2.4%
 //! to -0.2%), -0.48% to -0.18% on the blob scene (red -2.75% to -0.36%), and lower the raw
-//! relMSE at equal time on 15 of the 18 stills of the six volumes (by up to 1.5x), so they are
-//! the default. What they cannot remove is the spread term: a pixel-space value is an average
-//! over the vertices seen through the pixel, exact only in expectation over them. The deeper
-//! levels' bias compounds (each trains on paths that stopped into the next), so their stops can
-//! be made rarer on their own: `c_deep` is Algorithm 1's `C` from path length 2 on.
+//! relMSE at equal time or leave it equal on all 18 stills of the six volumes (by up to 1.5x)
+//! and in motion, so they are the default. What they cannot remove is the spread term: a
+//! pixel-space value is an average over the vertices seen through the pixel, exact only in
+//! expectation over them. The deeper levels' bias compounds (each trains on paths that stopped
+//! into the next), so their stops can be made rarer on their own: `c_deep` is Algorithm 1's
+//! `C` from path length 2 on.
 //!
 //! # The unbiased estimator (`unbiased = true`)
 //!

@@ -130,7 +130,7 @@ pub struct CacheConfig {
     /// it would have gathered, which is what the image needs of it (see
     /// `CachedPath::samples`). Takes precedence over `survivor_weights`. On by default, with
     /// `channel_weights` and `weighted_loss`: the three take the raw image's brightness error
-    /// from -0.93% to -0.34% on hydrogen and from -0.48% to -0.18% on the blob scene and lower
+    /// from -0.93% to -0.27% on hydrogen and from -0.48% to -0.16% on the blob scene and lower
     /// its relMSE at equal time (the crate docs; docs/results/cache_error.md).
     #[cfg_attr(feature = "clap", arg(long = "cache-stopper-weights", action = clap::ArgAction::Set, default_value_t = DEFAULT.stopper_weights))]
     pub stopper_weights: bool,
@@ -356,16 +356,15 @@ impl CacheConfig {
     /// at least half the paths around them reach its vertex (`min_coverage` 0.5) and its
     /// measured bias is within 3% (`max_bias`), and an image accumulated over passes of one
     /// view reads the cache in its first two only (`handoff_frames` 2). (The stoppers' weights
-    /// on the targets, once part of this setting, are the default now.) Against the plain cache, both denoised by Open
-    /// Image Denoise at equal time (the six bundled volumes on stills at 1 spp, 200 ms and 1 s;
-    /// hydrogen, default and embryo in motion at 100 and 200 ms), error-aware termination's
-    /// relMSE was 1.0-4.8x lower, never higher beyond the runs' noise, because the plain
-    /// cache's structured error is what the filter keeps; the early handoff lowered it again
-    /// by up to 1.4x on stills past one pass and in motion at 200 ms, because a denoiser leaves
-    /// so little of the plain passes' noise that the cache's bias outweighs its variance after
-    /// a pass or two (the crate docs derive it; docs/results/cache_error.md). Raw, without a
-    /// denoiser, the plain cache is the better one (relMSE 2.0-4.7x lower at 1 spp), so these
-    /// are not the defaults; the program takes them when `--denoise` is on and none of
+    /// on the targets, once part of this setting, are the default now.) Against the plain
+    /// cache, both denoised by Open Image Denoise at equal time (the six bundled volumes on
+    /// stills at 1 spp, 200 ms and 1 s), these settings' relMSE was 1.0-3.0x lower (2% higher
+    /// only on chest_ct at 1 spp and 1 s), because the plain cache's structured error is what
+    /// the filter keeps; the early handoff matters because a denoiser leaves so little of the
+    /// plain passes' noise that the cache's bias outweighs its variance after a pass or two
+    /// (the crate docs derive it; docs/results/cache_error.md). Raw, without a denoiser, the
+    /// plain cache is the better one (relMSE 2.0-4.3x lower at 1 spp), so these are not the
+    /// defaults; the program takes them when `--denoise` is on and none of
     /// [`CacheConfig::FOR_DENOISER_KEYS`] is given.
     pub fn for_denoiser(self) -> Self {
         Self {

@@ -116,8 +116,8 @@
 //!
 //! Measured (tools/cache_error.py, 64 still frames of 1 spp against 4096 spp;
 //! docs/results/cache_error.md) the three together take the image's brightness error from
-//! -0.93% to -0.34% on hydrogen (blue -5.4% to -0.6%), -0.47% to -0.21% on default (red -2.4%
-//! to -0.2%), -0.48% to -0.18% on the blob scene (red -2.75% to -0.36%), and lower the raw
+//! -0.93% to -0.27% on hydrogen (blue -5.4% to -0.4%), -0.47% to -0.18% on default (red -2.4%
+//! to -0.1%), -0.48% to -0.16% on the blob scene (red -2.75% to -0.30%), and lower the raw
 //! relMSE at equal time or leave it equal on all 18 stills of the six volumes (by up to 1.5x)
 //! and in motion, so they are the default. What they cannot remove is the spread term: a
 //! pixel-space value is an average over the vertices seen through the pixel, exact only in

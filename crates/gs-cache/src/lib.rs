@@ -283,6 +283,8 @@ pub mod schedule;
 pub mod support;
 pub mod targets;
 pub mod termination;
+#[cfg(test)]
+mod test_support;
 pub mod warm_start;
 
 pub use cache::{CacheFrame, GsCache, GsCacheReport, Level};

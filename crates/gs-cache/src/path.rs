@@ -320,29 +320,28 @@ impl<'a> CachedPath<'a> {
         (0..self.active())
             .filter(|&m| self.sampled[m])
             .map(move |m| {
-                let throughput = self.throughput_at[m].max(Vec3::ZERO);
-                // The throughput factor: per channel, or its luminance for every channel.
-                let per_channel = |fallback: Vec3| {
+                // The throughput factor: per channel, or (stopper weights) its luminance in every
+                // channel, or (otherwise) none.
+                let throughput = || {
                     if t.channel_weights {
-                        throughput
+                        self.throughput_at[m].max(Vec3::ZERO)
+                    } else if t.stopper_weights {
+                        Vec3::splat(luminance(self.throughput_at[m]).max(0.0))
                     } else {
-                        fallback
+                        Vec3::ONE
                     }
                 };
-                let w = if t.stopper_weights {
+                let w = if t.stopper_weights || t.survivor_weights {
                     let q = continue_probability_at(t, m, self.albedo_at[m]);
-                    let w = per_channel(Vec3::splat(luminance(self.throughput_at[m]).max(0.0)));
-                    if q > 0.0 && q < 1.0 {
-                        (1.0 - q) * w / q
-                    } else {
-                        ALWAYS_ON_WEIGHT * w
+                    let w = throughput();
+                    match (t.stopper_weights, q > 0.0 && q < 1.0) {
+                        (true, true) => (1.0 - q) * w / q,
+                        (true, false) => ALWAYS_ON_WEIGHT * w,
+                        (false, true) => w / q,
+                        (false, false) => w,
                     }
-                } else if t.survivor_weights {
-                    let q = continue_probability_at(t, m, self.albedo_at[m]);
-                    let w = per_channel(Vec3::ONE);
-                    if q > 0.0 && q < 1.0 { w / q } else { w }
                 } else {
-                    per_channel(Vec3::ONE)
+                    throughput()
                 };
                 (m, self.sums[m], w)
             })
@@ -353,29 +352,10 @@ impl<'a> CachedPath<'a> {
 mod tests {
     use super::*;
     use crate::{CacheConfig, GsCache};
-    use splat_raster::Camera;
 
     /// A one-level cache of 64 points drawn from a camera looking at them.
     fn drawn_cache(config: CacheConfig) -> GsCache {
-        let points: Vec<Vec3> = (0..64)
-            .map(|i| Vec3::new((i % 4) as f32, ((i / 4) % 4) as f32, (i / 16) as f32))
-            .collect();
-        let albedo = vec![Vec3::splat(0.8); points.len()];
-        let config = CacheConfig {
-            levels: 1,
-            points: points.len(),
-            ..config
-        };
-        let mut cache = GsCache::new(&points, &albedo, config).unwrap();
-        let camera = Camera::look_at(
-            Vec3::new(1.5, 1.5, 12.0),
-            Vec3::new(1.5, 1.5, 1.5),
-            Vec3::Y,
-            40.0,
-            16,
-            16,
-        )
-        .unwrap();
+        let (mut cache, camera) = crate::test_support::grid_cache(config);
         cache.begin_frame(&camera);
         cache
     }

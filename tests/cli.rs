@@ -1238,15 +1238,27 @@ fn the_unbiased_cache_renders_and_reports_its_bound() {
 }
 
 /// The cached renders are the same bytes on 1 and 3 threads: both caches train in parallel
-/// (the Gaussian cache's levels side by side, each level's parts by rows and tiles), and
-/// nothing of that may show in the image. Cold caches, so the warm start and the fallback's
+/// (the Gaussian cache's levels side by side, each level's parts by rows and tiles, adaptive
+/// density's choices from the rasteriser's sums), and nothing of that may show in the image. Cold caches, so the warm start and the fallback's
 /// first verdicts run too.
 #[test]
 fn cached_renders_are_the_same_bytes_on_any_thread_count() {
     let d = scratch("cached-threads");
     let scene = repo().join("data/scenes/default.toml");
-    let runs: [&[&str]; 4] = [
+    let runs: [&[&str]; 5] = [
         &["--cache", "--warmup", "0", "--frames", "6"],
+        // Adaptive density: its passes split and drop Gaussians every other frame.
+        &[
+            "--cache",
+            "--cache-densify-every",
+            "2",
+            "--cache-densify-bias",
+            "0",
+            "--warmup",
+            "4",
+            "--frames",
+            "4",
+        ],
         &[
             "--cache",
             "--cache-lookup",

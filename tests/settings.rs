@@ -129,6 +129,9 @@ fn settings_written_as_flags_read_back_the_same() {
         unbiased: true,
         min_continuation: 0.2,
         continuation_scale: 0.75,
+        densify_every: 7,
+        densify_bias: 0.05,
+        densify_max: 2.5,
     };
     let args = changed.changed_flags();
     // Every field differs from its default, so every field is written.

@@ -32,6 +32,11 @@
 // `GsCacheConfig::decay`: no decay.
 #define GS_CACHE_DECAY_OFF 2
 
+// The most adaptive density may grow a level, as a multiple of its first size (the largest
+// `densify_max`): with the cap of `MAX_POINTS` on any level, a bound on the memory a typo can
+// ask for.
+#define GS_CACHE_MAX_DENSIFY_GROWTH 16.0
+
 // The most levels a cache may have (paths longer than this are never cached).
 #define GS_CACHE_MAX_LEVELS 8
 
@@ -138,6 +143,13 @@ typedef struct GsCacheConfig {
   // their cache pixel is within this fraction (0: no test; see `CacheConfig`). Needs the
   // paths counted with `gs_cache_add_path`.
   float max_bias;
+  // Adaptive density: every this many training steps, Gaussians split where a level's fit
+  // misses its targets (0: never; see `CacheConfig`).
+  uint32_t densify_every;
+  // The relative rms miss above which adaptive density splits a Gaussian.
+  float densify_bias;
+  // The most Gaussians a level may grow to, as a multiple of its first size (1..=16).
+  float densify_max;
 } GsCacheConfig;
 
 // A pinhole camera given as eye, target and up (world units), the vertical field of view and

@@ -2,6 +2,7 @@
 
 use crate::config::{CacheConfig, Lookup, Optimizer};
 use crate::control::Continuation;
+use crate::density::{Density, PassOutcome};
 use crate::error::{CacheError, Result};
 use crate::fallback::{Trust, Verdict, update_trust};
 use crate::init::{SH_C0, initial_levels};
@@ -40,6 +41,8 @@ pub struct Level {
     /// pixel with a target, averaged over the last frames ([`LOSS_WEIGHT_DECAY`]); `None`
     /// before the first.
     loss_weight_scale: Option<[f64; 3]>,
+    /// Adaptive density's sums since its last pass (see [`crate::density`]).
+    density: Density,
 }
 
 /// How much of the running mean sample weight ([`Level::loss_weight_scale`]) each frame keeps:
@@ -255,6 +258,8 @@ pub struct GsCacheReport {
     /// Per level, the fraction of the tested cache pixels whose residual was gross this frame
     /// (see [`crate::fallback`]; `None`: the fallback is off or no pixel had two samples).
     pub stale_fraction: Vec<Option<f64>>,
+    /// Per level, what adaptive density did this frame (`None`: no pass was due).
+    pub density: Vec<Option<PassOutcome>>,
 }
 
 /// A multi-level radiance cache (see the crate docs for what it estimates).
@@ -378,13 +383,14 @@ impl GsCache {
                 }
                 let optimizer = AdamW::new(opt, &cloud);
                 Ok(Level {
-                    cloud,
                     optimizer,
                     radiance_scale: None,
                     absolute_colors: true,
                     warm_steps: u32::MAX,
                     warm_weights: Vec::new(),
                     loss_weight_scale: None,
+                    density: Density::new(cloud.len()),
+                    cloud,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -671,6 +677,7 @@ impl GsCache {
         self.report.dropped_samples = targets.dropped();
         self.report.mse = vec![None; self.levels.len()];
         self.report.stale_fraction = vec![None; self.levels.len()];
+        self.report.density = vec![None; self.levels.len()];
         let Some(frame) = self.frame.as_mut() else {
             return Err(CacheError::Config(
                 "train() called before begin_frame(): the targets need the frame's camera".into(),
@@ -771,6 +778,7 @@ impl GsCache {
             self.report.losses[i] = outcome.loss;
             self.report.mse[i] = outcome.mse;
             self.report.stale_fraction[i] = outcome.stale_fraction;
+            self.report.density[i] = outcome.density;
         }
         settle_fresh(&mut self.fresh, frame);
         // The schedule watches the levels' summed HDR loss (relative to the prediction, so levels
@@ -826,6 +834,7 @@ struct LevelOutcome {
     loss: Option<f64>,
     mse: Option<f64>,
     stale_fraction: Option<f64>,
+    density: Option<PassOutcome>,
 }
 
 impl<'a> LevelSlot<'a> {
@@ -951,9 +960,33 @@ impl LevelStep<'_> {
             }
             grads.colors.fill(0.0);
         }
+        // Adaptive density chooses from the cloud as drawn (its forward state), before the
+        // step, and reshapes it after.
+        let densify = self.config.densify_every > 0
+            && level.density.observe(
+                self.targets,
+                i,
+                &prediction,
+                scale,
+                self.config.densify_every,
+            );
+        let chosen = densify.then(|| {
+            level
+                .density
+                .choose(&level.cloud, self.camera, &state, self.config)
+        });
         level
             .optimizer
             .step(&mut level.cloud, &grads, self.lr_scale);
+        if let Some(chosen) = chosen {
+            outcome.density = Some(level.density.apply(
+                i,
+                &mut level.cloud,
+                &mut level.optimizer,
+                &mut level.warm_weights,
+                &chosen,
+            ));
+        }
         outcome.loss = Some(loss);
         outcome.mse = Some(loss_and_grad(Loss::L2, &prediction, &target, Some(&mask)).0);
         *drawn = prediction;

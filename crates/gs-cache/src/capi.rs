@@ -163,6 +163,13 @@ pub struct GsCacheConfig {
     /// their cache pixel is within this fraction (0: no test; see `CacheConfig`). Needs the
     /// paths counted with `gs_cache_add_path`.
     pub max_bias: f32,
+    /// Adaptive density: every this many training steps, Gaussians split where a level's fit
+    /// misses its targets (0: never; see `CacheConfig`).
+    pub densify_every: u32,
+    /// The relative rms miss above which adaptive density splits a Gaussian.
+    pub densify_bias: f32,
+    /// The most Gaussians a level may grow to, as a multiple of its first size (1..=16).
+    pub densify_max: f32,
 }
 
 /// A pinhole camera given as eye, target and up (world units), the vertical field of view and
@@ -335,6 +342,9 @@ impl TryFrom<&GsCacheConfig> for CacheConfig {
             continuation_scale: c.continuation_scale,
             min_coverage: c.min_coverage,
             max_bias: c.max_bias,
+            densify_every: c.densify_every,
+            densify_bias: c.densify_bias,
+            densify_max: c.densify_max,
         })
     }
 }
@@ -398,6 +408,9 @@ pub extern "C" fn gs_cache_default_config() -> GsCacheConfig {
         min_continuation: d.min_continuation,
         continuation_scale: d.continuation_scale,
         min_coverage: d.min_coverage,
+        densify_every: d.densify_every,
+        densify_bias: d.densify_bias,
+        densify_max: d.densify_max,
         max_bias: d.max_bias,
     }
 }

@@ -280,6 +280,20 @@ pub struct CacheConfig {
     /// light moved): 8 frames after one, 0.024 relMSE against 0.109 without it.
     #[cfg_attr(feature = "clap", arg(long = "cache-max-bias", default_value_t = DEFAULT.max_bias))]
     pub max_bias: f32,
+    /// Adaptive density (`density.rs`): every this many training steps after the warm start,
+    /// each level splits the Gaussians whose fit misses its targets by more than
+    /// `densify_bias` (rms, relative, beyond the targets' noise) and drops those that draw
+    /// nothing. 0 never does, the default (docs/results/cache_error.md measures it).
+    #[cfg_attr(feature = "clap", arg(long = "cache-densify-every", default_value_t = DEFAULT.densify_every))]
+    pub densify_every: u32,
+    /// The relative rms miss over a Gaussian's footprint above which adaptive density splits
+    /// it (0.02: 2%, about the error Open Image Denoise leaves of plain NEE at 200 ms).
+    #[cfg_attr(feature = "clap", arg(long = "cache-densify-bias", default_value_t = DEFAULT.densify_bias))]
+    pub densify_bias: f32,
+    /// The most Gaussians adaptive density lets a level grow to, as a multiple of its first
+    /// size: a bound on memory and on the lookup's cost.
+    #[cfg_attr(feature = "clap", arg(long = "cache-densify-max", default_value_t = DEFAULT.densify_max))]
+    pub densify_max: f32,
 }
 
 /// The defaults, as a constant so the command line's defaults are these very values.
@@ -322,6 +336,9 @@ const DEFAULT: CacheConfig = CacheConfig {
     unbiased: false,
     min_continuation: 0.05,
     continuation_scale: 0.0,
+    densify_every: 0,
+    densify_bias: 0.02,
+    densify_max: 4.0,
 };
 
 impl Default for CacheConfig {
@@ -336,6 +353,11 @@ impl Default for CacheConfig {
 /// (1.25k for 80x45: docs/results/cost_*). A cloud cannot show more detail than the image it is
 /// drawn into resolves, and each Gaussian more shares the same samples.
 pub const GAUSSIANS_PER_CACHE_PIXEL: f64 = 0.35;
+
+/// The most adaptive density may grow a level, as a multiple of its first size (the largest
+/// `densify_max`): with the cap of `MAX_POINTS` on any level, a bound on the memory a typo can
+/// ask for.
+pub const MAX_DENSIFY_GROWTH: f32 = 16.0;
 
 /// The most levels a cache may have (paths longer than this are never cached).
 pub const MAX_LEVELS: usize = 8;
@@ -426,6 +448,24 @@ impl CacheConfig {
             return bad(format!(
                 "warm_start_frames = {}: expected 0..=1000 frames",
                 self.warm_start_frames
+            ));
+        }
+        if self.densify_every > 1000 {
+            return bad(format!(
+                "densify_every = {}: expected 0 (off) or 1..=1000 training steps",
+                self.densify_every
+            ));
+        }
+        if !(self.densify_bias >= 0.0 && self.densify_bias.is_finite()) {
+            return bad(format!(
+                "densify_bias = {}: expected a finite relative error >= 0",
+                self.densify_bias
+            ));
+        }
+        if !(self.densify_max >= 1.0 && self.densify_max <= MAX_DENSIFY_GROWTH) {
+            return bad(format!(
+                "densify_max = {}: expected a growth factor in [1, {MAX_DENSIFY_GROWTH}]",
+                self.densify_max
             ));
         }
         if !(1..=16).contains(&self.resolution_divisor) {

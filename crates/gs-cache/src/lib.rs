@@ -14,6 +14,7 @@
 //! - [`targets`]: per-level training targets with masks, gathered straight into cache pixels.
 //! - [`resolution`]: levels drawn and trained at a fraction of the frame's resolution.
 //! - [`schedule`]: Eq. 5's learning-rate schedule.
+//! - [`density`]: adaptive density: Gaussians split where a level's fit misses its targets.
 //! - [`fallback`]: plain path tracing where a level's last residual says it is stale.
 //! - [`support`]: plain path tracing where too few paths reach a level's vertex for its fit
 //!   to be more than the Gaussians' blur, or where the fit measurably misses its targets
@@ -273,6 +274,7 @@ pub mod cache;
 pub mod capi;
 pub mod config;
 pub mod control;
+pub mod density;
 pub mod error;
 pub mod fallback;
 pub mod init;

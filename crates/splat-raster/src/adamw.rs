@@ -96,6 +96,37 @@ impl AdamW {
         self.step = 0;
     }
 
+    /// Reshapes the moments after the cloud was reshaped by [`GaussianCloud::gather`]: new
+    /// Gaussian `i` keeps the moments of old Gaussian `rows[i]`, or starts from zero moments
+    /// where it is `None` (a Gaussian made anew, as 3DGS's densification starts its children).
+    /// The step count, and so the bias corrections, are kept.
+    pub fn gather(&mut self, rows: &[Option<usize>]) {
+        fn pick(moments: &GaussianCloud<f32>, rows: &[Option<usize>]) -> GaussianCloud<f32> {
+            let kept: Vec<usize> = rows.iter().map(|r| r.unwrap_or(0)).collect();
+            let mut out = moments.gather(&kept);
+            let widths = [3, 3, 4, moments.color_stride(), 1];
+            for (group, width) in out.groups_mut().into_iter().zip(widths) {
+                for (i, _) in rows.iter().enumerate().filter(|(_, r)| r.is_none()) {
+                    group[i * width..(i + 1) * width].fill(0.0);
+                }
+            }
+            out
+        }
+        if self.m.is_empty() && rows.iter().all(Option::is_none) {
+            // Nothing to keep from: every row starts at zero (and `gather` would index row 0).
+            let mut zeros = GaussianCloud::new(self.m.color_model);
+            let stride = zeros.color_stride();
+            for _ in rows {
+                zeros.push([0.0; 3], [0.0; 3], [0.0; 4], &vec![0.0; stride], 0.0);
+            }
+            self.v = zeros.clone();
+            self.m = zeros;
+            return;
+        }
+        self.m = pick(&self.m, rows);
+        self.v = pick(&self.v, rows);
+    }
+
     /// One update of `params` from `grads`; every learning rate is multiplied by `lr_scale`
     /// (for schedules).
     pub fn step(
@@ -142,6 +173,67 @@ impl AdamW {
                         p[i] = p[i] * decay - update * lr;
                     }
                 });
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cloud::ColorModel;
+
+    /// A cloud of `n` Gaussians whose every parameter is `value(g)` for Gaussian `g`.
+    fn cloud(n: usize, value: impl Fn(usize) -> f32) -> GaussianCloud<f32> {
+        let mut c = GaussianCloud::new(ColorModel::Sh(0));
+        for g in 0..n {
+            let v = value(g);
+            c.push([v; 3], [v; 3], [v; 4], &[v; 3], v);
+        }
+        c
+    }
+
+    /// After `gather`, a Gaussian taken from an old row steps exactly as that row would have,
+    /// and a new one (`None`) as under a fresh optimiser: its moments are zero.
+    #[test]
+    fn gathered_rows_keep_their_moments_and_new_rows_start_at_zero() {
+        let config = AdamWConfig::default();
+        let grads = |n| cloud(n, |g| 0.5 + g as f32);
+        let mut params = cloud(2, |g| g as f32);
+        let mut opt = AdamW::new(config, &params);
+        for _ in 0..3 {
+            opt.step(&mut params, &grads(2), 1.0);
+        }
+        // Old row 1, then a new row, then old row 0.
+        let mut kept = opt.clone();
+        let mut gathered = params.gather(&[1, 0, 0]);
+        kept.gather(&[Some(1), None, Some(0)]);
+        let new_grads = params.gather(&[1, 0, 0]);
+        let new_grads = {
+            let mut g = new_grads;
+            let old = grads(2);
+            for (group, old) in g.groups_mut().into_iter().zip(old.groups()) {
+                let w = old.1.len() / 2;
+                group[..w].copy_from_slice(&old.1[w..]);
+                group[w..2 * w].copy_from_slice(&old.1[..w]);
+                group[2 * w..].copy_from_slice(&old.1[..w]);
+            }
+            g
+        };
+        kept.step(&mut gathered, &new_grads, 1.0);
+        let mut expected = params.clone();
+        opt.step(&mut expected, &grads(2), 1.0);
+        let mut fresh_row = params.gather(&[0]);
+        let mut fresh = AdamW::new(config, &fresh_row);
+        fresh.step = opt.step - 1;
+        fresh.step(&mut fresh_row, &grads(1), 1.0);
+        for ((name, got), (_, want)) in gathered.groups().into_iter().zip(expected.groups()) {
+            let w = want.len() / 2;
+            assert_eq!(&got[..w], &want[w..], "{name}: the kept row 1");
+            assert_eq!(&got[2 * w..], &want[..w], "{name}: the kept row 0");
+        }
+        for ((name, got), (_, want)) in gathered.groups().into_iter().zip(fresh_row.groups()) {
+            let w = want.len();
+            assert_eq!(&got[w..2 * w], want, "{name}: the new row");
         }
     }
 }

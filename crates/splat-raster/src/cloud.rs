@@ -192,6 +192,26 @@ impl<F: Real> GaussianCloud<F> {
         }
     }
 
+    /// A cloud whose Gaussian `i` is `self`'s Gaussian `rows[i]` (rows may repeat or be left
+    /// out): how a trainer grows and prunes a cloud, one row list for every parameter group.
+    /// Panics if a row is out of range.
+    pub fn gather(&self, rows: &[usize]) -> Self {
+        fn pick<F: Copy>(values: &[F], width: usize, rows: &[usize]) -> Vec<F> {
+            rows.iter()
+                .flat_map(|&r| &values[r * width..(r + 1) * width])
+                .copied()
+                .collect()
+        }
+        Self {
+            means: pick(&self.means, 3, rows),
+            log_scales: pick(&self.log_scales, 3, rows),
+            rotations: pick(&self.rotations, 4, rows),
+            colors: pick(&self.colors, self.color_stride(), rows),
+            opacity_logits: pick(&self.opacity_logits, 1, rows),
+            color_model: self.color_model,
+        }
+    }
+
     /// The parameter groups as (name, slice), in a fixed order.
     pub fn groups(&self) -> [(&'static str, &[F]); 5] {
         [

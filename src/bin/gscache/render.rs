@@ -207,6 +207,7 @@ pub fn run(args: RenderArgs, global: &Global) -> Result<i32> {
     };
     print_frame_costs(&session, "per warm-up frame", &warm);
     print_frame_costs(&session, "per frame", &accumulated);
+    print_grown_cache(&session);
     print_control_summary(&session);
     let dropped: u64 = warm
         .iter()
@@ -582,6 +583,24 @@ fn describe_cache(session: &Session, loaded: bool) {
                 c.parameter_bytes() as f64 / 1e6
             )
         }
+    }
+}
+
+/// With adaptive density on, prints what the levels grew to (each level's Gaussians).
+fn print_grown_cache(session: &Session) {
+    if let Cache::Gaussian(c) = session.cache()
+        && c.config().densify_every > 0
+    {
+        let sizes: Vec<String> = c
+            .levels()
+            .iter()
+            .map(|l| l.cloud.len().to_string())
+            .collect();
+        eprintln!(
+            "cache after adaptive density: {} Gaussians ({} per level)",
+            c.gaussian_count(),
+            sizes.join(" / ")
+        );
     }
 }
 

@@ -241,7 +241,13 @@
 //! pooled over the last frames and a 5x5 block of cache pixels (about the denoiser's
 //! footprint), is within that fraction of the targets or within the noise ([`support`]). It
 //! sees what the targets see: a bias the targets share (the deeper levels' values carried into
-//! a shallower level's samples) passes it.
+//! a shallower level's samples) passes it. (10) Density. The GSCache paper keeps the Gaussians
+//! it starts from; 3DGS grows a cloud where it misses. With `densify_every` a level splits the
+//! Gaussians whose fit misses its targets by more than the targets' own noise ([`density`]).
+//! Measured, it finds little to split (hydrogen's first level grew by a seventh, the others'
+//! hardly) and ties the fixed levels at equal time: beyond the noise, what a level misses is
+//! set by its pixels' footprint, not by where its Gaussians sit (docs/results/cache_error.md),
+//! so it is off by default.
 //!
 //! # How many passes of an image should read the cache
 //!

@@ -966,6 +966,8 @@ impl LevelStep<'_> {
             && level.density.observe(
                 self.targets,
                 i,
+                &target,
+                &mask,
                 &prediction,
                 scale,
                 self.config.densify_every,

@@ -106,17 +106,20 @@ impl Density {
     }
 
     /// Adds one frame's miss of level `level` drawn as `prediction` (absolute radiance, at the
-    /// cache's resolution) against its binned targets; `scale` is the level's radiance scale
-    /// (the relative miss's floor). Returns whether a pass is due (`every` frames summed).
+    /// cache's resolution) against its binned `target` where `mask` holds (the training step's
+    /// own), with their noise from `targets`; `scale` is the level's radiance scale (the
+    /// relative miss's floor). Returns whether a pass is due (`every` frames summed).
+    #[allow(clippy::too_many_arguments)]
     pub fn observe(
         &mut self,
         targets: &TrainingTargets,
         level: usize,
+        target: &[[f32; 3]],
+        mask: &[bool],
         prediction: &[[f32; 3]],
         scale: f32,
         every: u32,
     ) -> bool {
-        let (target, mask) = targets.level_target(level, true);
         let spread = targets.level_spread(level);
         if self.miss.len() != prediction.len() {
             self.miss = vec![0.0; prediction.len()];
@@ -127,7 +130,7 @@ impl Density {
         let floor = (0.1 * scale).powi(2);
         for (p, ((drawn, t), (m, (_, variance)))) in prediction
             .iter()
-            .zip(&target)
+            .zip(target)
             .zip(mask.iter().zip(&spread))
             .enumerate()
         {

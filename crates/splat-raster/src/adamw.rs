@@ -99,29 +99,27 @@ impl AdamW {
     /// Reshapes the moments after the cloud was reshaped by [`GaussianCloud::gather`]: new
     /// Gaussian `i` keeps the moments of old Gaussian `rows[i]`, or starts from zero moments
     /// where it is `None` (a Gaussian made anew, as 3DGS's densification starts its children).
-    /// The step count, and so the bias corrections, are kept.
+    /// The step count, and so the bias corrections, are kept. Panics if a row is out of range.
     pub fn gather(&mut self, rows: &[Option<usize>]) {
         fn pick(moments: &GaussianCloud<f32>, rows: &[Option<usize>]) -> GaussianCloud<f32> {
-            let kept: Vec<usize> = rows.iter().map(|r| r.unwrap_or(0)).collect();
-            let mut out = moments.gather(&kept);
-            let widths = [3, 3, 4, moments.color_stride(), 1];
-            for (group, width) in out.groups_mut().into_iter().zip(widths) {
-                for (i, _) in rows.iter().enumerate().filter(|(_, r)| r.is_none()) {
-                    group[i * width..(i + 1) * width].fill(0.0);
+            let group = |values: &[f32], width: usize| {
+                let mut out = Vec::with_capacity(rows.len() * width);
+                for row in rows {
+                    match row {
+                        Some(r) => out.extend_from_slice(&values[r * width..(r + 1) * width]),
+                        None => out.resize(out.len() + width, 0.0),
+                    }
                 }
+                out
+            };
+            GaussianCloud {
+                means: group(&moments.means, 3),
+                log_scales: group(&moments.log_scales, 3),
+                rotations: group(&moments.rotations, 4),
+                colors: group(&moments.colors, moments.color_stride()),
+                opacity_logits: group(&moments.opacity_logits, 1),
+                color_model: moments.color_model,
             }
-            out
-        }
-        if self.m.is_empty() && rows.iter().all(Option::is_none) {
-            // Nothing to keep from: every row starts at zero (and `gather` would index row 0).
-            let mut zeros = GaussianCloud::new(self.m.color_model);
-            let stride = zeros.color_stride();
-            for _ in rows {
-                zeros.push([0.0; 3], [0.0; 3], [0.0; 4], &vec![0.0; stride], 0.0);
-            }
-            self.v = zeros.clone();
-            self.m = zeros;
-            return;
         }
         self.m = pick(&self.m, rows);
         self.v = pick(&self.v, rows);
@@ -207,18 +205,8 @@ mod tests {
         let mut kept = opt.clone();
         let mut gathered = params.gather(&[1, 0, 0]);
         kept.gather(&[Some(1), None, Some(0)]);
-        let new_grads = params.gather(&[1, 0, 0]);
-        let new_grads = {
-            let mut g = new_grads;
-            let old = grads(2);
-            for (group, old) in g.groups_mut().into_iter().zip(old.groups()) {
-                let w = old.1.len() / 2;
-                group[..w].copy_from_slice(&old.1[w..]);
-                group[w..2 * w].copy_from_slice(&old.1[..w]);
-                group[2 * w..].copy_from_slice(&old.1[..w]);
-            }
-            g
-        };
+        // Each gathered row is given its source row's gradient.
+        let new_grads = grads(2).gather(&[1, 0, 0]);
         kept.step(&mut gathered, &new_grads, 1.0);
         let mut expected = params.clone();
         opt.step(&mut expected, &grads(2), 1.0);

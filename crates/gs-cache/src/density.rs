@@ -5,8 +5,10 @@
 //! Where the radiance a level must hold changes faster than their spacing (hydrogen's halo
 //! round its bright core, a silhouette), the level can only draw their blur of it: a smooth,
 //! structured error that a denoiser keeps (issue 53's breakdown: the halo's and the
-//! silhouettes' error fell with 16x the Gaussians everywhere, at 16x the cost). Growing
-//! Gaussians only where the fit misses puts them where that error is.
+//! silhouettes' error fell with 16x the Gaussians everywhere). Growing Gaussians only where the
+//! fit misses puts them where that error is. Measured, it finds little to split beyond the
+//! targets' noise and ties the fixed levels at equal time (docs/results/cache_error.md,
+//! "Scouted and closed"), so it is off by default.
 //!
 //! **What is measured.** 3DGS grows a cloud where its Gaussians' view-space positional
 //! gradients are large. A cache's targets are noisy and its Gaussians settle where their
@@ -30,16 +32,16 @@
 //! `3 sqrt(sum_p w_p V_p)` (`V`: the summed `2 v^2`, relative; `w_p^2 <= w_p` makes this an
 //! upper bound), a one-sided test whose false alarm rate is 0.13% per Gaussian and pass.
 //!
-//! **What is done.** Every `densify_every` training steps, the
-//! Gaussians that pass the test are split, worst score first, at most a tenth
-//! of the level per pass and up to `densify_max` times the level's first size: each becomes
-//! two at `mean +- 0.78 sigma u`, `sigma` its largest standard deviation and `u` a direction
-//! hashed from the level, the pass and the Gaussian (the same on any thread count), with every
-//! standard deviation divided by 1.6 (3DGS's factor; 0.78 keeps the pair's variance along `u`
-//! the parent's). The children keep the parent's colour, opacity and rotation and start with
-//! zero Adam moments. Gaussians whose opacity fell under 1/255 are dropped in the same pass:
-//! they draw nothing from any view. In motion a pass's `E` mixes the frames' views (it is kept
-//! per cache pixel), which blurs where the score lands by the camera's motion over the
+//! **What is done.** Every `densify_every` training steps, the Gaussians that pass the test are
+//! split, worst score first, at most a tenth of the level per pass and up to `densify_max`
+//! times the level's first size: each becomes two at `mean +- sigma u / sqrt 2`, `sigma` its
+//! largest standard deviation and `u` a direction hashed from the level, the pass and the
+//! Gaussian (the same on any thread count), with every standard deviation divided by `sqrt 2`
+//! (`SPLIT_SHRINK`, `SPLIT_OFFSET`: the pair covers the parent's projected area and keeps its
+//! variance along `u`). The children keep the parent's colour, opacity and rotation and start
+//! with zero Adam moments. Gaussians whose opacity fell under 1/255 are dropped in the same
+//! pass: they draw nothing from any view. In motion a pass's `E` mixes the frames' views (it
+//! is kept per cache pixel), which blurs where the score lands by the camera's motion over the
 //! interval.
 
 use crate::config::CacheConfig;
@@ -155,8 +157,9 @@ impl Density {
     }
 
     /// The Gaussians to split, worst first: those whose summed miss exceeds `densify_bias`
-    /// squared's share by three standard errors, within this pass's share of the budget. `state` must be `cloud`'s forward state from
-    /// `camera` (the frame's, before the optimiser's step).
+    /// squared's share by three standard errors, within this pass's share of the budget.
+    /// `state` must be `cloud`'s forward state from `camera` (the frame's, before the
+    /// optimiser's step).
     pub fn choose(
         &self,
         cloud: &GaussianCloud<f32>,

@@ -101,28 +101,8 @@ impl AdamW {
     /// where it is `None` (a Gaussian made anew, as 3DGS's densification starts its children).
     /// The step count, and so the bias corrections, are kept. Panics if a row is out of range.
     pub fn gather(&mut self, rows: &[Option<usize>]) {
-        fn pick(moments: &GaussianCloud<f32>, rows: &[Option<usize>]) -> GaussianCloud<f32> {
-            let group = |values: &[f32], width: usize| {
-                let mut out = Vec::with_capacity(rows.len() * width);
-                for row in rows {
-                    match row {
-                        Some(r) => out.extend_from_slice(&values[r * width..(r + 1) * width]),
-                        None => out.resize(out.len() + width, 0.0),
-                    }
-                }
-                out
-            };
-            GaussianCloud {
-                means: group(&moments.means, 3),
-                log_scales: group(&moments.log_scales, 3),
-                rotations: group(&moments.rotations, 4),
-                colors: group(&moments.colors, moments.color_stride()),
-                opacity_logits: group(&moments.opacity_logits, 1),
-                color_model: moments.color_model,
-            }
-        }
-        self.m = pick(&self.m, rows);
-        self.v = pick(&self.v, rows);
+        self.m = self.m.gather_or_zero(rows);
+        self.v = self.v.gather_or_zero(rows);
     }
 
     /// One update of `params` from `grads`; every learning rate is multiplied by `lr_scale`

@@ -196,18 +196,30 @@ impl<F: Real> GaussianCloud<F> {
     /// out): how a trainer grows and prunes a cloud, one row list for every parameter group.
     /// Panics if a row is out of range.
     pub fn gather(&self, rows: &[usize]) -> Self {
-        fn pick<F: Copy>(values: &[F], width: usize, rows: &[usize]) -> Vec<F> {
-            rows.iter()
-                .flat_map(|&r| &values[r * width..(r + 1) * width])
-                .copied()
-                .collect()
-        }
+        let rows: Vec<Option<usize>> = rows.iter().copied().map(Some).collect();
+        self.gather_or_zero(&rows)
+    }
+
+    /// [`GaussianCloud::gather`], with every parameter of Gaussian `i` zero where `rows[i]` is
+    /// `None`: what an optimiser's moments (or gradients) of a reshaped cloud start from. (A
+    /// zero Gaussian is not renderable: its quaternion is zero.) Panics if a row is out of range.
+    pub fn gather_or_zero(&self, rows: &[Option<usize>]) -> Self {
+        let pick = |values: &[F], width: usize| {
+            let mut out = Vec::with_capacity(rows.len() * width);
+            for row in rows {
+                match row {
+                    Some(r) => out.extend_from_slice(&values[r * width..(r + 1) * width]),
+                    None => out.resize(out.len() + width, F::zero()),
+                }
+            }
+            out
+        };
         Self {
-            means: pick(&self.means, 3, rows),
-            log_scales: pick(&self.log_scales, 3, rows),
-            rotations: pick(&self.rotations, 4, rows),
-            colors: pick(&self.colors, self.color_stride(), rows),
-            opacity_logits: pick(&self.opacity_logits, 1, rows),
+            means: pick(&self.means, 3),
+            log_scales: pick(&self.log_scales, 3),
+            rotations: pick(&self.rotations, 4),
+            colors: pick(&self.colors, self.color_stride()),
+            opacity_logits: pick(&self.opacity_logits, 1),
             color_model: self.color_model,
         }
     }

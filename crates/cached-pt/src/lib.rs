@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use splat_raster::Camera;
 use std::time::Instant;
 use volume_pt::{
-    Control, FrameCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect,
+    Control, FrameCache, NoCache, PathHooks, RenderSettings, SceneMedia, TilePixel, TileRect,
     render_frame_with,
 };
 
@@ -131,8 +131,10 @@ pub struct CachedFrameStats {
 
 /// Frame `frame_index` of a sequence: draw the cache from `camera`, trace `settings.spp` paths
 /// per pixel reading it (accumulated into `film` when one is given), then train it on the
-/// frame's samples (unless cancelled). Frame `f` draws sample indices `f * spp .. (f + 1) * spp`
-/// (see [`render_frame_with`]).
+/// frame's samples (unless cancelled); a frame after a still view's handoff
+/// ([`gs_cache::CacheConfig::handoff_frames`]) is the plain tracer's, without the cache's
+/// bookkeeping. Frame `f` draws sample indices `f * spp .. (f + 1) * spp` (see
+/// [`render_frame_with`]).
 pub fn render_cached_frame(
     scene: &SceneMedia,
     camera: &Camera,
@@ -144,13 +146,8 @@ pub fn render_cached_frame(
 ) -> Result<CachedFrameStats, gs_cache::CacheError> {
     let termination = cache.config().termination();
     let clock = Instant::now();
-    cache.begin_frame(camera);
+    let handed_off = cache.begin_frame(camera).handed_off();
     let lookup_seconds = clock.elapsed().as_secs_f64();
-    let clock = Instant::now();
-    let mut targets = cache
-        .take_training_targets()
-        .expect("begin_frame draws the frame");
-    let mut targets_seconds = clock.elapsed().as_secs_f64();
     let clock = Instant::now();
     let mut scratch;
     let film = match film {
@@ -161,6 +158,38 @@ pub fn render_cached_frame(
         }
     };
     let film_seconds = clock.elapsed().as_secs_f64();
+    let samples = camera.width as u64 * camera.height as u64 * settings.spp as u64;
+    if handed_off {
+        // After the still view's handoff the cache neither reads nor trains, so its per-path
+        // bookkeeping (each vertex's samples filed into training targets) would be work for
+        // nothing: 12% of a pass on hydrogen, measured on issue 53's stills. The plain tracer
+        // draws the frame the hooked one would, bit for bit (a path that never stops into the
+        // cache runs the plain tracer's samples: `a_still_view_is_handed_back_to_plain_path_tracing`
+        // in cached-pt's tests).
+        let traced = render_frame_with(
+            scene,
+            camera,
+            settings,
+            frame_index,
+            film,
+            &NoCache,
+            control,
+        );
+        return Ok(CachedFrameStats {
+            trace_seconds: traced.trace_seconds,
+            lookup_seconds,
+            film_seconds,
+            samples,
+            nonfinite_samples: traced.nonfinite_samples,
+            cancelled: traced.cancelled || control.cancelled(),
+            ..Default::default()
+        });
+    }
+    let clock = Instant::now();
+    let mut targets = cache
+        .take_training_targets()
+        .expect("begin_frame draws the frame");
+    let mut targets_seconds = clock.elapsed().as_secs_f64();
     let frame = cache.frame().expect("begin_frame draws the frame");
     let gs_frame = GsFrame { frame, termination };
     let traced = render_frame_with(
@@ -195,7 +224,7 @@ pub fn render_cached_frame(
         targets_seconds,
         train_seconds,
         film_seconds,
-        samples: camera.width as u64 * camera.height as u64 * settings.spp as u64,
+        samples,
         nonfinite_samples,
         dropped_training_samples,
         cancelled,

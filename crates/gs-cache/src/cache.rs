@@ -262,6 +262,18 @@ pub struct GsCacheReport {
     pub density: Vec<Option<PassOutcome>>,
 }
 
+impl GsCacheReport {
+    /// No training step's figures: what a frame reports before its step, or without one.
+    fn clear_training(&mut self, levels: usize) {
+        self.train_seconds = 0.0;
+        self.dropped_samples = 0;
+        self.losses = vec![None; levels];
+        self.mse = vec![None; levels];
+        self.stale_fraction = vec![None; levels];
+        self.density = vec![None; levels];
+    }
+}
+
 /// A multi-level radiance cache (see the crate docs for what it estimates).
 #[derive(Debug, Clone)]
 pub struct GsCache {
@@ -522,6 +534,11 @@ impl GsCache {
                 .is_some_and(|n| n >= self.config.handoff_frames);
         self.image_frames = self.image_frames.map(|n| n.saturating_add(1));
         self.report.handed_off = handed_off;
+        if handed_off {
+            // A handed-off frame trains nothing, so a caller need not call `train` for it
+            // (cached-pt does not): its report says so without that call.
+            self.report.clear_training(self.levels.len());
+        }
         // Handed off, the images are not read: nothing to draw.
         self.report.lookup_reused = same_camera
             && (handed_off || (!self.levels_changed && self.config.lookup == Lookup::Raster));
@@ -673,11 +690,8 @@ impl GsCache {
     /// training is off. The targets must match the frame's camera.
     pub fn train(&mut self, targets: &TrainingTargets) -> Result<&GsCacheReport> {
         let start = Instant::now();
-        self.report.losses = vec![None; self.levels.len()];
+        self.report.clear_training(self.levels.len());
         self.report.dropped_samples = targets.dropped();
-        self.report.mse = vec![None; self.levels.len()];
-        self.report.stale_fraction = vec![None; self.levels.len()];
-        self.report.density = vec![None; self.levels.len()];
         let Some(frame) = self.frame.as_mut() else {
             return Err(CacheError::Config(
                 "train() called before begin_frame(): the targets need the frame's camera".into(),

@@ -687,7 +687,9 @@ impl GsCache {
 
     /// One optimisation step per level against this frame's samples (HDR loss, Eq. 4, with the
     /// prediction detached in the denominator; AdamW; Eq. 5's schedule). Does nothing when
-    /// training is off. The targets must match the frame's camera.
+    /// training is off. The targets must match the frame's camera. On a handed-off frame
+    /// ([`CacheFrame::handed_off`]) it only counts the frame's paths for the support test, and a
+    /// renderer may skip it and the frame's bookkeeping altogether (cached-pt does).
     pub fn train(&mut self, targets: &TrainingTargets) -> Result<&GsCacheReport> {
         let start = Instant::now();
         self.report.clear_training(self.levels.len());

@@ -274,7 +274,10 @@
 //! tracing's error, a few percent at 200 ms (`k` about 9 at 320x180), which is the ties the
 //! equal-time tables show. Where it can win is where an image is one or two passes, and only
 //! by how far its bias is below the denoised plain image's error (`b^2 < phi (s_n^2 - s_c^2)`
-//! for `m* > 1/2`): the lever is the cache's bias, not how often it is read.
+//! for `m* > 1/2`): the lever is the cache's bias, not how often it is read. The model takes
+//! the `k - m` plain passes at plain path tracing's cost; a renderer must not charge them the
+//! cache's bookkeeping (cached-pt traces a handed-off frame with the plain tracer: until it did,
+//! those passes cost 12-14% more, which was most of what the denoised cache lost at 1 s).
 
 pub mod cache;
 pub mod capi;

@@ -598,6 +598,14 @@ fn a_still_view_is_handed_back_to_plain_path_tracing() {
         let (plain_frame, _) = frame(&mut reference, &s.camera, f);
         assert!(handed_off, "frame {f}");
         assert!(image == plain_frame, "frame {f} is plain path tracing");
+        // cached-pt skips `train` on a handed-off frame: the report must not carry the last
+        // step's figures into it.
+        let report = cache.report();
+        assert!(
+            report.losses.iter().chain(&report.mse).all(Option::is_none)
+                && report.train_seconds == 0.0,
+            "frame {f} reports no training: {report:?}"
+        );
     }
     assert!(colours(&cache) == trained, "no training once handed off");
     let moved = render_session::orbit(&s.camera, Vec3::ZERO, 5.0, 0, 2);

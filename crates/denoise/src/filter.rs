@@ -1,16 +1,36 @@
 //! The denoiser: one OIDN CPU device and its `RT` filters (the colour's, and optionally the
-//! albedo's and the normal's prefilters), rebuilt only when the image size, the guides or the
-//! options change.
+//! albedo's and the normal's prefilters), built once per image size, guides and options and
+//! kept for the last few of them (an interactive viewer alternates between a preview's size
+//! and the full view's).
+//!
+//! A run can be abandoned from another thread ([`Denoiser::abort_handle`]): OIDN asks a
+//! progress monitor between its steps, and the one set here answers from an atomic flag.
 //!
 //! Each filter reads and writes buffers it owns, so their addresses never change between
 //! calls and a filter is committed once per configuration; each call copies the images in and
 //! the result out (a few ms at 1280x720 against the filter's hundreds).
 
-use crate::library::{Api, DEVICE_TYPE_CPU, ERROR_NONE, FORMAT_FLOAT3, Handle};
+use crate::library::{Api, DEVICE_TYPE_CPU, ERROR_CANCELLED, ERROR_NONE, FORMAT_FLOAT3, Handle};
 use crate::{DenoiseError, Result};
 use glam::Vec3;
 use hdr_image::RgbImage;
-use std::ffi::{CStr, CString};
+use std::ffi::{CStr, CString, c_void};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// How many filter configurations (size, guides, options) a [`Denoiser`] keeps built.
+const KEPT_PIPELINES: usize = 4;
+
+/// The progress monitor every filter gets: go on unless the denoiser's abort flag is set.
+///
+/// # Safety
+/// `flag` must point to a live `AtomicBool`: it is the denoiser's abort flag, an `Arc` the
+/// denoiser holds for as long as any of its filters exists (filters are released before it).
+unsafe extern "C" fn keep_going(flag: *mut c_void, _progress: f64) -> bool {
+    // SAFETY: see the function's contract; only atomic loads go through the pointer.
+    let flag = unsafe { &*(flag as *const AtomicBool) };
+    !flag.load(Ordering::Relaxed)
+}
 
 /// OIDN's quality modes (`OIDN_QUALITY_*`): `high` for final frames, `balanced` and `fast`
 /// for interactive work.
@@ -110,7 +130,9 @@ struct Filter {
 }
 
 impl Filter {
-    /// An `RT` filter over packed FLOAT3 images `inputs` of `w` x `h` pixels, committed.
+    /// An `RT` filter over packed FLOAT3 images `inputs` of `w` x `h` pixels, committed, that
+    /// stops early when `abort` is set.
+    #[allow(clippy::too_many_arguments)] // one filter's whole configuration
     fn build(
         api: &Api,
         device: Handle,
@@ -119,6 +141,7 @@ impl Filter {
         hdr: bool,
         clean_aux: bool,
         quality: Quality,
+        abort: &Arc<AtomicBool>,
     ) -> Result<Self> {
         let floats = w as usize * h as usize * 3;
         // SAFETY: `device` is live; "RT" is a NUL-terminated filter type; null is handled.
@@ -161,6 +184,13 @@ impl Filter {
             (api.set_filter_bool)(handle, c_name("hdr").as_ptr(), hdr);
             (api.set_filter_bool)(handle, c_name("cleanAux").as_ptr(), clean_aux);
             (api.set_filter_int)(handle, c_name("quality").as_ptr(), quality.code());
+            // The flag outlives the filter: the denoiser holds its Arc and releases every
+            // filter before dropping it (see `keep_going`).
+            (api.set_filter_progress_monitor)(
+                handle,
+                Some(keep_going),
+                Arc::as_ptr(abort) as *mut c_void,
+            );
             (api.commit_filter)(handle);
         }
         Ok(filter)
@@ -200,12 +230,24 @@ struct Pipeline {
     color: Filter,
 }
 
-/// One OIDN CPU device and its filter. Not `Sync`: one thread drives it at a time (OIDN
+impl Pipeline {
+    fn release(self, api: &Api) {
+        for f in [self.albedo, self.normal].into_iter().flatten() {
+            f.release(api);
+        }
+        self.color.release(api);
+    }
+}
+
+/// One OIDN CPU device and its filters. Not `Sync`: one thread drives it at a time (OIDN
 /// serialises calls on a device anyway); its own threads do the work.
 pub struct Denoiser {
     api: Api,
     device: Handle,
-    pipeline: Option<Pipeline>,
+    /// The filters built, the most recently used last.
+    pipelines: Vec<Pipeline>,
+    /// Set by anyone to abandon the run under way (see [`Denoiser::abort_handle`]).
+    abort: Arc<AtomicBool>,
 }
 
 impl std::fmt::Debug for Denoiser {
@@ -250,7 +292,8 @@ impl Denoiser {
         let denoiser = Self {
             api,
             device,
-            pipeline: None,
+            pipelines: Vec::new(),
+            abort: Arc::new(AtomicBool::new(false)),
         };
         // SAFETY: `device` is a live device handle owned by `denoiser`; the names are
         // NUL-terminated strings that outlive the calls.
@@ -278,6 +321,13 @@ impl Denoiser {
         Ok(denoiser)
     }
 
+    /// The flag that abandons a run: set it (from any thread) and the run under way stops at
+    /// OIDN's next progress check, returning [`DenoiseError::Cancelled`]; so does every run
+    /// started while it is set. Whoever sets it clears it for the next run.
+    pub fn abort_handle(&self) -> Arc<AtomicBool> {
+        Arc::clone(&self.abort)
+    }
+
     /// The library in use (its path as loaded).
     pub fn library(&self) -> &str {
         &self.api.path
@@ -291,6 +341,9 @@ impl Denoiser {
         let code = unsafe { (self.api.get_device_error)(self.device, &mut message) };
         if code == ERROR_NONE {
             return Ok(());
+        }
+        if code == ERROR_CANCELLED {
+            return Err(DenoiseError::Cancelled);
         }
         let text = if message.is_null() {
             String::new()
@@ -338,9 +391,12 @@ impl Denoiser {
     ) -> Result<RgbImage> {
         let (w, h) = (color.width(), color.height());
         let aux = check_inputs(color, albedo, normal)?;
+        if self.abort.load(Ordering::Relaxed) {
+            return Err(DenoiseError::Cancelled);
+        }
         self.prepare((w, h, aux, options))?;
         let api = &self.api;
-        let pipeline = self.pipeline.as_mut().expect("prepared above");
+        let pipeline = self.pipelines.last_mut().expect("prepared above");
         let mut guides: Vec<Vec<Vec3>> = Vec::new();
         for (filter, guide) in [
             (&mut pipeline.albedo, albedo),
@@ -365,23 +421,29 @@ impl Denoiser {
         pipeline.color.run(api, &images);
         self.check()?;
         let out = self
-            .pipeline
-            .as_ref()
+            .pipelines
+            .last()
             .expect("prepared above")
             .color
             .output();
         RgbImage::from_pixels(w, h, out).map_err(|e| DenoiseError::Oidn(e.to_string()))
     }
 
-    /// Makes the filters for `key` (size, guides, options), reusing the present ones if they
-    /// fit: building a filter costs far more than running it.
+    /// Makes the filters for `key` (size, guides, options) the last of the pipelines, reusing
+    /// built ones where they fit (building a filter costs far more than running it) and
+    /// releasing the least recently used beyond [`KEPT_PIPELINES`].
     fn prepare(&mut self, key: (u32, u32, Guides, Options)) -> Result<()> {
-        if self.pipeline.as_ref().is_some_and(|p| p.key == key) {
+        if let Some(at) = self.pipelines.iter().position(|p| p.key == key) {
+            let p = self.pipelines.remove(at);
+            self.pipelines.push(p);
             return Ok(());
         }
-        self.release_pipeline();
+        if self.pipelines.len() >= KEPT_PIPELINES {
+            let oldest = self.pipelines.remove(0);
+            oldest.release(&self.api);
+        }
         let (w, h, aux, options) = key;
-        let (api, device, q) = (&self.api, self.device, options.quality);
+        let (api, device, q, abort) = (&self.api, self.device, options.quality, &self.abort);
         let prefilter = |name: &'static str| -> Result<Option<Filter>> {
             let wanted = options.prefilter
                 && match name {
@@ -389,7 +451,7 @@ impl Denoiser {
                     _ => aux == Guides::AlbedoNormal,
                 };
             wanted
-                .then(|| Filter::build(api, device, (w, h), &[name], false, false, q))
+                .then(|| Filter::build(api, device, (w, h), &[name], false, false, q, abort))
                 .transpose()
         };
         let albedo = prefilter("albedo")?;
@@ -400,8 +462,8 @@ impl Denoiser {
             Guides::AlbedoNormal => &["color", "albedo", "normal"],
         };
         let clean = options.prefilter && aux != Guides::None;
-        let color = Filter::build(api, device, (w, h), inputs, true, clean, q)?;
-        self.pipeline = Some(Pipeline {
+        let color = Filter::build(api, device, (w, h), inputs, true, clean, q, abort)?;
+        self.pipelines.push(Pipeline {
             key,
             albedo,
             normal,
@@ -410,12 +472,9 @@ impl Denoiser {
         self.check()
     }
 
-    fn release_pipeline(&mut self) {
-        if let Some(p) = self.pipeline.take() {
-            for f in [p.albedo, p.normal].into_iter().flatten() {
-                f.release(&self.api);
-            }
-            p.color.release(&self.api);
+    fn release_pipelines(&mut self) {
+        for p in std::mem::take(&mut self.pipelines) {
+            p.release(&self.api);
         }
     }
 }
@@ -486,7 +545,7 @@ fn check_inputs(
 
 impl Drop for Denoiser {
     fn drop(&mut self) {
-        self.release_pipeline();
+        self.release_pipelines();
         // SAFETY: the device is live, its filter released above, and it is released once.
         unsafe { (self.api.release_device)(self.device) };
     }

@@ -37,6 +37,9 @@ pub enum DenoiseError {
     Oidn(String),
     #[error("{what}: {message}")]
     Input { what: String, message: String },
+    /// The run was abandoned through [`Denoiser::abort_handle`].
+    #[error("the denoising run was abandoned")]
+    Cancelled,
 }
 
 pub type Result<T, E = DenoiseError> = std::result::Result<T, E>;

@@ -49,6 +49,12 @@ pub const DEVICE_TYPE_CPU: c_int = 1;
 pub const FORMAT_FLOAT3: c_int = 3;
 /// `OIDN_ERROR_NONE`.
 pub const ERROR_NONE: c_int = 0;
+/// `OIDN_ERROR_CANCELLED`: a progress monitor returned false (see [`ProgressMonitor`]).
+pub const ERROR_CANCELLED: c_int = 6;
+
+/// `OIDNProgressMonitorFunction`: called by OIDN's threads during a filter's execution with
+/// the progress so far; returning false cancels the execution.
+pub type ProgressMonitor = unsafe extern "C" fn(*mut c_void, f64) -> bool;
 
 /// The C functions used, resolved from the loaded library. The `Library` is kept alive as
 /// long as any pointer taken from it.
@@ -78,6 +84,7 @@ pub struct Api {
     pub set_filter_int: unsafe extern "C" fn(Handle, *const c_char, c_int),
     pub commit_filter: unsafe extern "C" fn(Handle),
     pub execute_filter: unsafe extern "C" fn(Handle),
+    pub set_filter_progress_monitor: unsafe extern "C" fn(Handle, Option<ProgressMonitor>, *mut c_void),
     pub release_filter: unsafe extern "C" fn(Handle),
 }
 
@@ -156,6 +163,7 @@ impl Api {
             set_filter_int: symbol!("oidnSetFilterInt"),
             commit_filter: symbol!("oidnCommitFilter"),
             execute_filter: symbol!("oidnExecuteFilter"),
+            set_filter_progress_monitor: symbol!("oidnSetFilterProgressMonitorFunction"),
             release_filter: symbol!("oidnReleaseFilter"),
             _library: library,
         })

@@ -22,6 +22,8 @@ enum State {
     NotLoaded,
     Loaded(Box<Denoiser>),
     Missing(String),
+    /// Loaded, and handed to a caller that runs it elsewhere ([`OnDemand::take`]).
+    Taken,
 }
 
 impl OnDemand {
@@ -59,7 +61,20 @@ impl OnDemand {
 
     /// Whether the library has been loaded.
     pub fn is_loaded(&self) -> bool {
-        matches!(self.state, State::Loaded(_))
+        matches!(self.state, State::Loaded(_) | State::Taken)
+    }
+
+    /// The denoiser itself, loaded now if need be, for a caller that runs it on a thread of
+    /// its own (the viewer's filter thread); later calls say it was taken.
+    pub fn take(&mut self) -> std::result::Result<Denoiser, String> {
+        self.get()?;
+        match std::mem::replace(&mut self.state, State::Taken) {
+            State::Loaded(denoiser) => Ok(*denoiser),
+            other => {
+                self.state = other;
+                Err("Open Image Denoise was handed over already".to_string())
+            }
+        }
     }
 
     /// The denoiser, loaded now if this is the first call; the load's error as text otherwise.
@@ -79,6 +94,7 @@ impl OnDemand {
             State::Missing(why) => Err(why.clone()),
             // Not reached: the load above left the state Loaded or Missing.
             State::NotLoaded => Err("Open Image Denoise was not loaded".to_string()),
+            State::Taken => Err("Open Image Denoise was handed over already".to_string()),
         }
     }
 }

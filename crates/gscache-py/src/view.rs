@@ -58,6 +58,8 @@ pub fn _view(
             // Loaded when the page first turns denoising on: loading runs the library's code.
             denoiser: denoise::OnDemand::new(0),
             limits: viewer::Limits::default(),
+            resolution: viewer::Resolution::default(),
+            denoise: false,
         },
     )
     .map_err(crate::error)?;

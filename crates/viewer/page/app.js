@@ -9,6 +9,9 @@
   socket.binaryType = "blob";
   let hello = null;
   let frameUrl = null;
+  // The size the server renders the still view at (the page's view area times the resolution
+  // scale): the overlay's projection is made for it.
+  const viewSize = { width: 1, height: 1 };
   const state = { centre: [0, 0, 0], target: [0, 0, 0], distance: 1, azimuth: 0, elevation: 0, up: [0, 1, 0], home: null };
   const transfer = { colormap: "scene", window: [0, 1], density_scale: 1, opacity: [[0, 0], [1, 1]] };
   const lights = [];
@@ -123,9 +126,28 @@
     g.stroke();
   }
 
+  // ---- the view area: the server renders at its size in device pixels (times the scale) ----
+  let viewportTimer = null;
+  function sendViewport() {
+    const v = $("view").getBoundingClientRect(), dpr = window.devicePixelRatio || 1;
+    const width = Math.max(1, Math.round(v.width * dpr)), height = Math.max(1, Math.round(v.height * dpr));
+    send("viewport", { type: "viewport", width, height });
+  }
+  // A resize is sent once it pauses: each new size empties the image.
+  window.addEventListener("resize", () => {
+    clearTimeout(viewportTimer);
+    viewportTimer = setTimeout(sendViewport, 150);
+  });
+  $("scale").onchange = (e) => send("scale", { type: "scale", scale: +e.target.value });
+
   function stats(m) {
+    if (m.view_width && (m.view_width !== viewSize.width || m.view_height !== viewSize.height)) {
+      viewSize.width = m.view_width;
+      viewSize.height = m.view_height;
+      drawOverlay();
+    }
     $("stats").textContent =
-      `${m.method}, ${m.width}x${m.height}${m.moving ? " (moving)" : ""}${m.denoised ? `, denoised at ${m.denoised_spp} spp` : ""}\n` +
+      `${m.method}, ${m.width}x${m.height}${m.moving ? " (moving)" : ""}${m.denoised ? (m.denoised_spp ? `, denoised at ${m.denoised_spp} spp` : ", denoised") : ""}\n` +
       `${m.spp} / ${m.target_spp} spp, ${m.fps.toFixed(1)} frames/s\n` +
       `trace ${m.trace_ms.toFixed(1)} ms, read ${m.lookup_ms.toFixed(1)} ms, train ${m.train_ms.toFixed(1)} ms\n` +
       `denoise ${m.denoise_ms.toFixed(1)} ms, encode ${m.encode_ms.toFixed(1)} ms` +
@@ -163,6 +185,7 @@
       `memory: voxels ${mb(d.voxel_bytes)}, with majorants ${mb(d.medium_bytes)}`;
     buildClip();
     restore(m);
+    sendViewport();
   }
 
   // The view's state as the server has it (the greeting, or after a refused edit): every
@@ -183,6 +206,11 @@
     $("show-lights").checked = m.show_lights;
     // The server's state, not the page's defaults: a reload or a reconnect shows what is on.
     $("denoise").checked = !!m.denoise;
+    viewSize.width = m.view_width;
+    viewSize.height = m.view_height;
+    const scale = $("scale");
+    if (![...scale.options].some((o) => +o.value === m.scale)) scale.add(new Option(`${m.scale}`, m.scale));
+    scale.value = m.scale;
     $("split").checked = !!m.split;
     lights.length = 0;
     const box = $("lights");
@@ -357,8 +385,8 @@
   // view's CSS pixels.
   function imageRect() {
     const v = $("view").getBoundingClientRect();
-    const k = Math.min(v.width / hello.width, v.height / hello.height);
-    const w = hello.width * k, h = hello.height * k;
+    const k = Math.min(v.width / viewSize.width, v.height / viewSize.height);
+    const w = viewSize.width * k, h = viewSize.height * k;
     return { left: (v.width - w) / 2, top: (v.height - h) / 2, width: w, height: h, scale: k };
   }
   // World point to the view's CSS pixels through the page's camera (the server's pinhole:
@@ -368,12 +396,12 @@
     const e = eye(), forward = norm(sub(state.target, e));
     const right = norm(cross(forward, state.up)), down = cross(forward, right);
     const r = imageRect();
-    const focal = 0.5 * hello.height / Math.tan(hello.camera.fov_y * Math.PI / 360);
+    const focal = 0.5 * viewSize.height / Math.tan(hello.camera.fov_y * Math.PI / 360);
     return (p) => {
       const v = sub(p, e), z = dot(v, forward);
       if (z <= 1e-6) return null;
-      return [r.left + (0.5 * hello.width + focal * dot(v, right) / z) * r.scale,
-              r.top + (0.5 * hello.height + focal * dot(v, down) / z) * r.scale];
+      return [r.left + (0.5 * viewSize.width + focal * dot(v, right) / z) * r.scale,
+              r.top + (0.5 * viewSize.height + focal * dot(v, down) / z) * r.scale];
     };
   }
 
@@ -415,7 +443,7 @@
       });
       // The scale bar: a round length (1, 2 or 5 x 10^k world units) near a fifth of the
       // image's width, at the distance of the orbit's target.
-      const focal = 0.5 * hello.height / Math.tan(hello.camera.fov_y * Math.PI / 360);
+      const focal = 0.5 * viewSize.height / Math.tan(hello.camera.fov_y * Math.PI / 360);
       const perPixel = dot(sub(state.target, e), forward) / focal / r.scale;
       const want = 0.2 * r.width * perPixel, p10 = Math.pow(10, Math.floor(Math.log10(want)));
       const length = [1, 2, 5, 10].map((k) => k * p10).filter((l) => l <= want).pop() || p10;

@@ -5,8 +5,10 @@
 //! - [`protocol`]: the messages between page and server, their bounds, and each edit checked as
 //!   the scene file's settings are.
 //! - [`worker`]: the render thread: it owns the [`render_session::Session`] (the one frame loop),
-//!   applies edits between frames, and publishes each frame tone-mapped as JPEG; the latest frame
-//!   wins, so a slow client never holds the rendering back.
+//!   applies edits between frames, renders at the page's size, and hands each frame to be shown.
+//! - [`display`]: what is shown: one publisher of frames (the latest wins, so a slow client
+//!   never holds the rendering back) and the filter thread that denoises them beside the
+//!   rendering, abandoning a still image's run the moment the view changes.
 //! - [`server`]: HTTP and WebSocket on axum: the page, a token on every request, the Origin
 //!   checked, a bound on clients and message sizes, Ctrl-C stopping it cleanly.
 //! - [`connections`]: accepting connections on hyper's HTTP/1 with a header timeout and a cap,
@@ -21,6 +23,7 @@
 #![forbid(unsafe_code)]
 
 pub mod connections;
+pub mod display;
 pub mod protocol;
 pub mod save;
 pub mod server;
@@ -28,6 +31,7 @@ pub mod worker;
 
 pub use connections::Limits;
 pub use server::{ServeOptions, Viewer, serve};
+pub use worker::Resolution;
 
 /// Errors of the viewer, naming what failed.
 #[derive(Debug, thiserror::Error)]

@@ -96,6 +96,11 @@ pub enum ClientMessage {
     /// Write the image, the scene and the cache into the output folder (a struct variant, so
     /// that unknown fields are refused as on every other message).
     Save {},
+    /// The page's view area in device pixels (sent on load and on resize): the view renders
+    /// at this size times the resolution scale, within the viewer's `--max-size`.
+    Viewport { width: u32, height: u32 },
+    /// The resolution scale: the rendered image's size against the page's view area.
+    Scale { scale: f32 },
 }
 
 /// A message checked and turned into what the render thread does.
@@ -117,7 +122,14 @@ pub enum Change {
     ResetCache,
     Levels,
     Save,
+    Viewport { width: u32, height: u32 },
+    Scale(f32),
 }
+
+/// The largest view area a page may report, per side in device pixels (an 8K display's).
+pub const MAX_VIEWPORT: u32 = 8192;
+/// The resolution scales a page may ask for.
+pub const SCALES: std::ops::RangeInclusive<f32> = 0.1..=2.0;
 
 /// The transfer function as the page edits it (kept to write the scene file back).
 #[derive(Debug, Clone, PartialEq)]
@@ -639,6 +651,25 @@ pub fn check(
         ClientMessage::ResetCache {} => Ok(Change::ResetCache),
         ClientMessage::Levels {} => Ok(Change::Levels),
         ClientMessage::Save {} => Ok(Change::Save),
+        ClientMessage::Viewport { width, height } => {
+            if !(1..=MAX_VIEWPORT).contains(&width) || !(1..=MAX_VIEWPORT).contains(&height) {
+                return Err(format!(
+                    "viewport {width}x{height}: expected 1 to {MAX_VIEWPORT} device pixels a side"
+                ));
+            }
+            Ok(Change::Viewport { width, height })
+        }
+        ClientMessage::Scale { scale } => {
+            // Written so that NaN is refused.
+            if !SCALES.contains(&scale) {
+                return Err(format!(
+                    "resolution scale {scale}: expected {} to {}",
+                    SCALES.start(),
+                    SCALES.end()
+                ));
+            }
+            Ok(Change::Scale(scale))
+        }
     }
 }
 
@@ -678,6 +709,9 @@ pub struct ViewState<'a> {
     pub channels_visible: &'a [bool],
     /// The time point shown.
     pub time: u32,
+    /// The resolution scale, and the size the view renders at.
+    pub scale: f32,
+    pub size: (u32, u32),
 }
 
 /// Samples of the colour bar: the transfer function's colour (its scattering albedo) at
@@ -710,6 +744,8 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         denoiser,
         channels_visible,
         time,
+        scale,
+        size,
     } = *view;
     let (_, down, forward) = camera.axes();
     // The page orbits its target: the point in front of the camera nearest the volume's centre.
@@ -768,6 +804,9 @@ pub fn hello(facts: &SceneFacts, view: &ViewState<'_>) -> serde_json::Value {
         "denoiser": denoiser,
         "split": split,
         "denoise": denoise,
+        "scale": scale,
+        "view_width": size.0,
+        "view_height": size.1,
         "max_message_bytes": MAX_MESSAGE_BYTES,
     })
 }

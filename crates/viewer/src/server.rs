@@ -45,6 +45,10 @@ pub struct ServeOptions {
     /// Open Image Denoise for the page's denoise toggle, loaded when the toggle is first
     /// turned on (not at start-up: loading runs the library's code).
     pub denoiser: denoise::OnDemand,
+    /// The size the view renders at, against the page's view area.
+    pub resolution: crate::worker::Resolution,
+    /// Start with denoising on (said to the first page if the denoiser cannot be loaded).
+    pub denoise: bool,
 }
 
 impl Default for ServeOptions {
@@ -56,6 +60,8 @@ impl Default for ServeOptions {
             max_clients: 4,
             denoiser: denoise::OnDemand::new(0),
             limits: crate::Limits::default(),
+            resolution: crate::worker::Resolution::default(),
+            denoise: false,
         }
     }
 }
@@ -200,22 +206,25 @@ pub fn serve(
     listener.set_nonblocking(true)?;
     let address = listener.local_addr()?;
     let token = new_token()?;
+    let (frames_tx, frames_rx) = watch::channel(None);
     let worker = Worker::new(
         scene,
         scene_text,
         scene_file,
         options.output.clone(),
         options.denoiser,
-    )?;
+        options.resolution,
+        frames_tx,
+    )?
+    .with_denoising(options.denoise);
     let (commands, command_rx) = std::sync::mpsc::channel();
     let cancel = Arc::new(AtomicBool::new(false));
-    let (frames_tx, frames_rx) = watch::channel(None);
     let (events, _) = broadcast::channel(64);
     let worker_thread = {
         let (cancel, events) = (cancel.clone(), events.clone());
         std::thread::Builder::new()
             .name("gscache-view-render".into())
-            .spawn(move || worker.run(command_rx, cancel, frames_tx, events))?
+            .spawn(move || worker.run(command_rx, cancel, events))?
     };
     let host = url_host(options.bind);
     let url = format!("http://{host}:{}/?token={token}", address.port());

@@ -8,9 +8,19 @@
 //! first frame after an edit, the view renders smaller, with any method (the cache is kept
 //! across sizes and goes on training from the small frames: where the frame budget is about one
 //! sample, the Gaussian cache is the better preview, docs/results/cache_error.md), at the size
-//! [`PreviewGovernor`] picks from the frames' measured time to hold a target rate; then it
-//! refines at full size. The split view previews too, both halves at the same size.
+//! [`PreviewGovernor`] picks from the frames' measured time (rendering, filtering and encoding)
+//! to hold a target rate; then it refines at full size. The split view previews too, both
+//! halves at the same size.
+//!
+//! The full size is the page's view area in device pixels times the resolution scale, within
+//! `--max-size` ([`Resolution`]); until a page says its size, the scene's.
+//!
+//! With denoising on, every frame shown is denoised, by the filter thread
+//! ([`crate::display`]): each preview frame, and the still view's image at 1, 2, 4, 8, ...
+//! samples a pixel and at the last, while the render thread goes on accumulating. Turning the
+//! filter on or off keeps the samples taken.
 
+use crate::display::{FilterJob, FilterThread, JobKind, Publisher};
 use crate::protocol::{
     Change, ClientMessage, LightSettings, Method, SceneFacts, TransferSettings, ViewState, check,
     colour_bar, hello, transfer_settings_of,
@@ -85,6 +95,45 @@ pub enum Command {
     Shutdown,
 }
 
+/// The size the view renders at, from the page's view area: `scale` times its device pixels,
+/// fitted within `max_size` (the aspect kept).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Resolution {
+    pub scale: f32,
+    pub max_size: (u32, u32),
+}
+
+impl Default for Resolution {
+    /// Three quarters of the device pixels: on 2 cores a 1280x720 view area then renders at
+    /// 960x540, whose first pass and fast filter after a release take about 90 + 170 ms where
+    /// the full size takes 160 + 300 ms (BENCHMARKS.md, "The viewer on screen"); within
+    /// 1920x1080, a view a 16-core machine refines at a few passes a second.
+    fn default() -> Self {
+        Self {
+            scale: 0.75,
+            max_size: (1920, 1080),
+        }
+    }
+}
+
+impl Resolution {
+    /// The render size for a view area of `width x height` device pixels: at least 16 pixels
+    /// a side.
+    pub fn fit(&self, width: u32, height: u32) -> (u32, u32) {
+        let (w, h) = (
+            f64::from(width) * f64::from(self.scale),
+            f64::from(height) * f64::from(self.scale),
+        );
+        let shrink = (f64::from(self.max_size.0) / w)
+            .min(f64::from(self.max_size.1) / h)
+            .min(1.0);
+        (
+            ((w * shrink).round() as u32).max(16),
+            ((h * shrink).round() as u32).max(16),
+        )
+    }
+}
+
 /// The render thread's state.
 pub struct Worker {
     pub session: Session,
@@ -118,9 +167,25 @@ pub struct Worker {
     last_frame: Option<Instant>,
     /// Picks the preview's size.
     governor: PreviewGovernor,
-    /// The still view's last denoised image and the samples per pixel it was made at: shown
-    /// until the next (see [`denoise_now`]).
-    denoised: Option<(u32, RgbImage)>,
+    /// Where every frame shown goes.
+    publisher: Arc<Publisher>,
+    /// The filter thread, from the first time denoising is turned on.
+    filter: Option<FilterThread>,
+    /// Frames rendered: the order of what is shown ([`Publisher::publish`]).
+    sequence: u64,
+    /// The view's generation: it changes with every edit that empties the image, which
+    /// abandons a still image's filtering.
+    view: u64,
+    /// The samples per pixel of the still image last handed to the filter (0: none yet).
+    still_posted: u32,
+    /// The last frame's report (the statistics of a filtered image asked for between frames).
+    last_report: FrameReport,
+    /// The page's view area in device pixels, once a page has said it.
+    viewport: Option<(u32, u32)>,
+    resolution: Resolution,
+    /// Denoising asked for at start, turned on when the first page connects (so that a
+    /// missing library is said to it).
+    denoise_at_start: bool,
     /// The named views (bookmarks), saved with the scene.
     views: Vec<ViewDesc>,
     /// Per `[[channel]]` table, whether it is shown (all are at first).
@@ -137,6 +202,8 @@ impl Worker {
         scene_file: PathBuf,
         output: PathBuf,
         denoiser: denoise::OnDemand,
+        resolution: Resolution,
+        frames: watch::Sender<Option<Arc<Frame>>>,
     ) -> crate::Result<Self> {
         let facts = SceneFacts::of(&scene);
         let channels_visible = vec![true; facts.channels.len()];
@@ -171,11 +238,25 @@ impl Worker {
             fps: 0.0,
             last_frame: None,
             governor: PreviewGovernor::default(),
-            denoised: None,
+            publisher: Arc::new(Publisher::new(frames)),
+            filter: None,
+            sequence: 0,
+            view: 0,
+            still_posted: 0,
+            last_report: FrameReport::default(),
+            viewport: None,
+            resolution,
+            denoise_at_start: false,
             views,
             channels_visible,
             time,
         })
+    }
+
+    /// The same worker, turning denoising on when the first page connects.
+    pub fn with_denoising(mut self, on: bool) -> Self {
+        self.denoise_at_start = on;
+        self
     }
 
     /// The camera in force as a named view: its eye, the point the page orbits (in front of
@@ -215,6 +296,8 @@ impl Worker {
             denoiser: self.denoiser.offered(),
             channels_visible: &self.channels_visible,
             time: self.time,
+            scale: self.resolution.scale,
+            size: (self.camera.width, self.camera.height),
         };
         let mut message = hello(&self.facts, &view);
         message["type"] = serde_json::Value::from(kind);
@@ -291,13 +374,16 @@ impl Worker {
         mut self,
         commands: Receiver<Command>,
         cancel: Arc<AtomicBool>,
-        frames: watch::Sender<Option<Arc<Frame>>>,
         events: broadcast::Sender<Event>,
     ) {
         loop {
             let mut pending = Vec::new();
             if self.converged() {
-                match commands.recv_timeout(Duration::from_millis(250)) {
+                // The still image's last filtering, if the filter was busy when the last
+                // sample came: asked for again shortly.
+                let owed = self.filter_still_if_due(&events);
+                let wait = Duration::from_millis(if owed { 20 } else { 250 });
+                match commands.recv_timeout(wait) {
                     Ok(c) => pending.push(c),
                     Err(RecvTimeoutError::Timeout) => continue,
                     Err(RecvTimeoutError::Disconnected) => return,
@@ -310,17 +396,21 @@ impl Worker {
                     Command::Shutdown => return,
                     Command::Hello { client } => {
                         self.watching += 1;
+                        if std::mem::take(&mut self.denoise_at_start)
+                            && let Err(e) = self.apply(Change::Denoise(true), client, &events)
+                        {
+                            let _ = events.send(Event {
+                                to: Recipients::One(client),
+                                text: Arc::new(error_json(&e)),
+                            });
+                        }
                         let text = self.greeting("hello");
                         let _ = events.send(Event {
                             to: Recipients::One(client),
                             text: Arc::new(text),
                         });
-                        // A new client sees the current image at once. (The read guard
-                        // must be gone before the write: they share one lock.)
-                        let current = frames.borrow().clone();
-                        if let Some(frame) = current {
-                            frames.send_replace(Some(frame));
-                        }
+                        // A new client sees the current image at once.
+                        self.publisher.repeat();
                     }
                     Command::Goodbye { client } => {
                         self.watching = self.watching.saturating_sub(1);
@@ -383,23 +473,18 @@ impl Worker {
                 Ok(report) if report.cancelled => {}
                 Ok(report) => {
                     self.seconds[1] += report.seconds;
+                    self.sequence += 1;
                     let size = self.session.camera();
-                    if (size.width, size.height) != (self.camera.width, self.camera.height) {
+                    let small = (size.width, size.height) != (self.camera.width, self.camera.height);
+                    if small {
                         // A preview frame: the governor learns what a pixel costs (twice with
                         // the split view, whose halves render at equal time between frames).
                         let pixels = f64::from(size.width) * f64::from(size.height);
                         let sides = if self.split.is_some() { 2.0 } else { 1.0 };
                         self.governor.observe(report.seconds * sides, pixels);
                     }
-                    if let Some(frame) = self.publishable(&report) {
-                        frames.send_replace(Some(Arc::new(frame)));
-                    }
-                    // The raw frame is on screen while the filter runs; then its result.
-                    if self.denoise_due()
-                        && let Some(frame) = self.denoise_still(&report)
-                    {
-                        frames.send_replace(Some(Arc::new(frame)));
-                    }
+                    self.last_report = report;
+                    self.show(small, &events);
                     if self.preview {
                         // The quick frame is out: refine at full size from here.
                         self.preview = false;
@@ -436,13 +521,21 @@ impl Worker {
         // After an edit of what is seen, the first frame comes quickly at the preview size.
         if !matches!(
             change,
-            Change::Save | Change::Denoise(_) | Change::Train(_) | Change::Levels
+            Change::Save
+                | Change::Denoise(_)
+                | Change::Train(_)
+                | Change::Levels
+                | Change::Probe { .. }
+                | Change::View { .. }
         ) {
             self.preview = true;
         }
         match change {
             Change::Camera { camera, moving } => {
-                self.camera = camera;
+                // The protocol checks a camera at the scene's size; the view's is kept.
+                self.camera = camera
+                    .with_size(self.camera.width, self.camera.height)
+                    .map_err(|e| e.to_string())?;
                 self.moving = moving;
                 self.mover = moving.then_some(client);
                 self.set_camera()?;
@@ -605,9 +698,23 @@ impl Worker {
                 self.seconds = [0.0; 2];
                 self.set_camera()?;
             }
+            Change::Viewport { width, height } => {
+                self.viewport = Some((width, height));
+                self.resize()?;
+            }
+            Change::Scale(scale) => {
+                self.resolution.scale = scale;
+                self.resize()?;
+            }
             Change::Denoise(on) => {
-                if on && let Err(why) = self.denoiser.get() {
-                    return Err(format!("denoising is not available: {why}"));
+                if on && self.filter.is_none() {
+                    let denoiser = self
+                        .denoiser
+                        .take()
+                        .map_err(|why| format!("denoising is not available: {why}"))?;
+                    let thread = FilterThread::start(denoiser, Arc::clone(&self.publisher))
+                        .map_err(|e| format!("denoising: cannot start its thread: {e}"))?;
+                    self.filter = Some(thread);
                 }
                 self.denoise_on = on;
                 // A cache whose image is denoised reads its levels only where they have earned
@@ -620,11 +727,19 @@ impl Worker {
                         .set_error_aware_termination(config)
                         .map_err(|e| e.to_string())?;
                 }
-                // The albedo guides the filter; the next frame shows the change, even on a
-                // converged view.
-                self.session.set_features(on);
-                self.session.clear_image();
-                self.denoised = None;
+                // The image keeps its samples (the filter needs no guides the image lacks), and
+                // the change shows at once, even on a converged view: the image filtered, or
+                // the raw image again.
+                self.still_posted = 0;
+                if self.session.frames_in_image() > 0 && !self.moving {
+                    self.sequence += 1;
+                    if on {
+                        self.filter_still_if_due(events);
+                    } else {
+                        let frame = self.raw_frame();
+                        self.publisher.publish(self.sequence, frame);
+                    }
+                }
             }
             Change::Save => {
                 let image = self.session.image();
@@ -659,11 +774,15 @@ impl Worker {
     }
 
     /// Puts the camera into the session (and the split view's): smaller while moving and for
-    /// the first frame after an edit, with any method.
+    /// the first frame after an edit, with any method. The image starts again: a new view.
     fn set_camera(&mut self) -> Result<(), String> {
         let small = self.moving || self.preview;
         let camera = if small {
-            let d = self.governor.divisor(self.camera.width, self.camera.height);
+            let filtered = self.filter.as_ref().filter(|_| self.denoise_on);
+            let filter_cost = filtered.map_or(0.0, |f| f.status().preview_seconds_per_pixel);
+            let d = self
+                .governor
+                .divisor(self.camera.width, self.camera.height, filter_cost);
             self.camera
                 .with_size(
                     (self.camera.width / d).max(1),
@@ -682,64 +801,35 @@ impl Worker {
             .edit(Edit::Camera(camera))
             .map_err(|e| e.to_string())?;
         self.seconds = [0.0; 2];
+        self.view += 1;
+        self.still_posted = 0;
+        if let Some(filter) = &self.filter {
+            filter.view_changed(self.view);
+        }
         Ok(())
     }
 
-    /// Whether the still view's image is due to be denoised now: with denoising on, at 4, 8,
-    /// 16, ... samples per pixel and at the last (issue 49: every frame was denoised, 1.1-1.8 s
-    /// each at 1280x720, and the first ones, of a sample or two, came out smeared).
-    fn denoise_due(&self) -> bool {
-        let spp = self.session.frames_in_image();
-        self.denoise_on
-            && !self.moving
-            && !self.preview
-            && denoise_now(spp, self.target_spp)
-            && self.denoised.as_ref().is_none_or(|(at, _)| *at != spp)
+    /// The view's render size follows the page's view area and the resolution scale.
+    fn resize(&mut self) -> Result<(), String> {
+        let (width, height) = match self.viewport {
+            Some((w, h)) => self.resolution.fit(w, h),
+            None => (self.camera.width, self.camera.height),
+        };
+        if (width, height) != (self.camera.width, self.camera.height) {
+            self.camera = self
+                .camera
+                .with_size(width, height)
+                .map_err(|e| e.to_string())?;
+        }
+        self.set_camera()
     }
 
-    /// The still image denoised (guided by the albedo, except beside the split view's other
-    /// half), kept to be shown until the next, and published; `None` if the filter failed
-    /// (denoising is then turned off, and said).
-    fn denoise_still(&mut self, report: &FrameReport) -> Option<Frame> {
-        let d = self.denoiser.get().ok()?;
-        let spp = self.session.frames_in_image();
-        let mut image = self.session.image();
-        // The joined halves of the split view have no one albedo: unguided there.
-        let features = self
-            .session
-            .feature_images()
-            .filter(|_| self.split.is_none());
-        if let Some(split) = &self.split {
-            image = side_by_side(&split.image(), &image);
-        }
-        let t = Instant::now();
-        let guides = denoise::Guides::Albedo;
-        match d.denoise_guided(
-            &image,
-            features.as_ref(),
-            guides,
-            denoise::Options::default(),
-        ) {
-            Ok(out) => {
-                let ms = t.elapsed().as_secs_f64() * 1e3;
-                self.denoised = Some((spp, out.clone()));
-                Some(self.frame_of(&out, report, ms, 0.0))
-            }
-            Err(e) => {
-                self.denoise_on = false;
-                self.denoised = None;
-                eprintln!("gscache view: denoising turned off: {e}");
-                None
-            }
-        }
-    }
-
-    /// The session's image (or, with denoising on, the last denoised image of this view, until
-    /// the next), tone-mapped and encoded, with the frame's statistics; `None` if the frame
-    /// added nothing to the image (cancelled before a sample).
-    fn publishable(&mut self, report: &FrameReport) -> Option<Frame> {
+    /// Shows the frame just rendered (`small`: a preview): raw, or with denoising on through
+    /// the filter thread (a preview always; the still image when [`Worker::filter_still_if_due`]
+    /// says so).
+    fn show(&mut self, small: bool, events: &broadcast::Sender<Event>) {
         if self.session.frames_in_image() == 0 {
-            return None;
+            return;
         }
         let now = Instant::now();
         if let Some(last) = self.last_frame {
@@ -751,46 +841,106 @@ impl Worker {
             };
         }
         self.last_frame = Some(now);
-        let spp = self.session.frames_in_image();
-        // The denoised image belongs to this view while the view's image has at least its
-        // samples: an edit empties the image, and its frames then start again from one.
-        if self.denoised.as_ref().is_some_and(|(at, _)| *at > spp) || self.moving {
-            self.denoised = None;
-        }
-        let start = Instant::now();
-        let image = match (&self.denoised, self.denoise_on) {
-            (Some((_, d)), true) => d.clone(),
-            _ => {
-                let mut image = self.session.image();
-                if let Some(split) = &self.split {
-                    image = side_by_side(&split.image(), &image);
-                }
-                image
+        if self.denoising(events) {
+            if small {
+                self.submit(JobKind::Preview);
+            } else {
+                self.filter_still_if_due(events);
             }
-        };
-        let prepare_ms = start.elapsed().as_secs_f64() * 1e3;
-        Some(self.frame_of(&image, report, 0.0, prepare_ms))
+        } else {
+            let frame = self.raw_frame();
+            self.publisher.publish(self.sequence, frame);
+        }
     }
 
-    /// `image` as the page gets it: tone-mapped JPEG and the frame's statistics (`denoise_ms`:
-    /// the filter's time on this image, `prepare_ms`: gathering it).
-    fn frame_of(
-        &self,
-        image: &RgbImage,
-        report: &FrameReport,
-        denoise_ms: f64,
-        prepare_ms: f64,
-    ) -> Frame {
+    /// Whether frames go through the filter thread; a filter that failed turns denoising off,
+    /// and the pages are told why.
+    fn denoising(&mut self, events: &broadcast::Sender<Event>) -> bool {
+        let Some(filter) = self.filter.as_ref().filter(|_| self.denoise_on) else {
+            return false;
+        };
+        if let Some(why) = filter.status().failed {
+            self.denoise_on = false;
+            self.filter = None;
+            let _ = events.send(Event {
+                to: Recipients::All,
+                text: Arc::new(error_json(&format!("denoising turned off: {why}"))),
+            });
+            return false;
+        }
+        true
+    }
+
+    /// Hands the still image to the filter if it is due (at 1, 2, 4, 8, ... samples a pixel
+    /// and at the last) and the filter is free; true if an image is owed that the busy filter
+    /// could not take (asked again shortly).
+    fn filter_still_if_due(&mut self, events: &broadcast::Sender<Event>) -> bool {
+        if self.moving || self.preview || self.watching == 0 || !self.denoising(events) {
+            return false;
+        }
+        let spp = self.session.frames_in_image();
+        if !still_due(spp, self.still_posted, self.target_spp) {
+            return false;
+        }
+        let busy = self.filter.as_ref().is_some_and(|f| f.status().busy);
+        if busy {
+            return true;
+        }
+        self.still_posted = spp;
+        self.submit(JobKind::Still { spp });
+        false
+    }
+
+    /// Hands the image shown to the filter thread.
+    fn submit(&mut self, kind: JobKind) {
+        let Some(filter) = &self.filter else { return };
+        let image = self.shown_image();
+        let stats = self.stats(image.width(), image.height(), 0.0, 0.0);
+        filter.submit(FilterJob {
+            sequence: self.sequence,
+            view: self.view,
+            kind,
+            image,
+            scene: Arc::new(self.session.scene().clone()),
+            stats,
+        });
+    }
+
+    /// The image as rendered: the session's, beside the split view's other half.
+    fn shown_image(&self) -> RgbImage {
+        let image = self.session.image();
+        match &self.split {
+            Some(split) => side_by_side(&split.image(), &image),
+            None => image,
+        }
+    }
+
+    /// The image as rendered, tone-mapped and encoded, with its statistics.
+    fn raw_frame(&self) -> Frame {
         let start = Instant::now();
-        let jpeg = encode(image, self.session.scene());
-        let encode_ms = start.elapsed().as_secs_f64() * 1e3 + prepare_ms;
-        let stats = serde_json::json!({
+        let image = self.shown_image();
+        let jpeg = encode(&image, self.session.scene());
+        let encode_ms = start.elapsed().as_secs_f64() * 1e3;
+        let stats = self
+            .stats(image.width(), image.height(), 0.0, encode_ms)
+            .to_string();
+        Frame { jpeg, stats }
+    }
+
+    /// The last frame's statistics, for an image of `width x height` (`denoise_ms`: the
+    /// filter's time on it, `encode_ms`: gathering and encoding it).
+    fn stats(&self, width: u32, height: u32, denoise_ms: f64, encode_ms: f64) -> serde_json::Value {
+        let report = &self.last_report;
+        serde_json::json!({
             "type": "stats",
             "frame": report.frame,
+            "sequence": self.sequence,
             "spp": self.session.frames_in_image(),
             "target_spp": self.target_spp,
-            "width": image.width(),
-            "height": image.height(),
+            "width": width,
+            "height": height,
+            "view_width": self.camera.width,
+            "view_height": self.camera.height,
             "fps": self.fps,
             "trace_ms": report.trace_seconds * 1e3,
             "lookup_ms": report.lookup_seconds * 1e3,
@@ -798,6 +948,9 @@ impl Worker {
             "denoise_ms": denoise_ms,
             "encode_ms": encode_ms,
             "method": self.method.name(),
+            // The camera the image was rendered from: a harness scores each shown frame
+            // against a converged view of it.
+            "eye": self.camera.position.to_array(),
             // The training loss per level (none on frames without a step): the page's
             // sparkline; and whether the cache trains.
             "loss": report.loss,
@@ -816,21 +969,21 @@ impl Worker {
                 "right_ms": self.seconds[1] * 1e3,
             })),
             "moving": self.moving,
-            // The samples per pixel of the denoised image shown, if one is.
-            "denoised": self.denoise_on && !self.moving && self.denoised.is_some(),
-            "denoised_spp": self.denoised.as_ref().filter(|_| self.denoise_on).map(|(at, _)| at),
+            // Set by the filter thread on the images it denoised (with the samples per pixel
+            // of a still image).
+            "denoised": false,
+            "denoised_spp": null,
         })
-        .to_string();
-        Frame { jpeg, stats }
     }
 }
 
-/// Whether a still image of `spp` samples (of `target`) is one to denoise: at 4, 8, 16, ...
-/// and at the last. Below 4 the filter smears more than it removes; doubling the samples
-/// between runs keeps the filter's share of the time bounded (each run costs what a few frames
-/// do at 1280x720).
-pub fn denoise_now(spp: u32, target: u32) -> bool {
-    spp >= 4.min(target) && (spp.is_power_of_two() || spp >= target)
+/// Whether a still image of `spp` samples a pixel (refining to `target`) is due to be filtered
+/// when the last one handed over had `posted` (0: none): at 1, 2, 4, 8, ... and at the last.
+/// Doubling the samples between runs keeps the filter's share of the cores bounded (a run at
+/// 1280x720 costs what two or three passes do on 2 cores), and a run missed while the filter
+/// was busy is made at the next pass.
+pub fn still_due(spp: u32, posted: u32, target: u32) -> bool {
+    spp > posted && (spp >= posted.saturating_mul(2) || spp >= target)
 }
 
 /// Picks the size a moving view renders at: the largest whose frame, at the seconds a pixel
@@ -855,9 +1008,13 @@ impl Default for PreviewGovernor {
 }
 
 impl PreviewGovernor {
-    /// A preview frame's render time: 15 frames a second leave about a third of each frame's
-    /// 67 ms for the JPEG, the socket and the page.
+    /// A preview frame's time (rendering, and with denoising on filtering and encoding): 20
+    /// frames a second leave about 5 ms of each frame's 50 ms for the socket and the page.
     pub const FRAME_SECONDS: f64 = 0.045;
+    /// The preview's height is not made smaller than this (or than the view's): when the page
+    /// or the machine is busy, frames come less often rather than smaller than a readable
+    /// preview (128x72 was seen under load before the floor).
+    pub const MIN_HEIGHT: u32 = 180;
 
     /// Adds a preview frame of `pixels` that took `seconds` to the estimate (a moving mean
     /// that follows a change of method or scene within a few frames). Ignores what cannot be
@@ -869,12 +1026,19 @@ impl PreviewGovernor {
         }
     }
 
-    /// The factor a `width x height` view is shrunk by while it moves: at least 2 (a drag is
-    /// never at full size: its frames come and go), at most 16.
-    pub fn divisor(&self, width: u32, height: u32) -> u32 {
-        let frame = f64::from(width) * f64::from(height) * self.seconds_per_pixel;
+    /// The factor a `width x height` view is shrunk by while it moves, where filtering and
+    /// encoding a preview pixel costs `filter_seconds_per_pixel` besides rendering it: at
+    /// least 2 (a drag is never at full size: its frames come and go), and no more than keeps
+    /// the preview [`PreviewGovernor::MIN_HEIGHT`] tall.
+    pub fn divisor(&self, width: u32, height: u32, filter_seconds_per_pixel: f64) -> u32 {
+        let per_pixel = self.seconds_per_pixel + filter_seconds_per_pixel.max(0.0);
+        let frame = f64::from(width) * f64::from(height) * per_pixel;
         let d = (frame / Self::FRAME_SECONDS).sqrt().ceil();
-        (d as u32).clamp(2, 16)
+        let most = (height / Self::MIN_HEIGHT).max(2);
+        if d.is_nan() {
+            return most;
+        }
+        (d as u32).clamp(2, most)
     }
 }
 
@@ -922,18 +1086,43 @@ pub fn encode(image: &RgbImage, scene: &Scene) -> Vec<u8> {
 
 #[cfg(test)]
 mod tests {
-    use super::{PreviewGovernor, denoise_now};
+    use super::{PreviewGovernor, Resolution, still_due};
 
     #[test]
-    fn a_still_view_is_denoised_at_doublings_from_four_samples_and_at_the_last() {
-        let due: Vec<u32> = (1..=40).filter(|&s| denoise_now(s, 40)).collect();
-        assert_eq!(due, [4, 8, 16, 32, 40]);
-        // A view refining to fewer than four samples is denoised at its last.
-        assert_eq!(
-            (1..=3).filter(|&s| denoise_now(s, 3)).collect::<Vec<_>>(),
-            [3]
-        );
-        assert!(denoise_now(1, 1));
+    fn a_still_view_is_filtered_at_doublings_from_one_sample_and_at_the_last() {
+        // Each image handed over as soon as it is due.
+        let mut posted = 0;
+        let mut due = Vec::new();
+        for spp in 1..=40 {
+            if still_due(spp, posted, 40) {
+                due.push(spp);
+                posted = spp;
+            }
+        }
+        assert_eq!(due, [1, 2, 4, 8, 16, 32, 40]);
+        // A filter busy at 4 samples takes the image at 5, and then doubles from there.
+        assert!(!still_due(4, 4, 40));
+        assert!(still_due(5, 2, 40));
+        assert!(!still_due(9, 5, 40));
+        assert!(still_due(10, 5, 40));
+        // The last is due whatever the doubling, once.
+        assert!(still_due(40, 32, 40));
+        assert!(!still_due(40, 40, 40));
+    }
+
+    #[test]
+    fn the_view_renders_at_the_scaled_view_area_within_the_cap() {
+        let r = Resolution {
+            scale: 0.75,
+            max_size: (1920, 1080),
+        };
+        assert_eq!(r.fit(1280, 720), (960, 540));
+        // A 4K area at scale 1 fits the cap, its aspect kept; so does a tall one.
+        let full = Resolution { scale: 1.0, ..r };
+        assert_eq!(full.fit(3840, 2160), (1920, 1080));
+        assert_eq!(full.fit(1000, 2000), (540, 1080));
+        // Never below 16 pixels a side.
+        assert_eq!(full.fit(4, 4), (16, 16));
     }
 
     #[test]
@@ -941,23 +1130,30 @@ mod tests {
         let mut g = PreviewGovernor::default();
         // Unmeasured: the fixed preview of before (25 ms for 120 000 pixels): 1280x720 is
         // 7.7x that many pixels, so a third of the width (9 times fewer pixels) fits 45 ms.
-        assert_eq!(g.divisor(1280, 720), 3);
+        assert_eq!(g.divisor(1280, 720, 0.0), 3);
+        // Filtering that costs what rendering does doubles a pixel's cost: a quarter of the
+        // width (16 times fewer pixels) fits.
+        assert_eq!(g.divisor(1280, 720, 0.025 / 120_000.0), 4);
         // Frames that cost a microsecond a pixel (a cache on a slow machine): 1280x720 would
-        // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5, once the moving
-        // mean has followed.
+        // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5 with a 4K view
+        // (the floor allows 12), once the moving mean has followed; a 720p view stops at the
+        // floor of 180 rows (4).
         for _ in 0..40 {
             g.observe(1e-6 * 10_000.0, 10_000.0);
         }
-        assert_eq!(g.divisor(1280, 720), 5);
-        // Never below 2 while moving, never above 16; nothing learnt from non-measurements.
-        assert_eq!(g.divisor(64, 36), 2);
+        assert_eq!(g.divisor(1280, 720, 0.0), 4);
+        assert_eq!(g.divisor(1280 * 3, 720 * 3, 0.0), 12);
+        // Never below 2 while moving; nothing learnt from non-measurements; a NaN filter
+        // cost gives the floor, not a panic.
+        assert_eq!(g.divisor(64, 36, 0.0), 2);
         for _ in 0..40 {
             g.observe(1.0, 1.0);
         }
-        assert_eq!(g.divisor(1280, 720), 16);
-        let before = g.divisor(1280, 720);
+        assert_eq!(g.divisor(1280, 720, 0.0), 4);
+        let before = g.divisor(3840, 2160, 0.0);
         g.observe(f64::NAN, 100.0);
         g.observe(0.01, 0.0);
-        assert_eq!(g.divisor(1280, 720), before);
+        assert_eq!(g.divisor(3840, 2160, 0.0), before);
+        assert_eq!(g.divisor(1280, 720, f64::NAN), 4);
     }
 }

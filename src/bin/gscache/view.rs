@@ -26,9 +26,49 @@ pub struct ViewArgs {
     /// Pages connected at once.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u16).range(1..=64))]
     pub max_clients: u16,
+    /// The resolution scale: the view renders at the page's view area in device pixels times
+    /// this (0.1 to 2; the page can change it). Until a page says its size, the scene's size.
+    #[arg(long, default_value_t = viewer::Resolution::default().scale, value_parser = parse_scale)]
+    pub scale: f32,
+    /// The largest size the view renders at, WIDTHxHEIGHT (a larger view area is rendered at
+    /// this size, its aspect kept, and stretched by the page).
+    #[arg(long, default_value = "1920x1080", value_parser = parse_size)]
+    pub max_size: (u32, u32),
+    /// Start with denoising on (Open Image Denoise, where installed): every frame shown,
+    /// moving or still, is denoised.
+    #[arg(long)]
+    pub denoise: bool,
     /// What the command line changes of the scene.
     #[command(flatten)]
     pub overrides: volume_pt::SceneOverrides,
+}
+
+fn parse_scale(text: &str) -> Result<f32, String> {
+    let scale: f32 = text
+        .parse()
+        .map_err(|_| format!("`{text}`: expected a number"))?;
+    // Written so that NaN is refused.
+    if !viewer::protocol::SCALES.contains(&scale) {
+        return Err(format!(
+            "{scale}: expected {} to {}",
+            viewer::protocol::SCALES.start(),
+            viewer::protocol::SCALES.end()
+        ));
+    }
+    Ok(scale)
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("`{text}`: expected WIDTHxHEIGHT, each 16 to 16384 pixels, as 1920x1080");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (
+        w.trim().parse().map_err(|_| bad())?,
+        h.trim().parse().map_err(|_| bad())?,
+    );
+    if !(16..=16384).contains(&w) || !(16..=16384).contains(&h) {
+        return Err(bad());
+    }
+    Ok((w, h))
 }
 
 pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
@@ -55,6 +95,11 @@ pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
             max_clients: args.max_clients as usize,
             denoiser,
             limits: viewer::Limits::default(),
+            resolution: viewer::Resolution {
+                scale: args.scale,
+                max_size: args.max_size,
+            },
+            denoise: args.denoise,
         },
     )?;
     println!("{}", viewer.url());

@@ -84,7 +84,8 @@ pub struct Api {
     pub set_filter_int: unsafe extern "C" fn(Handle, *const c_char, c_int),
     pub commit_filter: unsafe extern "C" fn(Handle),
     pub execute_filter: unsafe extern "C" fn(Handle),
-    pub set_filter_progress_monitor: unsafe extern "C" fn(Handle, Option<ProgressMonitor>, *mut c_void),
+    pub set_filter_progress_monitor:
+        unsafe extern "C" fn(Handle, Option<ProgressMonitor>, *mut c_void),
     pub release_filter: unsafe extern "C" fn(Handle),
 }
 

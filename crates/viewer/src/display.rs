@@ -105,6 +105,8 @@ pub struct FilterStatus {
     pub preview_seconds_per_pixel: f64,
     /// Why the filter failed, once it has: denoising is then off.
     pub failed: Option<String>,
+    /// Still images whose run was abandoned because the view changed.
+    pub abandoned: u64,
 }
 
 #[derive(Default)]
@@ -179,6 +181,33 @@ impl FilterThread {
         slot.status.busy = slot.waiting.is_some() || slot.running.is_some();
     }
 
+    /// Waits, at most `timeout`, while a preview is waiting or being filtered. The render
+    /// thread calls it before rendering the next preview: rendering beside the filter slows
+    /// both on a machine of few cores (each uses them all), so a drag's frame would reach the
+    /// screen later for no more frames a second.
+    pub fn wait_for_preview(&self, timeout: std::time::Duration) {
+        let deadline = Instant::now() + timeout;
+        let mut slot = lock(&self.shared.slot);
+        loop {
+            let preview = |kind: Option<JobKind>| kind == Some(JobKind::Preview);
+            if !(preview(slot.waiting.as_ref().map(|j| j.kind))
+                || preview(slot.running.map(|r| r.1)))
+            {
+                return;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return;
+            }
+            slot = self
+                .shared
+                .wake
+                .wait_timeout(slot, left)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
+
     /// What the thread has done.
     pub fn status(&self) -> FilterStatus {
         lock(&self.shared.slot).status.clone()
@@ -224,6 +253,8 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
             let mut slot = lock(&shared.slot);
             slot.running = None;
             slot.status.busy = slot.waiting.is_some();
+            // A render thread waiting for the preview to be done goes on.
+            shared.wake.notify_all();
             let job = loop {
                 if slot.stop {
                     return;
@@ -250,6 +281,8 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
                 stats["denoise_ms"] = serde_json::Value::from(filter_seconds * 1e3);
                 stats["encode_ms"] = serde_json::Value::from(encode_seconds * 1e3);
                 stats["denoised"] = serde_json::Value::from(true);
+                stats["filter_runs_abandoned"] =
+                    serde_json::Value::from(lock(&shared.slot).status.abandoned);
                 if let JobKind::Still { spp } = job.kind {
                     stats["denoised_spp"] = serde_json::Value::from(spp);
                 }
@@ -257,7 +290,9 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
                 let shown = publisher.publish(job.sequence, Frame { jpeg, stats });
                 let mut slot = lock(&shared.slot);
                 match job.kind {
-                    JobKind::Still { spp } if shown => slot.status.still_done = Some((job.view, spp)),
+                    JobKind::Still { spp } if shown => {
+                        slot.status.still_done = Some((job.view, spp))
+                    }
                     JobKind::Still { .. } => {}
                     JobKind::Preview => {
                         let pixels = f64::from(image.width()) * f64::from(image.height());
@@ -271,7 +306,7 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
                     }
                 }
             }
-            Err(DenoiseError::Cancelled) => {}
+            Err(DenoiseError::Cancelled) => lock(&shared.slot).status.abandoned += 1,
             Err(e) => {
                 lock(&shared.slot).status.failed = Some(e.to_string());
             }

@@ -1,6 +1,6 @@
 //! What the page's Save writes, into the output folder only: `view-NNNN.exr` and `.png` (the
-//! image as shown, before any denoising), `view-NNNN.toml` (the scene with every edit, which
-//! `gscache render` renders the same way) and, with the Gaussian cache, `view-NNNN-cache/`
+//! image as rendered at the view's size, before any denoising), `view-NNNN.toml` (the scene
+//! with every edit, at the scene's own image size, which `gscache render` renders the same way) and, with the Gaussian cache, `view-NNNN-cache/`
 //! (its levels as 3DGS PLY, with their manifest). `NNNN` is the first number none of them uses
 //! yet, and every one of its names is created exclusively before anything is written
 //! (`Reserved`): two viewers saving into one folder never share a number, and nothing already
@@ -260,7 +260,13 @@ pub fn scene_toml(r: &SaveRequest) -> Result<String, String> {
             radiance: lights.environment.to_array(),
         },
         phase: r.scene.media.phase,
-        camera: CameraDesc::from_camera(camera, target_distance),
+        // The scene's own size, whatever the page's view area made the view render at: a
+        // saved scene renders as the scene did (the image saved beside it is the view's).
+        camera: CameraDesc {
+            width: r.facts.width,
+            height: r.facts.height,
+            ..CameraDesc::from_camera(camera, target_distance)
+        },
         render: RenderDesc {
             spp: r.spp.max(1),
             ..RenderDesc::from_settings(&r.scene.settings)

@@ -463,6 +463,11 @@ impl Worker {
             if self.converged() {
                 continue;
             }
+            if (self.moving || self.preview)
+                && let Some(filter) = self.filter.as_ref().filter(|_| self.denoise_on)
+            {
+                filter.wait_for_preview(Duration::from_millis(250));
+            }
             let control = Control::cancellable(&cancel);
             if self.split_turn(&control) {
                 continue;
@@ -475,7 +480,8 @@ impl Worker {
                     self.seconds[1] += report.seconds;
                     self.sequence += 1;
                     let size = self.session.camera();
-                    let small = (size.width, size.height) != (self.camera.width, self.camera.height);
+                    let small =
+                        (size.width, size.height) != (self.camera.width, self.camera.height);
                     if small {
                         // A preview frame: the governor learns what a pixel costs (twice with
                         // the split view, whose halves render at equal time between frames).
@@ -1131,9 +1137,11 @@ mod tests {
         // Unmeasured: the fixed preview of before (25 ms for 120 000 pixels): 1280x720 is
         // 7.7x that many pixels, so a third of the width (9 times fewer pixels) fits 45 ms.
         assert_eq!(g.divisor(1280, 720, 0.0), 3);
-        // Filtering that costs what rendering does doubles a pixel's cost: a quarter of the
-        // width (16 times fewer pixels) fits.
-        assert_eq!(g.divisor(1280, 720, 0.025 / 120_000.0), 4);
+        // Filtering that costs what rendering does doubles a pixel's cost: a 1920x1080 view
+        // shrinks by ceil(sqrt(0.432 / 0.045)) = 4 unfiltered, ceil(sqrt(0.864 / 0.045)) = 5
+        // filtered.
+        assert_eq!(g.divisor(1920, 1080, 0.0), 4);
+        assert_eq!(g.divisor(1920, 1080, 0.025 / 120_000.0), 5);
         // Frames that cost a microsecond a pixel (a cache on a slow machine): 1280x720 would
         // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5 with a 4K view
         // (the floor allows 12), once the moving mean has followed; a 720p view stops at the

@@ -523,7 +523,7 @@ async fn the_still_view_converges_to_the_render() {
 /// A viewer on the default scene at 64x36 whose denoiser is `denoiser` (loaded on first use).
 /// The tests that run Open Image Denoise, one at a time: each times or loads the two cores
 /// the filter shares with the renderer.
-static DENOISER_TESTS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+static DENOISER_TESTS: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 fn start_with_denoiser(output: &Path, denoiser: denoise::OnDemand) -> Viewer {
     let options = ServeOptions {
@@ -574,7 +574,7 @@ async fn a_missing_denoiser_is_said_when_turned_on_and_then_not_offered() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
 async fn turning_denoising_on_keeps_every_sample() {
-    let _one_at_a_time = DENOISER_TESTS.lock().unwrap_or_else(|e| e.into_inner());
+    let _one_at_a_time = DENOISER_TESTS.lock().await;
     let out = scratch("denoise-on");
     let v = start_with_denoiser(&out, denoise::OnDemand::new(1));
     let mut socket = connect(&v, &token(&v)).await.unwrap();
@@ -618,7 +618,7 @@ async fn turning_denoising_on_keeps_every_sample() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
 async fn a_drag_started_while_the_filter_runs_shows_its_first_frame_within_150_ms() {
-    let _one_at_a_time = DENOISER_TESTS.lock().unwrap_or_else(|e| e.into_inner());
+    let _one_at_a_time = DENOISER_TESTS.lock().await;
     let out = scratch("denoise-drag");
     let options = ServeOptions {
         denoiser: denoise::OnDemand::new(0),
@@ -689,7 +689,7 @@ async fn a_drag_started_while_the_filter_runs_shows_its_first_frame_within_150_m
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs Intel Open Image Denoise (pip install pyoidn, or GSCACHE_OIDN); run with `cargo test -- --ignored`"]
 async fn a_denoised_cache_reads_only_where_it_has_earned_trust() {
-    let _one_at_a_time = DENOISER_TESTS.lock().unwrap_or_else(|e| e.into_inner());
+    let _one_at_a_time = DENOISER_TESTS.lock().await;
     let out = scratch("denoise-trust");
     let v = start_with_denoiser(&out, denoise::OnDemand::new(1));
     let mut socket = connect(&v, &token(&v)).await.unwrap();

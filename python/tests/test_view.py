@@ -45,7 +45,10 @@ def browser():
 def viewer(program, repo, tmp_path):
     proc = subprocess.Popen(
         [program, "-q", "view", str(repo / "data/scenes/default.toml"), "--port", "0",
-         "--width", "96", "--height", "54", "--output", str(tmp_path / "out")],
+         "--width", "96", "--height", "54", "--output", str(tmp_path / "out"),
+         # The view renders at the page's size times this: about the 96x54 of old, so that
+         # each edit settles as quickly.
+         "--scale", "0.1"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     url = proc.stdout.readline().strip()
@@ -139,6 +142,47 @@ def test_the_page_renders_and_answers_edits(viewer, browser):
     ActionChains(d).move_to_element(d.find_element("id", "view")).click_and_hold().move_by_offset(
         -200, 0).release().perform()
     wait(lambda: differ(settled(d), before) > 3, "a frame after the error")
+
+
+def test_the_view_renders_at_the_window_size(program, repo, tmp_path, browser):
+    """Issue 65: the image is rendered at the page's view area in device pixels times the
+    resolution scale, not the scene's size stretched; resizing the window, and choosing another
+    scale on the page, change the rendered image's natural size to follow."""
+    from selenium.webdriver.support.ui import Select
+
+    proc = subprocess.Popen(
+        [program, "-q", "view", str(repo / "data/scenes/default.toml"), "--port", "0",
+         "--spp", "2", "--scale", "0.25", "--output", str(tmp_path / "out")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        url = proc.stdout.readline().strip()
+        d = browser
+        d.get(url)
+
+        def expected(scale):
+            return d.execute_script(
+                "const r = document.getElementById('view').getBoundingClientRect();"
+                "const k = (window.devicePixelRatio || 1) * arguments[0];"
+                "return [Math.round(r.width * k), Math.round(r.height * k)];", scale)
+
+        def natural():
+            return d.execute_script(
+                "const i = document.getElementById('frame');"
+                "return [i.naturalWidth, i.naturalHeight];")
+
+        want = expected(0.25)
+        wait(lambda: natural() == want, f"a frame of {want} (the scene is 512x512)")
+        d.set_window_size(800, 700)
+        wait(lambda: expected(0.25) != want, "the view area to change")
+        resized = expected(0.25)
+        wait(lambda: natural() == resized, f"a frame of {resized} after the resize")
+        Select(d.find_element("id", "scale")).select_by_value("0.5")
+        half = expected(0.5)
+        wait(lambda: natural() == half, f"a frame of {half} at scale 0.5")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0, proc.stderr.read()
 
 
 def test_view_from_python(repo, tmp_path):

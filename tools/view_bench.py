@@ -1,41 +1,101 @@
 #!/usr/bin/env python3
-"""The viewer in a real browser, timed: frames shown a second while dragging, and the time from
-an edit to its first frame on screen, for plain NEE and the Gaussian cache (issue 52's table).
+"""What `gscache view` puts on screen, in a real browser, scored (issue 65).
 
-Headless Chromium (Debian's `chromium` and `chromium-driver`) drives `gscache view` through
-Selenium's WebDriver: a drag is real pointer input (W3C actions, one move every 33 ms for
-`--drag-seconds`), and frames are counted in the page, by the `load` events of the image the
-page shows. The browser runs on the same cores as the renderer, as a user's would.
+Headless Chromium (Debian's `chromium` and `chromium-driver`) drives the viewer through
+Selenium's WebDriver with real pointer input. Every frame the page shows is recorded as it is
+shown (the image's `load` event), with the statistics the server sent with it (its camera, its
+samples, whether it was denoised), over one scripted interaction:
 
-    python tools/view_bench.py --sizes 640x360 1280x720 --methods nee cache --repeats 3
+    drag 3 s (a move every 33 ms, starting 8 px from the press: a press that moves 3 px or
+    less is a click, which the old harness's first moves were), release, wait 5 s.
 
-Prints a Markdown table (medians and ranges) for BENCHMARKS.md.
+Reported per policy (`--policies`: `today` = plain NEE, raw, as the viewer showed it before
+issue 65; `nee-oidn`; `cache`; `cache-oidn`):
+- distinct camera views shown a second over the drag (not image loads: a view shown twice,
+  refined, counts once);
+- the time from the release to the first full-size frame, and to the first full-size denoised
+  frame;
+- FLIP (LDR, NVIDIA's `flip-evaluator` from PyPI) of the frame on screen 1 s and 5 s after the
+  release against a converged render of the released camera (`gscache render` of the scene
+  the viewer's Save writes, at the view's size, `--reference-spp` samples).
+
+    python tools/view_bench.py --scene data/scenes/default.toml --runs 3 --csv docs/results/viewer_on_screen.csv
+
+Prints a Markdown table (medians of the runs, with their range) and writes the CSV rows. The
+browser runs on the same cores as the renderer, as a user's would.
 """
 
 import argparse
+import base64
+import csv
+import io
+import os
 import shutil
 import statistics
 import subprocess
+import tempfile
 import time
 
+import numpy as np
+from PIL import Image
 from selenium import webdriver
 from selenium.webdriver.common.actions.action_builder import ActionBuilder
-from selenium.webdriver.common.actions.pointer_input import PointerInput
 from selenium.webdriver.common.actions.interaction import POINTER_MOUSE
+from selenium.webdriver.common.actions.pointer_input import PointerInput
 
-COUNT_FRAMES = """
-const img = document.getElementById('frame');
-if (!window.__frames) {
-  window.__frames = [];
-  window.__moves = [];
-  img.addEventListener('load', () => window.__frames.push(performance.now()));
-  document.getElementById('view').addEventListener(
-    'pointermove', (e) => { if (e.buttons) window.__moves.push(performance.now()); });
-}
-return performance.now();
+# Installed before the page's own script: every binary message (a frame) is kept with the
+# statistics that follow it, and the time the page's image showed it.
+RECORD = """
+window.__frames = [];
+const NativeSocket = window.WebSocket;
+window.WebSocket = class extends NativeSocket {
+  constructor(url, protocols) {
+    super(url, protocols);
+    this.addEventListener('message', (e) => {
+      if (typeof e.data !== 'string') {
+        window.__frames.push({ blob: e.data, arrived: performance.now(), shown: null, stats: null });
+      } else {
+        const m = JSON.parse(e.data);
+        const last = window.__frames[window.__frames.length - 1];
+        if (m.type === 'stats' && last && !last.stats) last.stats = m;
+      }
+    });
+  }
+};
+const nativeUrl = URL.createObjectURL;
+window.__urls = new Map();
+URL.createObjectURL = function (blob) {
+  const url = nativeUrl.call(URL, blob);
+  const f = window.__frames.find((x) => x.blob === blob);
+  if (f) window.__urls.set(url, f);
+  return url;
+};
+document.addEventListener('DOMContentLoaded', () => {
+  const img = document.getElementById('frame');
+  img.addEventListener('load', () => {
+    const f = window.__urls.get(img.src);
+    if (f && f.shown === null) f.shown = performance.now();
+  });
+});
 """
 
-STATS = "return document.getElementById('stats').textContent;"
+# The frames shown, as [shown time, stats, index]; blobs read back one at a time.
+SHOWN = """
+return window.__frames.map((f, i) => [f.shown, f.stats, i]).filter((x) => x[0] !== null);
+"""
+BLOB = """
+const done = arguments[arguments.length - 1];
+const r = new FileReader();
+r.onload = () => done(r.result.split(',')[1]);
+r.readAsDataURL(window.__frames[arguments[0]].blob);
+"""
+
+POLICIES = {
+    "today": ("nee", False),
+    "nee-oidn": ("nee", True),
+    "cache": ("cache", False),
+    "cache-oidn": ("cache", True),
+}
 
 
 def browser(width, height):
@@ -45,117 +105,179 @@ def browser(width, height):
                 f"--window-size={width},{height}"]:
         options.add_argument(arg)
     service = webdriver.ChromeService(executable_path=shutil.which("chromedriver"))
-    return webdriver.Chrome(options=options, service=service)
+    d = webdriver.Chrome(options=options, service=service)
+    d.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": RECORD})
+    return d
 
 
-def frames_since(d, t0):
-    return [t for t in d.execute_script("return window.__frames;") if t >= t0]
-
-
-def wait_still(d, quiet=1.0, timeout=60):
-    """Waits until no frame has arrived for `quiet` seconds (the still view converged)."""
+def wait_for(predicate, timeout=60):
     end = time.time() + timeout
-    last = None
     while time.time() < end:
-        n = len(d.execute_script("return window.__frames;"))
-        if n == last:
+        if predicate():
             return
-        last = n
-        time.sleep(quiet)
-    raise TimeoutError("the view did not settle")
+        time.sleep(0.05)
+    raise TimeoutError("the page did not get there")
 
 
 def drag(d, seconds, step_ms=33):
-    """A left-button drag across the view, one 4-pixel move every `step_ms`."""
+    """A left-button drag across the view: the first move 8 px from the press, then one
+    4-pixel move every `step_ms`, back and forth."""
     view = d.find_element("id", "frame")
     mouse = PointerInput(POINTER_MOUSE, "mouse")
     actions = ActionBuilder(d, mouse=mouse, duration=step_ms)
     rect = view.rect
-    x0 = int(rect["x"] + rect["width"] * 0.3)
+    x0 = int(rect["x"] + rect["width"] * 0.4)
     y0 = int(rect["y"] + rect["height"] * 0.5)
     actions.pointer_action.move_to_location(x0, y0)
     actions.pointer_action.pointer_down()
     steps = int(seconds * 1000 / step_ms)
     for i in range(steps):
-        actions.pointer_action.move_to_location(x0 + 4 * ((i % 60) - 30) // 2 + 60, y0)
+        phase = i % 80
+        offset = 8 + 4 * (phase if phase < 40 else 80 - phase)
+        actions.pointer_action.move_to_location(x0 + offset, y0)
     actions.pointer_action.pointer_up()
     actions.perform()
 
 
-def measure(url, method, drag_seconds, window):
-    d = browser(*window)
+def flip_ldr(reference, test):
+    import flip_evaluator
+
+    ref = np.asarray(reference, dtype=np.float32) / 255.0
+    img = np.asarray(test.resize(reference.size, Image.BILINEAR), dtype=np.float32) / 255.0
+    _, mean, _ = flip_evaluator.evaluate(ref, img, "LDR")
+    return float(mean)
+
+
+def run_once(program, scene, policy, window, out, wait_s):
+    method, denoise = POLICIES[policy]
+    args = [program, "-q", "view", scene, "--port", "0", "--spp", "64", "--output", out]
+    if denoise:
+        args.append("--denoise")
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    d = None
     try:
+        url = proc.stdout.readline().strip()
+        d = browser(*window)
         d.get(url)
-        d.execute_script(COUNT_FRAMES)
-        while "spp" not in d.execute_script(STATS):
-            time.sleep(0.1)
+        wait_for(lambda: "spp" in d.find_element("id", "stats").text)
         if method != "nee":
             d.execute_script(
                 "const s = document.getElementById('method'); s.value = arguments[0];"
                 "s.dispatchEvent(new Event('change'));", method)
-        wait_still(d)
-        # Edit to first frame on screen: a colour-map preset, on a converged view.
-        t0 = d.execute_script(
-            "const s = document.getElementById('colormap');"
-            "s.selectedIndex = (s.selectedIndex + 1) % s.options.length;"
-            "const t = performance.now(); s.dispatchEvent(new Event('change')); return t;")
-        end = time.time() + 10
-        while not frames_since(d, t0) and time.time() < end:
-            time.sleep(0.005)
-        edit_ms = frames_since(d, t0)[0] - t0
-        wait_still(d)
-        # A drag: frames shown a second over its second half (the first half includes the
-        # first step's latency), and that latency.
+        time.sleep(3.0)  # the view refines (and the cache trains) before the drag
         t0 = d.execute_script("return performance.now();")
-        drag(d, drag_seconds)
-        t1 = d.execute_script("return performance.now();")
-        shown = frames_since(d, t0)
-        moves = [t for t in d.execute_script("return window.__moves;") if t >= t0]
-        mid = t0 + (t1 - t0) / 2
-        late = [t for t in shown if mid <= t <= t1]
-        fps = len(late) / ((t1 - mid) / 1000)
-        # From the drag's first move (as the page saw it) to the first frame after it.
-        after = [t for t in shown if moves and t > moves[0]]
-        first_ms = after[0] - moves[0] if after else float("nan")
-        return fps, first_ms, edit_ms
+        drag(d, 3.0)
+        released = d.execute_script("return performance.now();")
+        time.sleep(wait_s)
+        d.find_element("id", "save").click()
+        wait_for(lambda: "saved" in d.find_element("id", "error").text)
+        shown = d.execute_script(SHOWN)
+        view_w = max(s["view_width"] for _, s, _ in shown if s)
+        during = [(t, s) for t, s, _ in shown if s and t0 <= t <= released and s["moving"]]
+        views = {tuple(s["eye"]) for _, s in during}
+        drag_s = (released - t0) / 1000
+        after = [(t, s, i) for t, s, i in shown if s and t > released and not s["moving"]]
+        full = [t for t, s, _ in after if s["width"] == view_w]
+        clean = [t for t, s, _ in after if s["width"] == view_w and s["denoised"]]
+
+        def on_screen_at(seconds):
+            at = released + 1000 * seconds
+            before = [(t, i) for t, s, i in shown if t <= at]
+            index = before[-1][1]
+            data = d.execute_async_script(BLOB, index)
+            return Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB")
+
+        frames = {s: on_screen_at(s) for s in (1.0, wait_s)}
+        final = next(s for t, s, _ in reversed(shown) if s)
+        return {
+            "distinct_views_per_s": len(views) / drag_s,
+            "frames_shown_per_s": len(during) / drag_s,
+            "release_to_full_ms": (full[0] - released) if full else float("nan"),
+            "release_to_denoised_ms": (clean[0] - released) if clean else float("nan"),
+            "frames": frames,
+            "view": (final["view_width"], final["view_height"]),
+        }
     finally:
-        d.quit()
+        if d is not None:
+            d.quit()
+        proc.terminate()
+        proc.wait(timeout=20)
+
+
+def reference(program, out, size, spp):
+    saved = sorted(f for f in os.listdir(out) if f.endswith(".toml"))[-1]
+    path = os.path.join(out, "reference")
+    subprocess.run([program, "-q", "render", os.path.join(out, saved), "--width", str(size[0]),
+                    "--height", str(size[1]), "--spp", str(spp), "-o", path + ".exr"],
+                   check=True)
+    return Image.open(path + ".png").convert("RGB")
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--program", default="target/release/gscache")
     ap.add_argument("--scene", default="data/scenes/default.toml")
-    ap.add_argument("--sizes", nargs="+", default=["640x360", "1280x720"])
-    ap.add_argument("--methods", nargs="+", default=["nee", "cache"])
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--drag-seconds", type=float, default=4.0)
+    ap.add_argument("--policies", nargs="+", default=list(POLICIES))
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--window", default="1280x720")
+    ap.add_argument("--wait", type=float, default=5.0)
+    ap.add_argument("--reference-spp", type=int, default=256)
+    ap.add_argument("--default-policy", default="nee-oidn")
+    ap.add_argument("--csv")
     args = ap.parse_args()
-    print("| view | method | fps shown while dragging | first drag move to a frame (ms) | edit to screen (ms) |")
-    print("|---|---|---|---|---|")
-    for size in args.sizes:
-        w, h = (int(v) for v in size.split("x"))
-        for method in args.methods:
-            rows = []
-            for _ in range(args.repeats):
-                proc = subprocess.Popen(
-                    [args.program, "-q", "view", args.scene, "--port", "0", "--width", str(w),
-                     "--height", str(h), "--spp", "16", "--output", "/tmp/view_bench_out"],
-                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                try:
-                    url = proc.stdout.readline().strip()
-                    rows.append(measure(url, method, args.drag_seconds, (w + 400, h + 300)))
-                finally:
-                    proc.terminate()
-                    proc.wait(timeout=20)
+    window = tuple(int(v) for v in args.window.split("x"))
+    name = os.path.splitext(os.path.basename(args.scene))[0]
+    rows = []
+    today_at_5 = []
+    print("| scene | policy | distinct views/s dragging | frames shown/s | release to full size (ms) "
+          "| release to denoised (ms) | FLIP at 1 s | FLIP at 5 s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for policy in args.policies:
+        runs = []
+        for _ in range(args.runs):
+            out = tempfile.mkdtemp(prefix="view_bench_")
+            r = run_once(args.program, args.scene, policy, window, out, args.wait)
+            ref = reference(args.program, out, r["view"], args.reference_spp)
+            r["flip_1"] = flip_ldr(ref, r["frames"][1.0])
+            r["flip_5"] = flip_ldr(ref, r["frames"][args.wait])
+            runs.append(r)
+            shutil.rmtree(out, ignore_errors=True)
 
-            def cell(i, fmt):
-                v = [r[i] for r in rows]
-                return f"{fmt(statistics.median(v))} ({fmt(min(v))}-{fmt(max(v))})"
+        def med(key):
+            v = [r[key] for r in runs]
+            return statistics.median(v), min(v), max(v)
 
-            print(f"| {size} | {method} | {cell(0, lambda x: f'{x:.1f}')} | "
-                  f"{cell(1, lambda x: f'{x:.0f}')} | {cell(2, lambda x: f'{x:.0f}')} |",
-                  flush=True)
+        def cell(key, fmt):
+            m, lo, hi = med(key)
+            return f"{fmt(m)} ({fmt(lo)}-{fmt(hi)})"
+
+        if policy == "today":
+            today_at_5 = [r["flip_5"] for r in runs]
+        print(f"| {name} | {policy} | {cell('distinct_views_per_s', lambda x: f'{x:.1f}')} | "
+              f"{cell('frames_shown_per_s', lambda x: f'{x:.1f}')} | "
+              f"{cell('release_to_full_ms', lambda x: f'{x:.0f}')} | "
+              f"{cell('release_to_denoised_ms', lambda x: f'{x:.0f}')} | "
+              f"{cell('flip_1', lambda x: f'{x:.4f}')} | {cell('flip_5', lambda x: f'{x:.4f}')} |",
+              flush=True)
+        rows.append({
+            "scene": name, "view": f"{runs[0]['view'][0]}x{runs[0]['view'][1]}",
+            "policy": policy, "default": int(policy == args.default_policy),
+            "distinct_views_per_s": round(med("distinct_views_per_s")[0], 2),
+            "frames_shown_per_s": round(med("frames_shown_per_s")[0], 2),
+            "release_to_full_ms": round(med("release_to_full_ms")[0], 1),
+            "release_to_denoised_ms": round(med("release_to_denoised_ms")[0], 1),
+            "flip_at_1s": round(med("flip_1")[0], 5),
+            "flip_at_5s": round(med("flip_5")[0], 5),
+            "flip_today_at_5s": round(statistics.median(today_at_5), 5) if today_at_5 else "",
+            "runs": len(runs),
+        })
+    if args.csv:
+        new = not os.path.exists(args.csv)
+        with open(args.csv, "a", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            if new:
+                w.writeheader()
+            w.writerows(rows)
 
 
 if __name__ == "__main__":

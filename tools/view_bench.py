@@ -10,14 +10,16 @@ samples, whether it was denoised), over one scripted interaction:
     less is a click, which the old harness's first moves were), release, wait 5 s.
 
 Reported per policy (`--policies`: `today` = plain NEE, raw, as the viewer showed it before
-issue 65; `nee-oidn`; `cache`; `cache-oidn`):
+issue 65, but at the same render size as the others; `nee-oidn`; `cache`; `cache-oidn`):
 - distinct camera views shown a second over the drag (not image loads: a view shown twice,
   refined, counts once);
 - the time from the release to the first full-size frame, and to the first full-size denoised
   frame;
 - FLIP (LDR, NVIDIA's `flip-evaluator` from PyPI) of the frame on screen 1 s and 5 s after the
   release against a converged render of the released camera (`gscache render` of the scene
-  the viewer's Save writes, at the view's size, `--reference-spp` samples).
+  the viewer's Save writes, `--reference-spp` samples), both at the page's view area in device
+  pixels, the frame stretched bilinearly as the browser stretches it: a lower resolution scale
+  pays for its blur.
 
     python tools/view_bench.py --scene data/scenes/default.toml --runs 3 --csv docs/results/viewer_on_screen.csv
 
@@ -47,8 +49,15 @@ from selenium.webdriver.common.actions.pointer_input import PointerInput
 # statistics that follow it, and the time the page's image showed it.
 RECORD = """
 window.__frames = [];
+window.__moves = [];
+window.__cameras = [];
+document.addEventListener('pointermove', (e) => { if (e.buttons) window.__moves.push(performance.now()); }, true);
 const NativeSocket = window.WebSocket;
 window.WebSocket = class extends NativeSocket {
+  send(data) {
+    if (typeof data === 'string' && data.includes('"camera"')) window.__cameras.push(performance.now());
+    super.send(data);
+  }
   constructor(url, protocols) {
     super(url, protocols);
     this.addEventListener('message', (e) => {
@@ -121,20 +130,18 @@ def wait_for(predicate, timeout=60):
 
 def drag(d, seconds, step_ms=33):
     """A left-button drag across the view: the first move 8 px from the press, then one
-    4-pixel move every `step_ms`, back and forth."""
+    4-pixel move every `step_ms`, one way (every camera new)."""
     view = d.find_element("id", "frame")
     mouse = PointerInput(POINTER_MOUSE, "mouse")
     actions = ActionBuilder(d, mouse=mouse, duration=step_ms)
     rect = view.rect
-    x0 = int(rect["x"] + rect["width"] * 0.4)
+    x0 = int(rect["x"] + rect["width"] * 0.1)
     y0 = int(rect["y"] + rect["height"] * 0.5)
     actions.pointer_action.move_to_location(x0, y0)
     actions.pointer_action.pointer_down()
     steps = int(seconds * 1000 / step_ms)
     for i in range(steps):
-        phase = i % 80
-        offset = 8 + 4 * (phase if phase < 40 else 80 - phase)
-        actions.pointer_action.move_to_location(x0 + offset, y0)
+        actions.pointer_action.move_to_location(x0 + 8 + 4 * i, y0)
     actions.pointer_action.pointer_up()
     actions.perform()
 
@@ -148,11 +155,12 @@ def flip_ldr(reference, test):
     return float(mean)
 
 
-def run_once(program, scene, policy, window, out, wait_s):
+def run_once(program, scene, policy, window, out, wait_s, scale):
     method, denoise = POLICIES[policy]
     args = [program, "-q", "view", scene, "--port", "0", "--spp", "64", "--output", out]
-    if denoise:
-        args.append("--denoise")
+    if scale is not None:
+        args += ["--scale", str(scale)]
+    args += ["--denoise", "on" if denoise else "off"]
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     d = None
     try:
@@ -174,7 +182,9 @@ def run_once(program, scene, policy, window, out, wait_s):
         shown = d.execute_script(SHOWN)
         view_w = max(s["view_width"] for _, s, _ in shown if s)
         during = [(t, s) for t, s, _ in shown if s and t0 <= t <= released and s["moving"]]
-        views = {tuple(s["eye"]) for _, s in during}
+        # A view counts when it differs from the one shown before it.
+        views = [s for (_, s), (_, prev) in zip(during, [(None, None)] + during)
+                 if prev is None or s["eye"] != prev["eye"]]
         drag_s = (released - t0) / 1000
         after = [(t, s, i) for t, s, i in shown if s and t > released and not s["moving"]]
         full = [t for t, s, _ in after if s["width"] == view_w]
@@ -188,14 +198,37 @@ def run_once(program, scene, policy, window, out, wait_s):
             return Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB")
 
         frames = {s: on_screen_at(s) for s in (1.0, wait_s)}
+        area = d.execute_script(
+            "const r = document.getElementById('view').getBoundingClientRect();"
+            "const k = window.devicePixelRatio || 1;"
+            "return [Math.round(r.width * k), Math.round(r.height * k)];")
         final = next(s for t, s, _ in reversed(shown) if s)
+        rendered = [s["sequence"] for t, s in during]
+        moves = [t for t in d.execute_script("return window.__moves;") if t0 <= t <= released]
+        cameras = [t for t in d.execute_script("return window.__cameras;") if t0 <= t <= released]
+        if os.environ.get("VIEW_BENCH_VERBOSE") and during:
+            keys = ["trace_ms", "denoise_ms", "encode_ms"]
+            means = {k: statistics.mean(s[k] for _, s in during) for k in keys}
+            print(f"  drag: {during[-1][1]['width']}x{during[-1][1]['height']} " +
+                  " ".join(f"{k} {v:.1f}" for k, v in means.items()))
+        if os.environ.get("VIEW_BENCH_VERBOSE"):
+            for t, s, _ in after[:6]:
+                print(f"  +{t - released:.0f} ms: {s['width']}x{s['height']} spp {s['spp']} "
+                      f"denoised {s['denoised']} trace {s['trace_ms']:.0f} ms "
+                      f"denoise {s['denoise_ms']:.0f} ms encode {s['encode_ms']:.0f} ms")
         return {
+            "frames_rendered_per_s": (max(rendered) - min(rendered) + 1) / drag_s if rendered else 0,
+            "pointer_moves_per_s": len(moves) / drag_s,
+            "cameras_sent_per_s": len(cameras) / drag_s,
             "distinct_views_per_s": len(views) / drag_s,
             "frames_shown_per_s": len(during) / drag_s,
             "release_to_full_ms": (full[0] - released) if full else float("nan"),
             "release_to_denoised_ms": (clean[0] - released) if clean else float("nan"),
             "frames": frames,
             "view": (final["view_width"], final["view_height"]),
+            # The page's view area in device pixels: the frames are scored there, stretched
+            # as the browser stretches them, so a lower resolution scale pays for its blur.
+            "area": tuple(area),
         }
     finally:
         if d is not None:
@@ -204,13 +237,24 @@ def run_once(program, scene, policy, window, out, wait_s):
         proc.wait(timeout=20)
 
 
+REFERENCES = {}
+
+
 def reference(program, out, size, spp):
-    saved = sorted(f for f in os.listdir(out) if f.endswith(".toml"))[-1]
-    path = os.path.join(out, "reference")
-    subprocess.run([program, "-q", "render", os.path.join(out, saved), "--width", str(size[0]),
-                    "--height", str(size[1]), "--spp", str(spp), "-o", path + ".exr"],
-                   check=True)
-    return Image.open(path + ".png").convert("RGB")
+    """A converged render of the view Save wrote (at the view's size); the same script gives
+    every policy the same camera, so each camera is rendered once."""
+    saved = os.path.join(out, sorted(f for f in os.listdir(out) if f.endswith(".toml"))[-1])
+    with open(saved) as f:
+        text = f.read()
+    camera = text[text.index("[camera]"):].split("\n[", 1)[0]
+    key = (camera, size, spp)
+    if key not in REFERENCES:
+        path = os.path.join(tempfile.mkdtemp(prefix="view_bench_ref_"), "reference")
+        subprocess.run([program, "-q", "render", saved, "--width", str(size[0]),
+                        "--height", str(size[1]), "--spp", str(spp), "-o", path + ".exr"],
+                       check=True)
+        REFERENCES[key] = Image.open(path + ".png").convert("RGB")
+    return REFERENCES[key]
 
 
 def main():
@@ -221,23 +265,25 @@ def main():
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--window", default="1280x720")
     ap.add_argument("--wait", type=float, default=5.0)
-    ap.add_argument("--reference-spp", type=int, default=256)
+    ap.add_argument("--reference-spp", type=int, default=512)
     ap.add_argument("--default-policy", default="nee-oidn")
+    ap.add_argument("--scale", type=float, help="the viewer's --scale (its default if not given)")
     ap.add_argument("--csv")
     args = ap.parse_args()
     window = tuple(int(v) for v in args.window.split("x"))
     name = os.path.splitext(os.path.basename(args.scene))[0]
     rows = []
     today_at_5 = []
-    print("| scene | policy | distinct views/s dragging | frames shown/s | release to full size (ms) "
+    print("| scene | policy | pointer moves/s | cameras sent/s | distinct views/s dragging "
+          "| frames shown/s | frames rendered/s | release to full size (ms) "
           "| release to denoised (ms) | FLIP at 1 s | FLIP at 5 s |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for policy in args.policies:
         runs = []
         for _ in range(args.runs):
             out = tempfile.mkdtemp(prefix="view_bench_")
-            r = run_once(args.program, args.scene, policy, window, out, args.wait)
-            ref = reference(args.program, out, r["view"], args.reference_spp)
+            r = run_once(args.program, args.scene, policy, window, out, args.wait, args.scale)
+            ref = reference(args.program, out, r["area"], args.reference_spp)
             r["flip_1"] = flip_ldr(ref, r["frames"][1.0])
             r["flip_5"] = flip_ldr(ref, r["frames"][args.wait])
             runs.append(r)
@@ -253,8 +299,11 @@ def main():
 
         if policy == "today":
             today_at_5 = [r["flip_5"] for r in runs]
-        print(f"| {name} | {policy} | {cell('distinct_views_per_s', lambda x: f'{x:.1f}')} | "
+        print(f"| {name} | {policy} | {cell('pointer_moves_per_s', lambda x: f'{x:.1f}')} | "
+              f"{cell('cameras_sent_per_s', lambda x: f'{x:.1f}')} | "
+              f"{cell('distinct_views_per_s', lambda x: f'{x:.1f}')} | "
               f"{cell('frames_shown_per_s', lambda x: f'{x:.1f}')} | "
+              f"{cell('frames_rendered_per_s', lambda x: f'{x:.1f}')} | "
               f"{cell('release_to_full_ms', lambda x: f'{x:.0f}')} | "
               f"{cell('release_to_denoised_ms', lambda x: f'{x:.0f}')} | "
               f"{cell('flip_1', lambda x: f'{x:.4f}')} | {cell('flip_5', lambda x: f'{x:.4f}')} |",
@@ -262,6 +311,7 @@ def main():
         rows.append({
             "scene": name, "view": f"{runs[0]['view'][0]}x{runs[0]['view'][1]}",
             "policy": policy, "default": int(policy == args.default_policy),
+            "scale": args.scale if args.scale is not None else "default",
             "distinct_views_per_s": round(med("distinct_views_per_s")[0], 2),
             "frames_shown_per_s": round(med("frames_shown_per_s")[0], 2),
             "release_to_full_ms": round(med("release_to_full_ms")[0], 1),

@@ -59,7 +59,7 @@ pub fn _view(
             denoiser: denoise::OnDemand::new(0),
             limits: viewer::Limits::default(),
             resolution: viewer::Resolution::default(),
-            denoise: false,
+            denoising: viewer::Denoising::default(),
         },
     )
     .map_err(crate::error)?;

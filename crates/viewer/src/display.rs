@@ -229,20 +229,16 @@ impl Drop for FilterThread {
     }
 }
 
-/// The filter's settings for a kind of image: OIDN's fast filter for previews and for the
-/// still view's first passes (where the time to a clean image counts most and the image's own
-/// noise, not the filter's quality, limits it), its high-quality filter from 4 samples a pixel
-/// on. Colour alone guides it: the albedo leaves bright halos near lights and gains nothing
-/// in FLIP on any standard volume (BENCHMARKS.md), and keeping no guides means turning the
-/// filter on keeps the samples already taken.
-fn options_for(kind: JobKind) -> Options {
-    let quality = match kind {
-        JobKind::Preview => Quality::Fast,
-        JobKind::Still { spp } if spp < 4 => Quality::Fast,
-        JobKind::Still { .. } => Quality::High,
-    };
+/// The filter's settings: OIDN's fast filter for every image, moving or still. Against
+/// converged views in LDR FLIP (`tools/denoise_handoff.py`, BENCHMARKS.md "The viewer on
+/// screen") it is ahead of the high-quality filter at every sample count on neghip (which
+/// `high` smooths most: 0.032 against 0.046 at 8 samples), level on hydrogen and within 9% on
+/// the embryo, at half the time. Colour alone guides it: the albedo leaves bright halos near
+/// lights and gains nothing in FLIP on any standard volume, and keeping no guides means
+/// turning the filter on keeps the samples already taken.
+fn options_for(_kind: JobKind) -> Options {
     Options {
-        quality,
+        quality: Quality::Fast,
         prefilter: false,
     }
 }

@@ -31,7 +31,7 @@ pub mod worker;
 
 pub use connections::Limits;
 pub use server::{ServeOptions, Viewer, serve};
-pub use worker::Resolution;
+pub use worker::{DenoiseStart, Denoising, Resolution};
 
 /// Errors of the viewer, naming what failed.
 #[derive(Debug, thiserror::Error)]

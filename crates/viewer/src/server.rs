@@ -47,8 +47,9 @@ pub struct ServeOptions {
     pub denoiser: denoise::OnDemand,
     /// The size the view renders at, against the page's view area.
     pub resolution: crate::worker::Resolution,
-    /// Start with denoising on (said to the first page if the denoiser cannot be loaded).
-    pub denoise: bool,
+    /// Whether denoising is on from the start, and until how many samples a pixel a still
+    /// view is shown filtered.
+    pub denoising: crate::worker::Denoising,
 }
 
 impl Default for ServeOptions {
@@ -61,7 +62,12 @@ impl Default for ServeOptions {
             denoiser: denoise::OnDemand::new(0),
             limits: crate::Limits::default(),
             resolution: crate::worker::Resolution::default(),
-            denoise: false,
+            // A library caller turns denoising on itself (the program and the Python module
+            // start it where the library loads: `Denoising::default()`).
+            denoising: crate::worker::Denoising {
+                start: crate::worker::DenoiseStart::Off,
+                ..crate::worker::Denoising::default()
+            },
         }
     }
 }
@@ -216,7 +222,7 @@ pub fn serve(
         options.resolution,
         frames_tx,
     )?
-    .with_denoising(options.denoise);
+    .with_denoising(options.denoising);
     let (commands, command_rx) = std::sync::mpsc::channel();
     let cancel = Arc::new(AtomicBool::new(false));
     let (events, _) = broadcast::channel(64);

@@ -104,13 +104,16 @@ pub struct Resolution {
 }
 
 impl Default for Resolution {
-    /// Three quarters of the device pixels: on 2 cores a 1280x720 view area then renders at
-    /// 960x540, whose first pass and fast filter after a release take about 90 + 170 ms where
-    /// the full size takes 160 + 300 ms (BENCHMARKS.md, "The viewer on screen"); within
-    /// 1920x1080, a view a 16-core machine refines at a few passes a second.
+    /// Half the device pixels a side. On a 2-core Intel Xeon with the browser beside it, a
+    /// 1280x720 window's view renders at 457x289 (0.5) or 686x433 (0.75): at 0.5 the first
+    /// denoised full-size frame is on screen 270 ms after a release against 570 ms, and the
+    /// image on screen 1 s and 5 s after it is closer to the converged view in FLIP, measured
+    /// at the window's own pixels (the smaller image stretched as the browser stretches it)
+    /// (BENCHMARKS.md, "The viewer on screen"). Within 1920x1080, which a 16-core machine
+    /// refines at a few passes a second.
     fn default() -> Self {
         Self {
-            scale: 0.75,
+            scale: 0.5,
             max_size: (1920, 1080),
         }
     }
@@ -131,6 +134,39 @@ impl Resolution {
             ((w * shrink).round() as u32).max(16),
             ((h * shrink).round() as u32).max(16),
         )
+    }
+}
+
+/// How the viewer denoises what it shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Denoising {
+    /// Whether denoising is on when the first page connects.
+    pub start: DenoiseStart,
+    /// The samples a pixel from which a still view shows its raw image rather than the
+    /// filtered one (0: filtered to the last, the default). Against converged views in LDR
+    /// FLIP the filtered image is ahead at every sample count measured (1-32) on hydrogen and
+    /// the embryo, but behind from 8 on neghip, whose fine texture it smooths away
+    /// (BENCHMARKS.md, "The viewer on screen"): data like that is better seen with 8 here.
+    /// Every frame of a drag is filtered whatever this says.
+    pub until_spp: u32,
+}
+
+/// Whether denoising is on from the start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DenoiseStart {
+    Off,
+    /// On where Open Image Denoise loads; off, without a word, where it does not.
+    Auto,
+    /// On; the first page is told if it cannot be.
+    On,
+}
+
+impl Default for Denoising {
+    fn default() -> Self {
+        Self {
+            start: DenoiseStart::Auto,
+            until_spp: 0,
+        }
     }
 }
 
@@ -184,8 +220,10 @@ pub struct Worker {
     viewport: Option<(u32, u32)>,
     resolution: Resolution,
     /// Denoising asked for at start, turned on when the first page connects (so that a
-    /// missing library is said to it).
-    denoise_at_start: bool,
+    /// missing library is said to it), and the samples from which a still view is raw.
+    denoising: Denoising,
+    /// Whether the view changed since the last frame rendered (see [`Worker::drag_paused`]).
+    fresh: bool,
     /// The named views (bookmarks), saved with the scene.
     views: Vec<ViewDesc>,
     /// Per `[[channel]]` table, whether it is shown (all are at first).
@@ -246,16 +284,21 @@ impl Worker {
             last_report: FrameReport::default(),
             viewport: None,
             resolution,
-            denoise_at_start: false,
+            denoising: Denoising {
+                start: DenoiseStart::Off,
+                until_spp: 0,
+            },
+            fresh: true,
             views,
             channels_visible,
             time,
         })
     }
 
-    /// The same worker, turning denoising on when the first page connects.
-    pub fn with_denoising(mut self, on: bool) -> Self {
-        self.denoise_at_start = on;
+    /// The same worker, denoising as `denoising` says (turned on, if asked, when the first
+    /// page connects).
+    pub fn with_denoising(mut self, denoising: Denoising) -> Self {
+        self.denoising = denoising;
         self
     }
 
@@ -310,6 +353,18 @@ impl Worker {
         self.watching == 0
             || (!self.moving && !self.preview && self.session.frames_in_image() >= self.target_spp)
     }
+
+    /// A drag whose camera has not moved since the last frame: another frame would only add
+    /// a sample to a preview the next camera replaces. The render thread waits for that camera
+    /// instead (at most [`Worker::DRAG_PAUSE`]), leaving the cores to the browser, whose
+    /// pointer events and image decoding share them (issue 65: up to 45% of the frames shown
+    /// in a drag were extra samples of a camera already on screen).
+    fn drag_paused(&self) -> bool {
+        self.moving && !self.fresh
+    }
+
+    /// How long a drag that has not moved waits before its preview is refined by a frame.
+    const DRAG_PAUSE: Duration = Duration::from_millis(100);
 
     /// Reads time point `time` of the scene's volume (and its channels) and puts it in the
     /// view, keeping the view's transfer functions, clipping, phase and lights.
@@ -388,6 +443,13 @@ impl Worker {
                     Err(RecvTimeoutError::Timeout) => continue,
                     Err(RecvTimeoutError::Disconnected) => return,
                 }
+            } else if self.drag_paused() {
+                match commands.recv_timeout(Self::DRAG_PAUSE) {
+                    Ok(c) => pending.push(c),
+                    // The pointer rests, still pressed: the preview refines by a frame.
+                    Err(RecvTimeoutError::Timeout) => self.fresh = true,
+                    Err(RecvTimeoutError::Disconnected) => return,
+                }
             }
             pending.extend(commands.try_iter());
             cancel.store(false, Ordering::SeqCst);
@@ -396,8 +458,11 @@ impl Worker {
                     Command::Shutdown => return,
                     Command::Hello { client } => {
                         self.watching += 1;
-                        if std::mem::take(&mut self.denoise_at_start)
+                        let start =
+                            std::mem::replace(&mut self.denoising.start, DenoiseStart::Off);
+                        if start != DenoiseStart::Off
                             && let Err(e) = self.apply(Change::Denoise(true), client, &events)
+                            && start == DenoiseStart::On
                         {
                             let _ = events.send(Event {
                                 to: Recipients::One(client),
@@ -479,6 +544,7 @@ impl Worker {
                 Ok(report) => {
                     self.seconds[1] += report.seconds;
                     self.sequence += 1;
+                    self.fresh = false;
                     let size = self.session.camera();
                     let small =
                         (size.width, size.height) != (self.camera.width, self.camera.height);
@@ -491,15 +557,17 @@ impl Worker {
                     }
                     self.last_report = report;
                     self.show(small, &events);
-                    if self.preview {
-                        // The quick frame is out: refine at full size from here.
-                        self.preview = false;
-                        if let Err(e) = self.set_camera() {
-                            let _ = events.send(Event {
-                                to: Recipients::All,
-                                text: Arc::new(error_json(&e)),
-                            });
-                        }
+                    // The quick frame is out: a still view refines at full size from here. (A
+                    // drag stays small: putting its camera in again made a second frame of
+                    // every camera, issue 65's repeated views.)
+                    if std::mem::take(&mut self.preview)
+                        && !self.moving
+                        && let Err(e) = self.set_camera()
+                    {
+                        let _ = events.send(Event {
+                            to: Recipients::All,
+                            text: Arc::new(error_json(&e)),
+                        });
                     }
                 }
                 Err(e) => {
@@ -542,6 +610,12 @@ impl Worker {
                 self.camera = camera
                     .with_size(self.camera.width, self.camera.height)
                     .map_err(|e| e.to_string())?;
+                // At a drag's release with the filter on, the drag's last frame, denoised, is
+                // on screen already: the first pass goes straight to full size (a quick frame
+                // of the same view would only hold the filter up).
+                if self.moving && !moving && self.filter.is_some() && self.denoise_on {
+                    self.preview = false;
+                }
                 self.moving = moving;
                 self.mover = moving.then_some(client);
                 self.set_camera()?;
@@ -807,6 +881,7 @@ impl Worker {
             .edit(Edit::Camera(camera))
             .map_err(|e| e.to_string())?;
         self.seconds = [0.0; 2];
+        self.fresh = true;
         self.view += 1;
         self.still_posted = 0;
         if let Some(filter) = &self.filter {
@@ -847,7 +922,9 @@ impl Worker {
             };
         }
         self.last_frame = Some(now);
-        if self.denoising(events) {
+        let raw_from = self.denoising.until_spp;
+        let spp = self.session.frames_in_image();
+        if self.denoising(events) && (small || raw_from == 0 || spp < raw_from) {
             if small {
                 self.submit(JobKind::Preview);
             } else {
@@ -885,7 +962,8 @@ impl Worker {
             return false;
         }
         let spp = self.session.frames_in_image();
-        if !still_due(spp, self.still_posted, self.target_spp) {
+        let raw_from = self.denoising.until_spp;
+        if (raw_from > 0 && spp >= raw_from) || !still_due(spp, self.still_posted, self.target_spp) {
             return false;
         }
         let busy = self.filter.as_ref().is_some_and(|f| f.status().busy);
@@ -1019,8 +1097,9 @@ impl PreviewGovernor {
     pub const FRAME_SECONDS: f64 = 0.045;
     /// The preview's height is not made smaller than this (or than the view's): when the page
     /// or the machine is busy, frames come less often rather than smaller than a readable
-    /// preview (128x72 was seen under load before the floor).
-    pub const MIN_HEIGHT: u32 = 180;
+    /// preview (128x72 was seen under load before the floor). 144 rows: a 256x144 preview of a
+    /// 16:9 view, which a 2-core Intel Xeon renders, filters and encodes in about 35 ms.
+    pub const MIN_HEIGHT: u32 = 144;
 
     /// Adds a preview frame of `pixels` that took `seconds` to the estimate (a moving mean
     /// that follows a change of method or scene within a few frames). Ignores what cannot be
@@ -1143,25 +1222,26 @@ mod tests {
         assert_eq!(g.divisor(1920, 1080, 0.0), 4);
         assert_eq!(g.divisor(1920, 1080, 0.025 / 120_000.0), 5);
         // Frames that cost a microsecond a pixel (a cache on a slow machine): 1280x720 would
-        // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5 with a 4K view
-        // (the floor allows 12), once the moving mean has followed; a 720p view stops at the
-        // floor of 180 rows (4).
+        // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5 once the moving
+        // mean has followed, which the floor of 144 rows allows; a 4K view would shrink by 14
+        // and stops at the floor (15); a view of 432 rows stops at 3.
         for _ in 0..40 {
             g.observe(1e-6 * 10_000.0, 10_000.0);
         }
-        assert_eq!(g.divisor(1280, 720, 0.0), 4);
-        assert_eq!(g.divisor(1280 * 3, 720 * 3, 0.0), 12);
+        assert_eq!(g.divisor(1280, 720, 0.0), 5);
+        assert_eq!(g.divisor(1280 * 3, 720 * 3, 0.0), 14);
+        assert_eq!(g.divisor(768, 432, 0.0), 3);
         // Never below 2 while moving; nothing learnt from non-measurements; a NaN filter
         // cost gives the floor, not a panic.
         assert_eq!(g.divisor(64, 36, 0.0), 2);
         for _ in 0..40 {
             g.observe(1.0, 1.0);
         }
-        assert_eq!(g.divisor(1280, 720, 0.0), 4);
+        assert_eq!(g.divisor(1280, 720, 0.0), 5);
         let before = g.divisor(3840, 2160, 0.0);
         g.observe(f64::NAN, 100.0);
         g.observe(0.01, 0.0);
         assert_eq!(g.divisor(3840, 2160, 0.0), before);
-        assert_eq!(g.divisor(1280, 720, f64::NAN), 4);
+        assert_eq!(g.divisor(1280, 720, f64::NAN), 5);
     }
 }

@@ -528,6 +528,11 @@ static DENOISER_TESTS: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(()
 fn start_with_denoiser(output: &Path, denoiser: denoise::OnDemand) -> Viewer {
     let options = ServeOptions {
         denoiser,
+        denoising: viewer::Denoising {
+            start: viewer::DenoiseStart::Off,
+            // Filtered to the last sample: the tests watch the filter's images.
+            until_spp: 0,
+        },
         ..Default::default()
     };
     serve_default(output, (64, 36), 8, options).unwrap()
@@ -622,6 +627,10 @@ async fn a_drag_started_while_the_filter_runs_shows_its_first_frame_within_150_m
     let out = scratch("denoise-drag");
     let options = ServeOptions {
         denoiser: denoise::OnDemand::new(0),
+        denoising: viewer::Denoising {
+            start: viewer::DenoiseStart::Off,
+            until_spp: 0,
+        },
         ..Default::default()
     };
     let v = serve_default(&out, (1920, 1080), 16, options).unwrap();

@@ -34,13 +34,29 @@ pub struct ViewArgs {
     /// this size, its aspect kept, and stretched by the page).
     #[arg(long, default_value = "1920x1080", value_parser = parse_size)]
     pub max_size: (u32, u32),
-    /// Start with denoising on (Open Image Denoise, where installed): every frame shown,
-    /// moving or still, is denoised.
-    #[arg(long)]
-    pub denoise: bool,
+    /// Denoising from the start (Open Image Denoise; the page's toggle changes it): `auto` is
+    /// on where the library loads and off without a word where it does not. With it on, every
+    /// frame of a drag is denoised, and a still view until `--denoise-until` samples a pixel.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub denoise: DenoiseStart,
+    /// The samples a pixel from which a still view shows its raw image rather than the
+    /// denoised one (0: denoised to the last). The denoised image is ahead in FLIP at every
+    /// sample count on smooth data (hydrogen, the embryo) but behind from 8 on data with fine
+    /// texture (neghip), which it smooths away: 8 suits such data (BENCHMARKS.md, "The viewer
+    /// on screen").
+    #[arg(long, default_value_t = viewer::Denoising::default().until_spp)]
+    pub denoise_until: u32,
     /// What the command line changes of the scene.
     #[command(flatten)]
     pub overrides: volume_pt::SceneOverrides,
+}
+
+/// `--denoise`: whether denoising is on from the start.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum DenoiseStart {
+    Off,
+    Auto,
+    On,
 }
 
 fn parse_scale(text: &str) -> Result<f32, String> {
@@ -99,7 +115,14 @@ pub fn run(args: ViewArgs, global: &Global) -> Result<i32> {
                 scale: args.scale,
                 max_size: args.max_size,
             },
-            denoise: args.denoise,
+            denoising: viewer::Denoising {
+                start: match args.denoise {
+                    DenoiseStart::Off => viewer::DenoiseStart::Off,
+                    DenoiseStart::Auto => viewer::DenoiseStart::Auto,
+                    DenoiseStart::On => viewer::DenoiseStart::On,
+                },
+                until_spp: args.denoise_until,
+            },
         },
     )?;
     println!("{}", viewer.url());

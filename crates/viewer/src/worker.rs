@@ -860,15 +860,10 @@ impl Worker {
         let camera = if small {
             let filtered = self.filter.as_ref().filter(|_| self.denoise_on);
             let filter_cost = filtered.map_or(0.0, |f| f.status().preview_seconds_per_pixel);
-            let d = self
-                .governor
-                .divisor(self.camera.width, self.camera.height, filter_cost);
-            self.camera
-                .with_size(
-                    (self.camera.width / d).max(1),
-                    (self.camera.height / d).max(1),
-                )
-                .map_err(|e| e.to_string())?
+            let (w, h) =
+                self.governor
+                    .preview_size(self.camera.width, self.camera.height, filter_cost);
+            self.camera.with_size(w, h).map_err(|e| e.to_string())?
         } else {
             self.camera
         };
@@ -1079,6 +1074,8 @@ pub fn still_due(spp: u32, posted: u32, target: u32) -> bool {
 pub struct PreviewGovernor {
     /// Seconds a preview pixel took, smoothed over the last frames.
     seconds_per_pixel: f64,
+    /// The factor in force.
+    factor: Option<f64>,
 }
 
 impl Default for PreviewGovernor {
@@ -1087,6 +1084,7 @@ impl Default for PreviewGovernor {
         // sample on 2 cores (the fixed preview of issue 47).
         Self {
             seconds_per_pixel: 0.025 / 120_000.0,
+            factor: None,
         }
     }
 }
@@ -1095,11 +1093,14 @@ impl PreviewGovernor {
     /// A preview frame's time (rendering, and with denoising on filtering and encoding): 20
     /// frames a second leave about 5 ms of each frame's 50 ms for the socket and the page.
     pub const FRAME_SECONDS: f64 = 0.045;
-    /// The preview's height is not made smaller than this (or than the view's): when the page
-    /// or the machine is busy, frames come less often rather than smaller than a readable
-    /// preview (128x72 was seen under load before the floor). 144 rows: a 256x144 preview of a
-    /// 16:9 view, which a 2-core Intel Xeon renders, filters and encodes in about 35 ms.
-    pub const MIN_HEIGHT: u32 = 144;
+    /// The preview's height is not made smaller than this (or than half the view's): when the
+    /// page or the machine is busy, frames come less often rather than smaller than a
+    /// readable preview (128x72 was seen under load before the floor). 120 rows: a 2-core
+    /// Intel Xeon renders, filters and encodes a 190x120 preview in about 40 ms beside the
+    /// browser.
+    pub const MIN_HEIGHT: u32 = 120;
+    /// The preview's factor moves in quarter steps.
+    pub const STEP: f64 = 0.25;
 
     /// Adds a preview frame of `pixels` that took `seconds` to the estimate (a moving mean
     /// that follows a change of method or scene within a few frames). Ignores what cannot be
@@ -1111,19 +1112,38 @@ impl PreviewGovernor {
         }
     }
 
-    /// The factor a `width x height` view is shrunk by while it moves, where filtering and
-    /// encoding a preview pixel costs `filter_seconds_per_pixel` besides rendering it: at
-    /// least 2 (a drag is never at full size: its frames come and go), and no more than keeps
-    /// the preview [`PreviewGovernor::MIN_HEIGHT`] tall.
-    pub fn divisor(&self, width: u32, height: u32, filter_seconds_per_pixel: f64) -> u32 {
+    /// The factor a `width x height` view's sides are shrunk by while it moves, where
+    /// filtering and encoding a preview pixel costs `filter_seconds_per_pixel` besides
+    /// rendering it: at least 2 (a drag is never at full size: its frames come and go), no more
+    /// than keeps the preview [`PreviewGovernor::MIN_HEIGHT`] tall, in steps of
+    /// [`PreviewGovernor::STEP`]. The factor in force is kept while the one that fits is
+    /// within a step of it, so a preview's size does not flicker with the measurements (each
+    /// new size also builds a filter).
+    pub fn divisor(&mut self, width: u32, height: u32, filter_seconds_per_pixel: f64) -> f64 {
         let per_pixel = self.seconds_per_pixel + filter_seconds_per_pixel.max(0.0);
         let frame = f64::from(width) * f64::from(height) * per_pixel;
-        let d = (frame / Self::FRAME_SECONDS).sqrt().ceil();
-        let most = (height / Self::MIN_HEIGHT).max(2);
-        if d.is_nan() {
-            return most;
-        }
-        (d as u32).clamp(2, most)
+        let most = (f64::from(height) / f64::from(Self::MIN_HEIGHT)).max(2.0);
+        let fit = (frame / Self::FRAME_SECONDS).sqrt();
+        let fit = if fit.is_nan() { most } else { fit.clamp(2.0, most) };
+        let stepped = ((fit / Self::STEP).ceil() * Self::STEP).min(most);
+        let kept = self
+            .factor
+            .filter(|&d| (d - fit).abs() < Self::STEP && d <= most);
+        let d = kept.unwrap_or(stepped);
+        self.factor = Some(d);
+        d
+    }
+
+    /// The preview's size for a `width x height` view ([`PreviewGovernor::divisor`]).
+    pub fn preview_size(
+        &mut self,
+        width: u32,
+        height: u32,
+        filter_seconds_per_pixel: f64,
+    ) -> (u32, u32) {
+        let d = self.divisor(width, height, filter_seconds_per_pixel);
+        let side = |n: u32| ((f64::from(n) / d).round() as u32).max(1);
+        (side(width), side(height))
     }
 }
 
@@ -1212,36 +1232,48 @@ mod tests {
 
     #[test]
     fn the_governor_sizes_the_preview_from_what_frames_cost() {
-        let mut g = PreviewGovernor::default();
+        let fresh = PreviewGovernor::default;
         // Unmeasured: the fixed preview of before (25 ms for 120 000 pixels): 1280x720 is
-        // 7.7x that many pixels, so a third of the width (9 times fewer pixels) fits 45 ms.
-        assert_eq!(g.divisor(1280, 720, 0.0), 3);
-        // Filtering that costs what rendering does doubles a pixel's cost: a 1920x1080 view
-        // shrinks by ceil(sqrt(0.432 / 0.045)) = 4 unfiltered, ceil(sqrt(0.864 / 0.045)) = 5
-        // filtered.
-        assert_eq!(g.divisor(1920, 1080, 0.0), 4);
-        assert_eq!(g.divisor(1920, 1080, 0.025 / 120_000.0), 5);
+        // 7.7x that many pixels, so the sides shrink by sqrt(0.192 / 0.045) = 2.07, stepped up
+        // to 2.25: 569x320.
+        assert_eq!(fresh().preview_size(1280, 720, 0.0), (569, 320));
+        // Filtering that costs what rendering does doubles a pixel's cost: sqrt(2) times more,
+        // 2.92, stepped to 3.
+        assert_eq!(fresh().divisor(1280, 720, 0.025 / 120_000.0), 3.0);
         // Frames that cost a microsecond a pixel (a cache on a slow machine): 1280x720 would
-        // take 0.92 s, so the side shrinks by ceil(sqrt(0.92 / 0.045)) = 5 once the moving
-        // mean has followed, which the floor of 144 rows allows; a 4K view would shrink by 14
-        // and stops at the floor (15); a view of 432 rows stops at 3.
+        // take 0.92 s, a factor of 4.52, stepped to 4.75, once the moving mean has followed;
+        // the floor of 120 rows stops a view of 432 rows at 3.6 when pixels cost ten times
+        // that.
+        let mut g = fresh();
         for _ in 0..40 {
             g.observe(1e-6 * 10_000.0, 10_000.0);
         }
-        assert_eq!(g.divisor(1280, 720, 0.0), 5);
-        assert_eq!(g.divisor(1280 * 3, 720 * 3, 0.0), 14);
-        assert_eq!(g.divisor(768, 432, 0.0), 3);
+        assert!((g.seconds_per_pixel - 1e-6).abs() < 1e-9);
+        assert_eq!(g.divisor(1280, 720, 0.0), 4.75);
+        assert_eq!(fresh_like(&g).divisor(768, 432, 1e-5), 3.6);
+        // The factor in force is kept while the one that fits is within a step: a 5%
+        // costlier pixel (a fit of 4.64) keeps 4.75 where a fresh governor would step to 4.75
+        // too, 10% (4.74) keeps it, and twice the cost (6.4) moves it to the floor, 6.
+        assert_eq!(g.divisor(1280, 720, 0.05e-6), 4.75);
+        g.factor = Some(4.5);
+        assert_eq!(g.divisor(1280, 720, 0.1e-6), 4.5);
+        assert_eq!(g.divisor(1280, 720, 1e-6), 6.0);
         // Never below 2 while moving; nothing learnt from non-measurements; a NaN filter
-        // cost gives the floor, not a panic.
-        assert_eq!(g.divisor(64, 36, 0.0), 2);
-        for _ in 0..40 {
-            g.observe(1.0, 1.0);
-        }
-        assert_eq!(g.divisor(1280, 720, 0.0), 5);
-        let before = g.divisor(3840, 2160, 0.0);
+        // cost counts as none.
+        assert_eq!(fresh().divisor(64, 36, 0.0), 2.0);
+        let before = fresh_like(&g).divisor(3840, 2160, 0.0);
         g.observe(f64::NAN, 100.0);
         g.observe(0.01, 0.0);
-        assert_eq!(g.divisor(3840, 2160, 0.0), before);
-        assert_eq!(g.divisor(1280, 720, f64::NAN), 5);
+        assert_eq!(fresh_like(&g).divisor(3840, 2160, 0.0), before);
+        assert_eq!(fresh().divisor(1280, 720, f64::NAN), 2.25);
     }
+
+    /// `g`'s measurements without the factor in force.
+    fn fresh_like(g: &PreviewGovernor) -> PreviewGovernor {
+        PreviewGovernor {
+            factor: None,
+            ..g.clone()
+        }
+    }
+
 }

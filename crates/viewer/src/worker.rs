@@ -17,8 +17,9 @@
 //!
 //! With denoising on, every frame shown is denoised, by the filter thread
 //! ([`crate::display`]): each preview frame, and the still view's image at 1, 2, 4, 8, ...
-//! samples a pixel and at the last, while the render thread goes on accumulating. Turning the
-//! filter on or off keeps the samples taken.
+//! samples a pixel and at the last (or until [`Denoising::until_spp`], from which the raw
+//! image is shown), while the render thread goes on accumulating. Turning the filter on or
+//! off keeps the samples taken. A drag renders each camera once and waits for the next.
 
 use crate::display::{FilterJob, FilterThread, JobKind, Publisher};
 use crate::protocol::{
@@ -458,8 +459,7 @@ impl Worker {
                     Command::Shutdown => return,
                     Command::Hello { client } => {
                         self.watching += 1;
-                        let start =
-                            std::mem::replace(&mut self.denoising.start, DenoiseStart::Off);
+                        let start = std::mem::replace(&mut self.denoising.start, DenoiseStart::Off);
                         if start != DenoiseStart::Off
                             && let Err(e) = self.apply(Change::Denoise(true), client, &events)
                             && start == DenoiseStart::On
@@ -958,7 +958,8 @@ impl Worker {
         }
         let spp = self.session.frames_in_image();
         let raw_from = self.denoising.until_spp;
-        if (raw_from > 0 && spp >= raw_from) || !still_due(spp, self.still_posted, self.target_spp) {
+        if (raw_from > 0 && spp >= raw_from) || !still_due(spp, self.still_posted, self.target_spp)
+        {
             return false;
         }
         let busy = self.filter.as_ref().is_some_and(|f| f.status().busy);
@@ -1124,7 +1125,11 @@ impl PreviewGovernor {
         let frame = f64::from(width) * f64::from(height) * per_pixel;
         let most = (f64::from(height) / f64::from(Self::MIN_HEIGHT)).max(2.0);
         let fit = (frame / Self::FRAME_SECONDS).sqrt();
-        let fit = if fit.is_nan() { most } else { fit.clamp(2.0, most) };
+        let fit = if fit.is_nan() {
+            most
+        } else {
+            fit.clamp(2.0, most)
+        };
         let stepped = ((fit / Self::STEP).ceil() * Self::STEP).min(most);
         let kept = self
             .factor
@@ -1275,5 +1280,4 @@ mod tests {
             ..g.clone()
         }
     }
-
 }

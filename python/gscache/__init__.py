@@ -547,16 +547,24 @@ def view(
     bind: str = "127.0.0.1",
     output: str = "out/view",
     max_clients: int = 4,
+    denoise: str = "auto",
+    denoise_until: int = 0,
+    scale: float = 0.5,
 ) -> Viewer:
     """Explores ``scene`` in the browser, as ``gscache view`` does: returns at once with a
     ``Viewer`` whose ``url`` (with its token) opens the page; in Jupyter the result displays as
     the page itself. ``port`` 0 picks a free one. It listens on 127.0.0.1 unless ``bind`` says
-    otherwise. Save writes into ``output`` only."""
+    otherwise. Save writes into ``output`` only. ``denoise`` ("off", "auto": on where Open
+    Image Denoise loads, "on"), ``denoise_until`` (the samples a pixel from which a still view
+    is shown raw; 0: denoised to the last) and ``scale`` (the rendered image against the page's
+    view area in device pixels, 0.1 to 2) are the program's ``--denoise``,
+    ``--denoise-until`` and ``--scale``."""
     text, path = "", ""
     if getattr(scene, "_path", None):
         path = scene._path
         text = getattr(scene, "toml", None) or pathlib.Path(path).read_text()
-    return Viewer(_gscache._view(scene._inner, text, path, port, bind, output, max_clients))
+    return Viewer(_gscache._view(scene._inner, text, path, port, bind, output, max_clients,
+                                 denoise, int(denoise_until), float(scale)))
 
 
 def _movie_spec(

@@ -206,6 +206,12 @@ def test_view_from_python(repo, tmp_path):
     finally:
         v.stop()
     assert not (tmp_path / "out").exists(), "nothing is written before a Save"
+    # The program's --denoise, --denoise-until and --scale, checked as the program checks them.
+    with pytest.raises(ValueError, match="denoise `sometimes`"):
+        gscache.view(scene, denoise="sometimes")
+    with pytest.raises(ValueError, match="scale NaN: expected 0.1 to 2"):
+        gscache.view(scene, scale=float("nan"))
+    gscache.view(scene, denoise="off", denoise_until=8, scale=0.25).stop()
 
 
 def test_reload_keeps_the_state_and_an_intensity_edit_keeps_the_light(viewer, browser, tmp_path):

@@ -32,7 +32,7 @@ impl Viewer {
 /// Starts the viewer on `scene`; `text` and `file` are the scene file's text and path (for
 /// Save; empty for a scene made from tables).
 #[pyfunction]
-#[pyo3(signature = (scene, text, file, port, bind, output, max_clients))]
+#[pyo3(signature = (scene, text, file, port, bind, output, max_clients, denoise, denoise_until, scale))]
 #[allow(clippy::too_many_arguments)] // the program's flags, one for one
 pub fn _view(
     scene: &Scene,
@@ -42,7 +42,28 @@ pub fn _view(
     bind: &str,
     output: PathBuf,
     max_clients: usize,
+    denoise: &str,
+    denoise_until: u32,
+    scale: f32,
 ) -> PyResult<Viewer> {
+    let start = match denoise {
+        "off" => viewer::DenoiseStart::Off,
+        "auto" => viewer::DenoiseStart::Auto,
+        "on" => viewer::DenoiseStart::On,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "denoise `{other}`: expected \"off\", \"auto\" or \"on\""
+            )));
+        }
+    };
+    // Written so that NaN is refused.
+    if !viewer::protocol::SCALES.contains(&scale) {
+        return Err(PyValueError::new_err(format!(
+            "scale {scale}: expected {} to {}",
+            viewer::protocol::SCALES.start(),
+            viewer::protocol::SCALES.end()
+        )));
+    }
     let bind: IpAddr = bind
         .parse()
         .map_err(|e| PyValueError::new_err(format!("bind `{bind}`: {e}")))?;
@@ -58,8 +79,14 @@ pub fn _view(
             // Loaded when the page first turns denoising on: loading runs the library's code.
             denoiser: denoise::OnDemand::new(0),
             limits: viewer::Limits::default(),
-            resolution: viewer::Resolution::default(),
-            denoising: viewer::Denoising::default(),
+            resolution: viewer::Resolution {
+                scale,
+                ..viewer::Resolution::default()
+            },
+            denoising: viewer::Denoising {
+                start,
+                until_spp: denoise_until,
+            },
         },
     )
     .map_err(crate::error)?;

@@ -7,7 +7,8 @@ shown (the image's `load` event), with the statistics the server sent with it (i
 samples, whether it was denoised), over one scripted interaction:
 
     drag 3 s (a move every 33 ms, starting 8 px from the press: a press that moves 3 px or
-    less is a click, which the old harness's first moves were), release, wait 5 s.
+    less is a click, which the old harness's first moves were), release, wait 5 s, change the
+    transfer function (the next colour-map preset), wait 3 s.
 
 Reported per policy (`--policies`: `today` = plain NEE, raw, as the viewer showed it before
 issue 65, but at the same render size as the others; `nee-oidn`; `cache`; `cache-oidn`):
@@ -15,6 +16,8 @@ issue 65, but at the same render size as the others; `nee-oidn`; `cache`; `cache
   refined, counts once);
 - the time from the release to the first full-size frame, and to the first full-size denoised
   frame;
+- the time from the transfer function's edit to its first frame, to its first full-size frame
+  and to its first full-size denoised frame;
 - FLIP (LDR, NVIDIA's `flip-evaluator` from PyPI) of the frame on screen 1 s and 5 s after the
   release against a converged render of the released camera (`gscache render` of the scene
   the viewer's Save writes, `--reference-spp` samples), both at the page's view area in device
@@ -179,6 +182,12 @@ def run_once(program, scene, policy, window, out, wait_s, scale):
         time.sleep(wait_s)
         d.find_element("id", "save").click()
         wait_for(lambda: "saved" in d.find_element("id", "error").text)
+        # The transfer function changed (the next colour-map preset), then 3 s.
+        edited = d.execute_script(
+            "const s = document.getElementById('colormap');"
+            "s.selectedIndex = (s.selectedIndex + 1) % s.options.length;"
+            "const t = performance.now(); s.dispatchEvent(new Event('change')); return t;")
+        time.sleep(3.0)
         shown = d.execute_script(SHOWN)
         view_w = max(s["view_width"] for _, s, _ in shown if s)
         during = [(t, s) for t, s, _ in shown if s and t0 <= t <= released and s["moving"]]
@@ -186,7 +195,14 @@ def run_once(program, scene, policy, window, out, wait_s, scale):
         views = [s for (_, s), (_, prev) in zip(during, [(None, None)] + during)
                  if prev is None or s["eye"] != prev["eye"]]
         drag_s = (released - t0) / 1000
-        after = [(t, s, i) for t, s, i in shown if s and t > released and not s["moving"]]
+        after = [(t, s, i) for t, s, i in shown
+                 if s and released < t < edited and not s["moving"]]
+        # Frames made after the edit: their statistics count one edit more than the last frame
+        # shown before it (a frame already on its way arrives after the edit too).
+        before_edit = [s for t, s, _ in shown if s and t <= edited][-1]["edits"]
+        edit_frames = [(t, s) for t, s, _ in shown if s and t > edited and s["edits"] > before_edit]
+        edit_full = [t for t, s in edit_frames if s["width"] == view_w]
+        edit_clean = [t for t, s in edit_frames if s["width"] == view_w and s["denoised"]]
         full = [t for t, s, _ in after if s["width"] == view_w]
         clean = [t for t, s, _ in after if s["width"] == view_w and s["denoised"]]
 
@@ -219,6 +235,9 @@ def run_once(program, scene, policy, window, out, wait_s, scale):
         return {
             "frames_rendered_per_s": (max(rendered) - min(rendered) + 1) / drag_s if rendered else 0,
             "pointer_moves_per_s": len(moves) / drag_s,
+            "edit_to_frame_ms": (edit_frames[0][0] - edited) if edit_frames else float("nan"),
+            "edit_to_full_ms": (edit_full[0] - edited) if edit_full else float("nan"),
+            "edit_to_denoised_ms": (edit_clean[0] - edited) if edit_clean else float("nan"),
             "cameras_sent_per_s": len(cameras) / drag_s,
             "distinct_views_per_s": len(views) / drag_s,
             "frames_shown_per_s": len(during) / drag_s,
@@ -276,8 +295,9 @@ def main():
     today_at_5 = []
     print("| scene | policy | pointer moves/s | cameras sent/s | distinct views/s dragging "
           "| frames shown/s | frames rendered/s | release to full size (ms) "
-          "| release to denoised (ms) | FLIP at 1 s | FLIP at 5 s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| release to denoised (ms) | FLIP at 1 s | FLIP at 5 s | edit to a frame (ms) "
+          "| edit to full size (ms) | edit to denoised (ms) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for policy in args.policies:
         runs = []
         for _ in range(args.runs):
@@ -306,7 +326,10 @@ def main():
               f"{cell('frames_rendered_per_s', lambda x: f'{x:.1f}')} | "
               f"{cell('release_to_full_ms', lambda x: f'{x:.0f}')} | "
               f"{cell('release_to_denoised_ms', lambda x: f'{x:.0f}')} | "
-              f"{cell('flip_1', lambda x: f'{x:.4f}')} | {cell('flip_5', lambda x: f'{x:.4f}')} |",
+              f"{cell('flip_1', lambda x: f'{x:.4f}')} | {cell('flip_5', lambda x: f'{x:.4f}')} | "
+              f"{cell('edit_to_frame_ms', lambda x: f'{x:.0f}')} | "
+              f"{cell('edit_to_full_ms', lambda x: f'{x:.0f}')} | "
+              f"{cell('edit_to_denoised_ms', lambda x: f'{x:.0f}')} |",
               flush=True)
         rows.append({
             "scene": name, "view": f"{runs[0]['view'][0]}x{runs[0]['view'][1]}",
@@ -319,6 +342,8 @@ def main():
             "flip_at_1s": round(med("flip_1")[0], 5),
             "flip_at_5s": round(med("flip_5")[0], 5),
             "flip_today_at_5s": round(statistics.median(today_at_5), 5) if today_at_5 else "",
+            "edit_to_frame_ms": round(med("edit_to_frame_ms")[0], 1),
+            "edit_to_denoised_ms": round(med("edit_to_denoised_ms")[0], 1),
             "runs": len(runs),
         })
     if args.csv:

@@ -225,6 +225,9 @@ pub struct Worker {
     denoising: Denoising,
     /// Whether the view changed since the last frame rendered (see [`Worker::drag_paused`]).
     fresh: bool,
+    /// Edits of what is seen applied so far: a frame's statistics carry the count, so that a
+    /// page (or a harness) tells a frame made after its edit from one already on its way.
+    edits: u64,
     /// The named views (bookmarks), saved with the scene.
     views: Vec<ViewDesc>,
     /// Per `[[channel]]` table, whether it is shown (all are at first).
@@ -290,6 +293,7 @@ impl Worker {
                 until_spp: 0,
             },
             fresh: true,
+            edits: 0,
             views,
             channels_visible,
             time,
@@ -603,6 +607,7 @@ impl Worker {
                 | Change::View { .. }
         ) {
             self.preview = true;
+            self.edits += 1;
         }
         match change {
             Change::Camera { camera, moving } => {
@@ -1015,6 +1020,7 @@ impl Worker {
             "type": "stats",
             "frame": report.frame,
             "sequence": self.sequence,
+            "edits": self.edits,
             "spp": self.session.frames_in_image(),
             "target_spp": self.target_spp,
             "width": width,

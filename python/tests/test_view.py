@@ -105,6 +105,10 @@ def test_the_page_renders_and_answers_edits(viewer, browser):
     first = settled(d)
     spread = max(first) - min(first)
     assert spread > 20, f"a blank frame: {first}"
+    # Issue 67, item 9: the page loads without an error in the console (a refused
+    # /favicon.ico was its only one).
+    errors = [e for e in d.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
 
     # A drag orbits the camera.
     ActionChains(d).move_to_element(d.find_element("id", "view")).click_and_hold().move_by_offset(

@@ -22,7 +22,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::Instant;
 use tokio::sync::watch;
-use volume_pt::Scene;
 
 /// The frame channel, and the sequence number of the frame on it: each frame is numbered in
 /// the order its image was rendered, and one older than the frame shown is dropped (a
@@ -88,8 +87,8 @@ pub struct FilterJob {
     pub view: u64,
     pub kind: JobKind,
     pub image: RgbImage,
-    /// The scene's tone map and exposure are read from here when encoding.
-    pub scene: Arc<Scene>,
+    /// The scene's tone map and exposure, for encoding.
+    pub output: volume_pt::scene::OutputDesc,
     /// The frame's statistics; the filter thread adds its own figures.
     pub stats: serde_json::Value,
 }
@@ -271,7 +270,7 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
         match result {
             Ok(image) => {
                 let encode_start = Instant::now();
-                let jpeg = crate::worker::encode(&image, &job.scene);
+                let jpeg = crate::worker::encode(&image, &job.output);
                 let encode_seconds = encode_start.elapsed().as_secs_f64();
                 let mut stats = job.stats;
                 stats["denoise_ms"] = serde_json::Value::from(filter_seconds * 1e3);

@@ -748,13 +748,13 @@ impl Worker {
                     .level_images()
                     .ok_or("level images: the method has no Gaussian cache")?
                     .map_err(|e| e.to_string())?;
-                let scene = self.session.scene().clone();
+                let output = self.session.scene().output;
                 let urls: Vec<String> = images
                     .iter()
                     .map(|img| {
                         format!(
                             "data:image/jpeg;base64,{}",
-                            BASE64.encode(encode(img, &scene))
+                            BASE64.encode(encode(img, &output))
                         )
                     })
                     .collect();
@@ -986,7 +986,7 @@ impl Worker {
             view: self.view,
             kind,
             image,
-            scene: Arc::new(self.session.scene().clone()),
+            output: self.session.scene().output,
             stats,
         });
     }
@@ -1004,7 +1004,7 @@ impl Worker {
     fn raw_frame(&self) -> Frame {
         let start = Instant::now();
         let image = self.shown_image();
-        let jpeg = encode(&image, self.session.scene());
+        let jpeg = encode(&image, &self.session.scene().output);
         let encode_ms = start.elapsed().as_secs_f64() * 1e3;
         let stats = self
             .stats(image.width(), image.height(), 0.0, encode_ms)
@@ -1184,8 +1184,8 @@ pub fn error_json(message: &str) -> String {
 }
 
 /// Tone-maps `image` as the scene's output says and encodes it as JPEG (quality 90).
-pub fn encode(image: &RgbImage, scene: &Scene) -> Vec<u8> {
-    let rgb = hdr_image::tone_map(image.pixels(), scene.output.exposure, scene.output.tonemap);
+pub fn encode(image: &RgbImage, output: &volume_pt::scene::OutputDesc) -> Vec<u8> {
+    let rgb = hdr_image::tone_map(image.pixels(), output.exposure, output.tonemap);
     let mut out = Vec::new();
     let encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 90);
     // The buffer is exactly width x height x 3 by construction; an encoder error would be a bug.

@@ -39,16 +39,13 @@ impl Publisher {
         }
     }
 
-    /// Shows `frame`, rendered as number `sequence`, unless a newer one is shown; true if
-    /// it went out.
-    pub fn publish(&self, sequence: u64, frame: Frame) -> bool {
+    /// Shows `frame`, rendered as number `sequence`, unless a newer one is shown.
+    pub fn publish(&self, sequence: u64, frame: Frame) {
         let mut shown = lock(&self.shown);
-        if sequence < *shown {
-            return false;
+        if sequence >= *shown {
+            *shown = sequence;
+            self.frames.send_replace(Some(Arc::new(frame)));
         }
-        *shown = sequence;
-        self.frames.send_replace(Some(Arc::new(frame)));
-        true
     }
 
     /// Sends the frame shown again (a page that just connected sees it at once).
@@ -98,8 +95,6 @@ pub struct FilterJob {
 pub struct FilterStatus {
     /// Whether a job is waiting or under way.
     pub busy: bool,
-    /// The still view's last image filtered and shown: its view and samples per pixel.
-    pub still_done: Option<(u64, u32)>,
     /// Seconds a preview pixel took to filter and encode, smoothed (0 until measured).
     pub preview_seconds_per_pixel: f64,
     /// Why the filter failed, once it has: denoising is then off.
@@ -155,7 +150,6 @@ impl FilterThread {
     pub fn submit(&self, job: FilterJob) {
         let mut slot = lock(&self.shared.slot);
         slot.waiting = Some(job);
-        slot.status.busy = true;
         self.shared.wake.notify_all();
     }
 
@@ -177,7 +171,6 @@ impl FilterThread {
             // reaches the run recorded as under way and no other.
             self.shared.abort.store(true, Ordering::Relaxed);
         }
-        slot.status.busy = slot.waiting.is_some() || slot.running.is_some();
     }
 
     /// Waits, at most `timeout`, while a preview is waiting or being filtered. The render
@@ -209,7 +202,11 @@ impl FilterThread {
 
     /// What the thread has done.
     pub fn status(&self) -> FilterStatus {
-        lock(&self.shared.slot).status.clone()
+        let slot = lock(&self.shared.slot);
+        FilterStatus {
+            busy: slot.waiting.is_some() || slot.running.is_some(),
+            ..slot.status.clone()
+        }
     }
 }
 
@@ -235,19 +232,16 @@ impl Drop for FilterThread {
 /// the embryo, at half the time. Colour alone guides it: the albedo leaves bright halos near
 /// lights and gains nothing in FLIP on any standard volume, and keeping no guides means
 /// turning the filter on keeps the samples already taken.
-fn options_for(_kind: JobKind) -> Options {
-    Options {
-        quality: Quality::Fast,
-        prefilter: false,
-    }
-}
+const FILTER: Options = Options {
+    quality: Quality::Fast,
+    prefilter: false,
+};
 
 fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Publisher) {
     loop {
         let job = {
             let mut slot = lock(&shared.slot);
             slot.running = None;
-            slot.status.busy = slot.waiting.is_some();
             // A render thread waiting for the preview to be done goes on.
             shared.wake.notify_all();
             let job = loop {
@@ -260,12 +254,11 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
                 slot = shared.wake.wait(slot).unwrap_or_else(|e| e.into_inner());
             };
             slot.running = Some((job.view, job.kind));
-            slot.status.busy = true;
             shared.abort.store(false, Ordering::Relaxed);
             job
         };
         let start = Instant::now();
-        let result = denoiser.denoise(&job.image, None, None, options_for(job.kind));
+        let result = denoiser.denoise(&job.image, None, None, FILTER);
         let filter_seconds = start.elapsed().as_secs_f64();
         match result {
             Ok(image) => {
@@ -282,14 +275,11 @@ fn filter_loop(mut denoiser: denoise::Denoiser, shared: &Shared, publisher: &Pub
                     stats["denoised_spp"] = serde_json::Value::from(spp);
                 }
                 let stats = stats.to_string();
-                let shown = publisher.publish(job.sequence, Frame { jpeg, stats });
-                let mut slot = lock(&shared.slot);
+                publisher.publish(job.sequence, Frame { jpeg, stats });
                 match job.kind {
-                    JobKind::Still { spp } if shown => {
-                        slot.status.still_done = Some((job.view, spp))
-                    }
                     JobKind::Still { .. } => {}
                     JobKind::Preview => {
+                        let mut slot = lock(&shared.slot);
                         let pixels = f64::from(image.width()) * f64::from(image.height());
                         let per_pixel = (filter_seconds + encode_seconds) / pixels;
                         let s = &mut slot.status.preview_seconds_per_pixel;
